@@ -37,7 +37,8 @@ class IdentificationResult:
 
     ``theta`` (p,) estimates; ``std`` (p,) Cramér-Rao standard errors; ``profile`` the a priori
     profile (structure and a priori values); ``fit`` {output: {"rms", "theil"}}; ``info`` method
-    details (iterations, cost history, per-run initial states and zero shifts, ...).
+    details (iterations, cost history, per-run initial states and zero shifts, ...); ``runs`` the
+    runs' sources.
     """
 
     method: str
@@ -47,6 +48,15 @@ class IdentificationResult:
     fit: dict[str, dict[str, float]] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     runs: list[str] = field(default_factory=list)
+    # per run, for plots and residual analysis (not written to JSON): time (N,), measured and
+    # modelled outputs (N, ny) in the order of profile.outputs
+    time: list[np.ndarray] = field(default_factory=list, repr=False)
+    measured: list[np.ndarray] = field(default_factory=list, repr=False)
+    modelled: list[np.ndarray] = field(default_factory=list, repr=False)
+
+    def residuals(self) -> list[np.ndarray]:
+        """Measured minus modelled outputs, (N, ny) per run."""
+        return [z - y for z, y in zip(self.measured, self.modelled)]
 
     @property
     def names(self) -> list[str]:
