@@ -120,12 +120,12 @@ class LinearModel:
     @cached_property
     def C(self) -> np.ndarray:
         s = self._structure
-        return s["Cx"] + s["Cd"] @ self.A
+        return s["Cx"] + np.tensordot(self.theta, s["dCx"], axes=1) + s["Cd"] @ self.A
 
     @cached_property
     def D(self) -> np.ndarray:
         s = self._structure
-        return s["Du"] + s["Cd"] @ self.B
+        return s["Du"] + np.tensordot(self.theta, s["dDu"], axes=1) + s["Cd"] @ self.B
 
     @property
     def dA(self) -> np.ndarray:
@@ -166,21 +166,25 @@ class LinearModel:
 
 def _structure(p: Profile) -> dict[str, np.ndarray]:
     """Constant matrices and parameter tensors of a profile (computed once per model)."""
-    n, m = len(p.states), len(p.inputs)
-    A0, B0 = np.zeros((n, n)), np.zeros((n, m))
-    for name, value in p.fixed.items():
-        _place(p, name, value, A0, B0)
-    dA, dB = np.zeros((len(p.free), n, n)), np.zeros((len(p.free), n, m))
-    for i, name in enumerate(p.free):
-        _place(p, name, 1.0, dA[i], dB[i])
+    n, m, ny, npar = len(p.states), len(p.inputs), len(p.outputs), len(p.free)
     Cx, Cd, Du = _output_matrices(p)
-    return dict(A0=A0, B0=B0, dA=dA, dB=dB, Cx=Cx, Cd=Cd, Du=Du,
-                dC=np.einsum("yn,pnk->pyk", Cd, dA), dD=np.einsum("yn,pnk->pyk", Cd, dB))
+    fixed = {"A": np.zeros((n, n)), "B": np.zeros((n, m)), "C": Cx, "D": Du}
+    for name, value in p.fixed.items():
+        _place(p, name, value, fixed)
+    free = {"A": np.zeros((npar, n, n)), "B": np.zeros((npar, n, m)),
+            "C": np.zeros((npar, ny, n)), "D": np.zeros((npar, ny, m))}
+    for i, name in enumerate(p.free):
+        _place(p, name, 1.0, {k: v[i] for k, v in free.items()})
+    # C = Cx + Cd A: a parameter in A reaches derivative outputs through Cd
+    return dict(A0=fixed["A"], B0=fixed["B"], dA=free["A"], dB=free["B"], Cx=fixed["C"], Cd=Cd, Du=fixed["D"],
+                dCx=free["C"], dDu=free["D"],
+                dC=free["C"] + np.einsum("yn,pnk->pyk", Cd, free["A"]),
+                dD=free["D"] + np.einsum("yn,pnk->pyk", Cd, free["B"]))
 
 
-def _place(p: Profile, name: str, value: float, A: np.ndarray, B: np.ndarray) -> None:
+def _place(p: Profile, name: str, value: float, matrices: dict[str, np.ndarray]) -> None:
     for entry, coeff in p.parameter_entries(name):
-        (A if entry.matrix == "A" else B)[entry.row, entry.col] += coeff * value
+        matrices[entry.matrix][entry.row, entry.col] += coeff * value
 
 
 def _output_matrices(p: Profile):

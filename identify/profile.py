@@ -6,7 +6,9 @@ state's own name. An entry of A is ``<equation>_<state>`` (``M_q``, ``theta_q``)
 ``<equation>_<input>`` (``M_theta_s``). Entries not named are structurally zero. A parameter is
 either *free* (estimated; its value is the a priori guess) or *fixed* (known). A parameter that
 acts on several entries at once (for example ``1/tau`` of an added lag, which appears in A and B
-with opposite signs) is declared in ``[ties]`` as ``name = { entry = coefficient, ... }``.
+with opposite signs) is declared in ``[ties]`` as ``name = { entry = coefficient, ... }``. A tie
+may also act on the output equation: the entry ``"<output>:<state or input>"`` adds to C or D
+(an output scale factor ``k_q = { "q:q" = 1.0 }``, a drift on a time pseudo-input ``"q:t"``).
 
 Outputs are states, state derivatives (``q_dot``) or linear combinations declared in
 ``[output_defs]`` as ``name = { term = coefficient, ... }`` whose terms are states, state
@@ -31,7 +33,8 @@ _KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_def
 
 @dataclass(frozen=True)
 class Entry:
-    """Position of a named derivative: ``matrix`` is ``"A"`` or ``"B"``."""
+    """Position of a named entry: ``matrix`` is ``"A"``, ``"B"`` or, for output-equation
+    entries ``<output>:<term>``, ``"C"`` (a state term) or ``"D"`` (an input term)."""
 
     matrix: str
     row: int
@@ -75,12 +78,17 @@ class Profile:
         return EQUATION_OF_STATE.get(state, state)
 
     def parse_entry(self, name: str) -> Entry:
-        """Locate ``<equation>_<state|input>`` in A or B; raise ProfileError unless unique."""
+        """Locate ``<equation>_<state|input>`` in A or B, or ``<output>:<state|input>`` in C or D;
+        raise ProfileError unless unique."""
+        if ":" in name:
+            return _parse_output_entry(name, self)
         return _parse_entry(name, self.state_names, self.input_names, self.source)
 
     def entry_name(self, matrix: str, row: int, col: int) -> str:
         """Inverse of :meth:`parse_entry`."""
-        cols = self.state_names if matrix == "A" else self.input_names
+        cols = self.state_names if matrix in "AC" else self.input_names
+        if matrix in "CD":
+            return f"{self.outputs[row]}:{cols[col]}"
         return f"{self.equation(self.state_names[row])}_{cols[col]}"
 
     def parameter_entries(self, name: str) -> list[tuple[Entry, float]]:
@@ -242,6 +250,17 @@ def _parse_entry(name: str, states: list[str], inputs: list[str], source: str) -
         raise ProfileError(f"{source}: derivative name '{name}' is ambiguous")
     raise ProfileError(f"{source}: '{name}' names no derivative: expected <equation>_<state or input> "
                        f"with equations {', '.join(equations)}")
+
+
+def _parse_output_entry(name: str, p: Profile) -> Entry:
+    output, _, term = name.partition(":")
+    if output not in p.outputs:
+        raise ProfileError(f"{p.source}: output entry '{name}': '{output}' is not an output")
+    if term in p.states:
+        return Entry("C", p.outputs.index(output), p.state_names.index(term))
+    if term in p.inputs:
+        return Entry("D", p.outputs.index(output), p.input_names.index(term))
+    raise ProfileError(f"{p.source}: output entry '{name}': '{term}' is not a state or input")
 
 
 def _validate(p: Profile) -> None:

@@ -144,3 +144,16 @@ def test_model_command_prints_modes():
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.count("UNSTABLE") == 4  # two pairs, in the full and in the reduced model
     assert "0.3602" in proc.stdout and "0.4997" in proc.stdout
+
+
+def test_output_equation_parameters_scale_and_offset():
+    """Ties may act on C and D: a scale factor on an output, a term from an input channel."""
+    text = GOOD.replace("[fixed]", 'k_q = 0.1\nd_u = 0.5\n[ties]\nk_q = { "q:q" = 1.0 }\nd_u = { "u:theta_s" = 1.0 }\n[fixed]')
+    m = LinearModel(parse_profile(text))
+    assert m.C[1, 1] == pytest.approx(1.1) and m.D[0, 0] == pytest.approx(0.5)
+    i = m.names.index("k_q")
+    np.testing.assert_allclose(m.with_theta(m.theta + np.eye(len(m.theta))[i]).C - m.C, m.dC[i])
+    with pytest.raises(ProfileError, match="'zz' is not an output"):
+        parse_profile(text.replace('"q:q"', '"zz:q"'))
+    with pytest.raises(ProfileError, match="'w' is not a state or input"):
+        parse_profile(text.replace('"q:q"', '"q:w"'))
