@@ -17,3 +17,11 @@ __all__ = ["EstimationError", "ProfileError", "PseudostepError", "RunError", "Si
            "LinearModel", "Mode", "format_modes", "modes_of", "residualize", "Profile", "load_profile",
            "parse_profile", "IdentificationResult", "Run", "read_run", "read_runs",
            "output_sensitivities", "discretize", "simulate", "simulate_run"]
+
+# data processing and equation-error estimators (plots stay in identify.plots: matplotlib is slow to import)
+from .equation_error import IV, LS, state_derivatives  # noqa: E402
+from .matfile import read_mat  # noqa: E402
+from .preprocess import add_derivatives, cg_correction, processing_steps, replay, smooth, smooth_derivative  # noqa: E402
+
+__all__ += ["IV", "LS", "state_derivatives", "read_mat", "add_derivatives", "cg_correction",
+            "processing_steps", "replay", "smooth", "smooth_derivative"]
