@@ -125,8 +125,7 @@ def regressors(model: LinearModel, x: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 def fixed_part(model: LinearModel, x: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Known part (N, n) of the state derivatives: ``A0 x + B0 u`` (gravity, kinematics)."""
-    s = model._structure
-    return x @ s["A0"].T + u @ s["B0"].T
+    return x @ model.A0.T + u @ model.B0.T
 
 
 @dataclass
@@ -260,7 +259,7 @@ def _segment(model: LinearModel, reinit) -> float | None:
 
 def _output_matrices(model: LinearModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """C (ny, n), D (ny, m) and Cd (ny, n), the part of the outputs made of state derivatives."""
-    return model.C, model.D, model._structure["Cd"]
+    return model.C, model.D, model.Cd
 
 
 # -- estimators -------------------------------------------------------------------------------

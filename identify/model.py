@@ -128,6 +128,21 @@ class LinearModel:
         return s["Du"] + np.tensordot(self.theta, s["dDu"], axes=1) + s["Cd"] @ self.B
 
     @property
+    def A0(self) -> np.ndarray:
+        """Fixed part of A (gravity, kinematics), (n, n)."""
+        return self._structure["A0"]
+
+    @property
+    def B0(self) -> np.ndarray:
+        """Fixed part of B, (n, m)."""
+        return self._structure["B0"]
+
+    @property
+    def Cd(self) -> np.ndarray:
+        """(ny, n) weights of the state derivatives in the outputs (``q_dot``, specific forces)."""
+        return self._structure["Cd"]
+
+    @property
     def dA(self) -> np.ndarray:
         return self._structure["dA"]
 
