@@ -25,3 +25,8 @@ from .preprocess import add_derivatives, cg_correction, processing_steps, replay
 
 __all__ += ["IV", "LS", "state_derivatives", "read_mat", "add_derivatives", "cg_correction",
             "processing_steps", "replay", "smooth", "smooth_derivative"]
+
+# output-error maximum likelihood
+from .ml import ML  # noqa: E402
+
+__all__ += ["ML"]
