@@ -2,3 +2,6 @@
 
 The top layer: uses :mod:`signaldesign` (signals) and :mod:`identify` (runs, models).
 """
+import os as _os
+
+_os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")  # no pygame banner on stdout

@@ -1,7 +1,14 @@
 """``python -m cueing``: fly signals on the two-needle display, practise, and run the demo."""
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 from identify.cliutil import Parser, run
+
+from .errors import CueingError
+
+UNATTENDED = ("pilot", "replay", "external")  # sources that need no human: may run on a fake clock
 
 
 def cmd_demo(args) -> int:
@@ -11,6 +18,136 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _signals(path):
+    from signaldesign.signal import load_signals
+    signals = load_signals(path)
+    inputs = [s.input for s in signals]
+    dup = sorted({i for i in inputs if inputs.count(i) > 1})
+    if dup:
+        raise CueingError(f"{path}: several signals on input {', '.join(dup)}: one signal per control axis")
+    return signals
+
+
+def _fly_options(args) -> dict:
+    if args.headless:
+        os.environ["SDL_VIDEODRIVER"] = "dummy"  # off-screen even where a display exists
+    if args.rate <= 0 or args.countdown < 0 or args.tail < 0 or args.preview < 0:
+        raise CueingError("--rate must be positive; --countdown, --tail and --preview must not be negative")
+    if not 0 <= args.skill <= 1:
+        raise CueingError(f"--skill must be between 0 and 1, got {args.skill:g}")
+    if args.fast and args.source.partition(":")[0] not in UNATTENDED:
+        raise CueingError(f"--fast needs a source that flies itself ({', '.join(UNATTENDED)}), "
+                          f"not '{args.source}'")
+    model = None
+    if args.profile:
+        from identify import LinearModel, load_profile
+        model = LinearModel(load_profile(args.profile))
+    return dict(simulate=args.simulate, noise_fraction=args.noise, seed=args.seed, model=model, fast=args.fast,
+                rate=args.rate, countdown=args.countdown, tail=args.tail, preview=args.preview,
+                display="headless" if args.headless else "window", audio=not args.no_audio,
+                screenshot_dir=args.screenshots, screenshot_every=args.screenshot_every,
+                end_screen=0.0 if args.headless else 5.0)
+
+
+def _source(args, skill: float, seed):
+    from .sources import Calibration, make_source
+    try:
+        axes = [int(a) for a in args.axes.split(",")]
+    except ValueError:
+        raise CueingError(f"--axes: comma-separated joystick axis numbers, got '{args.axes}'") from None
+    if not 0 <= args.dead_zone < 1 or (args.full_scale is not None and args.full_scale <= 0):
+        raise CueingError("--dead-zone must be within 0..1 and --full-scale positive")
+    cal = Calibration(dead_zone=args.dead_zone, full_scale=args.full_scale, invert=args.invert)
+    return make_source(args.source, skill=skill, seed=seed, device=args.device, calibration=cal, axes=axes,
+                       rest_seconds=args.calibrate)
+
+
+def cmd_fly(args) -> int:
+    from .session import fly
+    signals = _signals(args.signal)
+    options = _fly_options(args)
+    source = _source(args, args.skill, args.seed)
+    flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
+    print("\n".join(flight.score.lines()[1:]))
+    print(f"run written to {flight.path} ({flight.log.status}); frame log {flight.log.path}")
+    return 0
+
+
+def cmd_practice(args) -> int:
+    from .history import append_attempt, format_history, history_path, load_history
+    from .session import fly
+    signals = _signals(args.signal)
+    options = _fly_options(args)
+    if args.attempts < 1 or not 0 <= args.learn <= 1:
+        raise CueingError(f"--attempts must be at least 1 and --learn within 0..1")
+    history_path(args.pilot, args.history_dir)  # a bad pilot name fails before anything is flown
+    out_dir = Path(args.out_dir)
+    first = None
+    for i in range(args.attempts):
+        skill = 1 - (1 - args.skill) * (1 - args.learn) ** i  # the simulated pilot learns towards 1
+        source = _source(args, skill, None if args.seed is None else args.seed + i)
+        opts = dict(options, seed=None if args.seed is None else args.seed + i)
+        flight = fly(signals, source, out_dir / f"{args.pilot}_attempt{i + 1:02d}.csv", pilot=args.pilot, **opts)
+        record = {k: v for k, v in flight.score.to_dict().items() if k != "per_axis"}
+        record.update(signal=flight.run.meta.get("signal", ""), source=source.describe(), run=str(flight.path),
+                      status=flight.log.status)
+        append_attempt(args.pilot, record, args.history_dir)
+        first = first if first is not None else len(load_history(args.pilot, args.history_dir)) - 1
+    print(format_history(load_history(args.pilot, args.history_dir)[first:]))
+    return 0
+
+
+def cmd_history(args) -> int:
+    from .history import format_history, load_history, plot_learning_curve
+    records = load_history(args.pilot, args.history_dir)
+    print(format_history(records))
+    path = plot_learning_curve(args.pilot, records, args.plot or f"{args.pilot}_learning_curve.png")
+    print(f"learning curve written to {path}")
+    return 0
+
+
+def cmd_recover(args) -> int:
+    from .flightlog import log_to_run, read_frame_log
+    from .session import simulate_test_point
+    log = read_frame_log(args.log)
+    run_ = log_to_run(log)
+    if args.simulate:
+        run_ = simulate_test_point(run_, args.simulate, args.noise, args.seed)
+    run_.to_csv(args.out)
+    print(f"{log.status}: {len(run_)} samples ({run_.duration:.2f} s) written to {args.out}")
+    return 0
+
+
+def _add_fly_arguments(p) -> None:
+    p.add_argument("--signal", required=True, help="signal JSON file (as signaldesign writes it)")
+    p.add_argument("--source", default="mouse",
+                   help="joystick, mouse, keyboard, pilot (simulated), replay:RUN.csv or external:MODULE:FUNCTION "
+                        "(default: mouse)")
+    p.add_argument("--preview", type=float, nargs="?", const=3.0, default=0.0, metavar="SECONDS",
+                   help="show the next SECONDS of the sequence (default 3 when given)")
+    p.add_argument("--headless", action="store_true", help="off-screen display (no window)")
+    p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input")
+    p.add_argument("--noise", type=float, default=0.02, help="measurement noise fraction for --simulate (0.02)")
+    p.add_argument("--profile", metavar="PROFILE", help="model for the information score (default: --simulate's)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (simulated pilot, noise)")
+    p.add_argument("--skill", type=float, default=0.5, help="simulated pilot's skill, 0..1 (0.5)")
+    p.add_argument("--pilot", help="pilot name (metadata, practice history)")
+    p.add_argument("--device", type=int, default=0, help="joystick device index (0)")
+    p.add_argument("--axes", default="1,0", help="joystick axis per signal axis (1,0: fore-aft, then lateral)")
+    p.add_argument("--dead-zone", type=float, default=0.05, help="joystick dead zone, fraction of travel (0.05)")
+    p.add_argument("--full-scale", type=float, help="control units at full stick (default 1.5 x amplitude)")
+    p.add_argument("--invert", action="store_true", help="reverse the joystick axes")
+    p.add_argument("--calibrate", type=float, default=0.0, metavar="S",
+                   help="measure the stick's centre and dead zone at rest for S seconds first")
+    p.add_argument("--rate", type=float, default=60.0, help="frame rate in Hz (60)")
+    p.add_argument("--countdown", type=float, default=3.0, help="seconds of countdown (3)")
+    p.add_argument("--tail", type=float, default=1.0, help="seconds logged after the sequence (1)")
+    p.add_argument("--no-audio", action="store_true", help="no ticks at level changes")
+    p.add_argument("--screenshots", metavar="DIR", help="save PNG screenshots here")
+    p.add_argument("--screenshot-every", type=float, metavar="S", help="seconds between screenshots")
+    p.add_argument("--fast", action="store_true", help="no waiting (fake clock): simulated or replayed sources only")
+
+
 def build_parser() -> Parser:
     parser = Parser(prog="cueing", description="Two-needle pilot cueing display for flight-test inputs.")
     sub = parser.add_subparsers(title="commands")
@@ -18,6 +155,34 @@ def build_parser() -> Parser:
     p.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     p.add_argument("--profile", default="s61_hover_8state", help="profile path or bundled name")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("fly", help="fly one run on the two-needle display")
+    _add_fly_arguments(p)
+    p.add_argument("--out", required=True, help="run file to write (the frame log grows beside it)")
+    p.set_defaults(func=cmd_fly)
+
+    p = sub.add_parser("practice", help="fly a signal several times, score each attempt, keep the history")
+    _add_fly_arguments(p)
+    p.add_argument("--attempts", type=int, default=3, help="number of attempts (3)")
+    p.add_argument("--learn", type=float, default=0.3,
+                   help="simulated pilot: fraction of the remaining skill gap closed per attempt (0.3)")
+    p.add_argument("--history-dir", help="practice history folder (default $PSEUDOSTEP_HISTORY or ~/.pseudostep/practice)")
+    p.add_argument("--out-dir", default="practice", help="folder for the attempts' run files (practice)")
+    p.set_defaults(func=cmd_practice)
+
+    p = sub.add_parser("history", help="show a pilot's learning curve")
+    p.add_argument("pilot", help="pilot name")
+    p.add_argument("--history-dir", help="practice history folder")
+    p.add_argument("--plot", metavar="PNG", help="learning-curve image (default PILOT_learning_curve.png)")
+    p.set_defaults(func=cmd_history)
+
+    p = sub.add_parser("recover", help="turn a frame log (also of a killed run) into a run file")
+    p.add_argument("log", help="frame log (*.frames.csv)")
+    p.add_argument("--out", required=True, help="run file to write")
+    p.add_argument("--simulate", metavar="PROFILE", help="add this profile's simulated response")
+    p.add_argument("--noise", type=float, default=0.02)
+    p.add_argument("--seed", type=int, default=None)
+    p.set_defaults(func=cmd_recover)
     return parser
 
 

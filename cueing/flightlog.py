@@ -1,0 +1,231 @@
+"""Crash-safe frame logs, and their conversion to the project's uniform run files.
+
+A frame log is a CSV in the run-file style: ``# key: value`` metadata lines, a header row, then one
+row per displayed frame, appended and flushed to the operating system as it happens, so a run
+killed at any moment keeps everything up to its last frame; a background thread calls
+``os.fsync`` every ``SYNC_INTERVAL`` s (off the frame loop, whose timing a slow disk must not
+disturb), so a power loss loses at most that much. Events (device lost, pause, resume) are ``# event: t: text``
+lines between the rows, and a finished run ends with ``# end: completed`` or ``# end: aborted
+(reason)``; a log without an end line was killed and reads as aborted.
+
+Columns: ``frame``; ``time`` (s, clock time since the sequence start, negative during the
+countdown); ``t_signal`` (s, signal time: stops while paused); ``paused`` (0/1); and per axis
+``<input>_cmd`` (what the command needle showed) and ``<input>`` (the flown control deflection).
+"""
+from __future__ import annotations
+
+import json
+import os
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from identify.runs import Run
+from signaldesign.signal import Signal
+
+from .errors import CueingError
+
+FORMAT = "pseudostep-frame-log/1"
+SYNC_INTERVAL = 0.1  # s between fsyncs: the most a power loss can cost
+CMD = "_cmd"
+
+
+def frame_log_path(out: str | Path) -> Path:
+    """The frame log written beside a run file ``out``: ``run.csv`` -> ``run.frames.csv``."""
+    out = Path(out)
+    return out.with_name(out.stem + ".frames.csv")
+
+
+def log_columns(inputs: list[str]) -> list[str]:
+    cols = ["frame", "time", "t_signal", "paused"]
+    for name in inputs:
+        cols += [name + CMD, name]
+    return cols
+
+
+class FrameLogWriter:
+    """Append-only frame log: ``open(meta)``, ``frame(...)`` per frame, ``event``, ``close(status)``.
+
+    Every write is flushed to the OS at once; ``fsyncs`` counts the syncs to disk, made every
+    ``sync_interval`` s by a background thread and at every event and at the end.
+    """
+
+    def __init__(self, path: str | Path, inputs: list[str], sync_interval: float = SYNC_INTERVAL):
+        self.path = Path(path)
+        self.inputs = list(inputs)
+        self.sync_interval = sync_interval
+        self._file = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = None
+        self.fsyncs = 0
+        self.closed_status: str | None = None
+
+    def open(self, meta: dict) -> "FrameLogWriter":
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "w", buffering=1 << 16)
+        except OSError as exc:
+            raise CueingError(f"{self.path}: cannot write the frame log ({exc.strerror or exc})") from None
+        self._file.write(f"# format: {FORMAT}\n")
+        for key, value in meta.items():
+            self._file.write(f"# {key}: {' '.join(str(value).split())}\n")
+        self._file.write(",".join(log_columns(self.inputs)) + "\n")
+        self._sync()
+        self._thread = threading.Thread(target=self._sync_loop, name="frame-log-fsync", daemon=True)
+        self._thread.start()
+        return self
+
+    def frame(self, k: int, t: float, t_signal: float, paused: bool, command, flown) -> None:
+        """Append one frame (``command``, ``flown``: (n_axes,) control units) and flush it."""
+        cells = [str(k), f"{t:.6f}", f"{t_signal:.6f}", "1" if paused else "0"]
+        for c, u in zip(command, flown):
+            cells += [f"{c:.9g}", f"{u:.9g}"]
+        with self._lock:
+            self._file.write(",".join(cells) + "\n")
+            self._file.flush()
+
+    def event(self, t: float, text: str) -> None:
+        with self._lock:
+            self._file.write(f"# event: {t:.6f}: {' '.join(text.split())}\n")
+        self._sync()
+
+    def close(self, status: str = "completed") -> None:
+        if self._file is None or self._file.closed:
+            return
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.closed_status = status
+        with self._lock:
+            self._file.write(f"# end: {status}\n")
+        self._sync()
+        self._file.close()
+
+    def _sync_loop(self) -> None:
+        while not self._stop.wait(self.sync_interval):
+            self._sync()
+
+    def _sync(self) -> None:
+        with self._lock:
+            if self._file.closed:
+                return
+            self._file.flush()
+            fd = self._file.fileno()
+        os.fsync(fd)  # outside the lock: the frame loop never waits for the disk
+        self.fsyncs += 1
+
+
+@dataclass
+class FrameLog:
+    """A frame log read back: ``meta``, ``columns`` {name: (F,) array}, ``events`` [(t, text)],
+    ``status`` (``completed`` or ``aborted ...``)."""
+
+    path: Path
+    meta: dict[str, str]
+    columns: dict[str, np.ndarray]
+    events: list[tuple[float, str]] = field(default_factory=list)
+    status: str = "completed"
+
+    @property
+    def aborted(self) -> bool:
+        return not self.status.startswith("completed")
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.columns["time"]
+
+    @property
+    def inputs(self) -> list[str]:
+        return [c[:-len(CMD)] for c in self.columns if c.endswith(CMD)]
+
+    def signals(self) -> list[Signal]:
+        """The signals flown, from the log's own metadata (the log is self-contained)."""
+        try:
+            return [Signal.from_dict(d, str(self.path)) for d in json.loads(self.meta["signals_json"])]
+        except (KeyError, json.JSONDecodeError):
+            raise CueingError(f"{self.path}: frame log lacks its signals (signals_json)") from None
+
+    def frame_stats(self, rate: float | None = None) -> dict[str, float]:
+        """Frame count, achieved rate (Hz) and frame-interval statistics (s) over the whole log."""
+        rate = rate or float(self.meta.get("frame_rate", 60))
+        steps = np.diff(self.time)
+        if steps.size == 0:
+            return {"frames": float(self.time.size)}
+        return {"frames": float(self.time.size), "rate_nominal": rate,
+                "rate_achieved": float(steps.size / (self.time[-1] - self.time[0])),
+                "interval_std": float(np.std(steps)), "interval_max": float(np.max(steps)),
+                "late_frames": float(np.sum(steps > 1.5 / rate))}
+
+
+def read_frame_log(path: str | Path) -> FrameLog:
+    """Read a frame log, even one cut off mid-line by a kill; one CueingError if it is unusable."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CueingError(f"{path}: cannot read frame log ({exc.strerror or exc})") from None
+    meta, events, rows, header, status = {}, [], [], None, None
+    lines = text.split("\n")
+    complete = lines[:-1]  # the part after the last newline is a row the kill cut short
+    for line in complete:
+        if line.startswith("# event:"):
+            t, _, what = line[len("# event:"):].strip().partition(": ")
+            events.append((float(t), what))
+        elif line.startswith("# end:"):
+            status = line[len("# end:"):].strip()
+        elif line.startswith("#"):
+            if header is None:
+                key, _, value = line[1:].partition(":")
+                meta[key.strip()] = value.strip()
+        elif header is None:
+            header = line.strip().split(",")
+        elif line.strip():
+            rows.append(line)
+    if meta.get("format") != FORMAT or header is None:
+        raise CueingError(f"{path}: not a pseudostep frame log")
+    if not rows:
+        raise CueingError(f"{path}: frame log holds no frames")
+    data = np.array([r.split(",") for r in rows if r.count(",") == len(header) - 1], dtype=float)
+    columns = {name: data[:, j] for j, name in enumerate(header)}
+    if status is None:
+        status = "aborted (log ends without an end line: the process was killed)"
+    return FrameLog(path, meta, columns, events, status)
+
+
+def log_to_run(log: FrameLog, sample_rate: float | None = None, signals: list[Signal] | None = None) -> Run:
+    """Resample a frame log onto a uniform grid from the sequence start: the project's run format.
+
+    Commanded channels ``<input>_cmd`` are the signal evaluated at the (interpolated) signal time
+    of each grid instant; flown channels ``<input>`` hold each frame's deflection until the next
+    frame (the stick was sampled once per frame). A run that paused also gets a ``t_signal``
+    channel (signal time, s), since its time axis then runs ahead of the signal.
+    """
+    signals = signals or log.signals()
+    rate = sample_rate or float(log.meta.get("frame_rate", 60))
+    t, ts = log.columns["time"], log.columns["t_signal"]
+    keep = t >= 0
+    if keep.sum() < 2:
+        raise CueingError(f"{log.path}: fewer than two frames after the sequence start")
+    t_end = t[keep][-1]
+    grid = np.arange(int(np.floor(t_end * rate + 1e-9)) + 1) / rate
+    if grid.size < 2:
+        raise CueingError(f"{log.path}: the flown part is shorter than one sample")
+    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)
+    t_sig = np.interp(grid, t, ts)
+    channels: dict[str, np.ndarray] = {}
+    for name in log.inputs:
+        channels[name + CMD] = sum((s(t_sig) for s in signals if s.input == name), np.zeros(grid.size))
+        channels[name] = log.columns[name][idx]
+    if np.any(log.columns["paused"][keep]):  # signal time no longer equals run time: keep it
+        channels["t_signal"] = t_sig
+    stats = log.frame_stats()
+    meta = {k: v for k, v in log.meta.items() if k not in ("format", "signals_json")}
+    meta.update({"status": log.status, "sample_rate": f"{rate:g} Hz",
+                 "frame_stats": ", ".join(f"{k} {v:.6g}" for k, v in stats.items()),
+                 "signals_json": log.meta.get("signals_json", "")})
+    if log.events:
+        meta["events"] = "; ".join(f"{t:.3f} s {what}" for t, what in log.events)
+    return Run(grid, channels, meta, source=str(log.path))

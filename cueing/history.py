@@ -1,0 +1,104 @@
+"""Practice history per pilot (JSON lines) and the learning curve."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CueingError
+
+ENV = "PSEUDOSTEP_HISTORY"
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+def history_dir(directory=None) -> Path:
+    """``directory``, else ``$PSEUDOSTEP_HISTORY``, else ``~/.pseudostep/practice``."""
+    return Path(directory or os.environ.get(ENV) or Path.home() / ".pseudostep" / "practice")
+
+
+def history_path(pilot: str, directory=None) -> Path:
+    if not _NAME.match(pilot or ""):
+        raise CueingError(f"pilot name '{pilot}': use letters, digits, '-', '_' or '.' only")
+    return history_dir(directory) / f"{pilot}.jsonl"
+
+
+def append_attempt(pilot: str, record: dict, directory=None) -> Path:
+    """Append one scored attempt (``record``: score dict plus signal, source, run) to the history."""
+    path = history_path(pilot, directory)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    record = {"when": time.strftime("%Y-%m-%dT%H:%M:%S"), **record}
+    with open(path, "a") as f:
+        f.write(json.dumps(record, default=_jsonable) + "\n")
+    return path
+
+
+def load_history(pilot: str, directory=None) -> list[dict]:
+    path = history_path(pilot, directory)
+    if not path.is_file():
+        raise CueingError(f"no practice history for pilot '{pilot}' ({path} does not exist)")
+    records = []
+    for n, line in enumerate(path.read_text().splitlines(), start=1):
+        if line.strip():
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                raise CueingError(f"{path}: line {n}: not a JSON record") from None
+    if not records:
+        raise CueingError(f"{path}: holds no attempts")
+    return records
+
+
+def format_history(records: list[dict]) -> str:
+    rows = [f"{'#':>3}  {'when':19}  {'RMS %':>6}  {'timing ms':>9}  {'level+ %':>8}  {'level- %':>8}  "
+            f"{'fidelity':>8}  {'info %':>6}  signal"]
+    for i, r in enumerate(records, start=1):
+        d = r.get("d_efficiency")
+        rows.append(f"{i:3d}  {r.get('when', ''):19}  {100 * r['rms']:6.1f}  {1000 * _num(r['timing_mean']):+9.0f}  "
+                    f"{100 * _num(r['level_error_pos']):+8.1f}  {100 * _num(r['level_error_neg']):+8.1f}  "
+                    f"{_num(r['spectral_fidelity']):8.3f}  {'' if d is None else f'{100 * d:6.1f}':>6}  "
+                    f"{r.get('signal', '')}")
+    return "\n".join(rows)
+
+
+def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
+    """Learning curve PNG: RMS error, switch timing error and information retained per attempt."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = np.arange(1, len(records) + 1)
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 7))
+    axes[0].plot(n, [100 * r["rms"] for r in records], "o-")
+    axes[0].set_ylabel("RMS error [% amp.]")
+    axes[1].plot(n, [1000 * abs(_num(r["timing_mean"])) for r in records], "o-", label="|mean|")
+    axes[1].plot(n, [1000 * _num(r["timing_std"]) for r in records], "s--", label="std")
+    axes[1].set_ylabel("switch timing [ms]")
+    axes[1].legend()
+    d = [r.get("d_efficiency") for r in records]
+    axes[2].plot(n, [np.nan if v is None else 100 * v for v in d], "o-")
+    axes[2].set_ylabel("information [%]")
+    axes[2].set_xlabel("attempt")
+    axes[0].set_title(f"practice history: {pilot}")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _num(v) -> float:
+    return np.nan if v is None else float(v)
+
+
+def _jsonable(v):
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(f"not JSON serialisable: {type(v).__name__}")

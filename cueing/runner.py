@@ -1,0 +1,216 @@
+"""The frame loop: clock -> signal -> source -> log -> display, one pass per frame.
+
+The signal is evaluated from the clock (``t_signal`` = clock time since the sequence start, minus
+time spent paused), never from a frame count. Frames are scheduled on a grid anchored at the
+sequence start; a late frame is shown late but with the command due at its own time stamp, and
+missed grid slots are skipped, not made up. Every frame is appended to the crash-safe log before
+it is drawn.
+"""
+from __future__ import annotations
+
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from .audio import Ticker
+from .clock import MonotonicClock
+from .display import Display, FrameState
+from .errors import CueingError
+from .flightlog import FrameLogWriter, read_frame_log
+from .sources import InputSource, MouseSource
+
+DEFAULT_RATE = 60.0  # Hz
+WINDOW = "window"
+HEADLESS = "headless"
+
+
+class Runner:
+    """Flies ``signals`` with ``source``, logging every frame to ``log_path``.
+
+    ``clock``: object with ``now()``, ``sleep_until(t)``, ``unix_offset()`` (default: the monotonic
+    clock); ``rate``: frame rate (Hz); ``countdown``: s before the sequence starts; ``tail``: s
+    logged after the sequence ends; ``preview``: s of preview strip (0: none); ``display``: None
+    (no drawing), ``"headless"`` (off-screen Surface) or ``"window"``; ``events``: callable
+    returning pending pygame events (default ``pygame.event.get`` whenever pygame's display is
+    up); ``screenshot_every``: s between PNG screenshots written to ``screenshot_dir``.
+    After :meth:`fly`, ``log_`` is the frame log read back and ``render_times_`` the per-frame
+    drawing times (s).
+    """
+
+    def __init__(self, signals, source: InputSource, log_path, *, clock=None, rate: float = DEFAULT_RATE,
+                 countdown: float = 3.0, tail: float = 1.0, preview: float = 0.0, display: str | None = None,
+                 audio: bool = True, events=None, meta: dict | None = None, size=(800, 480),
+                 screenshot_dir=None, screenshot_every: float | None = None, end_screen: float = 0.0):
+        self.signals = list(signals)
+        self.source = source
+        self.log_path = Path(log_path)
+        self.clock = clock or MonotonicClock()
+        self.rate = float(rate)
+        self.countdown = float(countdown)
+        self.tail = float(tail)
+        self.preview = float(preview)
+        self.display_mode = display
+        self.audio = audio
+        self.events = events
+        self.meta = dict(meta or {})
+        self.size = size
+        self.screenshot_dir = Path(screenshot_dir) if screenshot_dir else None
+        self.screenshot_every = screenshot_every
+        self.end_screen = end_screen
+        self.inputs = [s.input for s in self.signals]
+        self.t_end = max(s.end_time for s in self.signals) + self.tail
+
+    # -- setup ----------------------------------------------------------------------------------
+    def _setup_display(self):
+        self.display = None
+        self.surface = None
+        self.window = None
+        if self.display_mode is None:
+            return
+        import pygame
+        try:
+            pygame.display.init()
+            pygame.font.init()
+            if self.display_mode == WINDOW:
+                self.window = pygame.display.set_mode(self.size)
+        except pygame.error as exc:
+            raise CueingError(f"cannot open a display window ({exc}): use --headless") from None
+        self.display = Display(self.signals, self.size, self.preview)
+        if self.display_mode == WINDOW:
+            pygame.display.set_caption("pseudostep cueing")
+            self.surface = self.window
+        else:
+            self.surface = pygame.Surface(self.size)
+        if isinstance(self.source, MouseSource) and self.source.value_of_x is None:
+            self.source.value_of_x = self.display.value_of_x
+
+    def _pending_events(self):
+        if self.events is not None:
+            return self.events()
+        import pygame
+        return pygame.event.get() if pygame.display.get_init() else []
+
+    def _log_meta(self, t0: float) -> dict:
+        meta = {"signal": ", ".join(f"{s.kind} on {s.input} (step {s.dt:g} s, amplitude {s.amplitude:g})"
+                                    for s in self.signals),
+                "source": self.source.describe(), "frame_rate": f"{self.rate:g}",
+                "countdown": f"{self.countdown:g}", "preview": f"{self.preview:g}",
+                "clock_epoch_unix": f"{t0 + self.clock.unix_offset():.6f}", "host": platform.node()}
+        meta["pilot"] = "(unnamed)"
+        meta.update(self.meta)
+        meta["signals_json"] = json.dumps([s.to_dict() for s in self.signals], separators=(",", ":"))
+        return meta
+
+    # -- the loop -------------------------------------------------------------------------------
+    def fly(self, score_lines=None):
+        """Fly one run; returns the frame log read back. ``score_lines(log) -> [str]`` fills the
+        end-of-run screen. A closed window or Escape ends the run early, marked aborted."""
+        self._setup_display()
+        self.ticker = Ticker(self.audio)
+        self.source.start(self.signals, self.preview > 0)
+        t0 = self.clock.now() + self.countdown  # the sequence starts here
+        writer = FrameLogWriter(self.log_path, self.inputs)
+        writer.open(self._log_meta(t0))
+        self.render_times_: list[float] = []
+        status = "completed"
+        try:
+            status = self._loop(writer, t0)
+        except KeyboardInterrupt:
+            writer.close("aborted (interrupted)")
+            raise
+        except BaseException as exc:
+            writer.close(f"aborted (error: {exc})")
+            raise
+        writer.close(status)
+        self.log_ = read_frame_log(self.log_path)
+        if self.display is not None:
+            self._show_end(score_lines(self.log_) if score_lines else [f"run {status}"])
+        self.source.close()
+        return self.log_
+
+    def _loop(self, writer: FrameLogWriter, t0: float) -> str:
+        k, paused_total, pause_start, last_levels = 0, 0.0, None, None
+        next_shot = 0.0
+        while True:
+            now = self.clock.now()
+            t = now - t0
+            for event in self._pending_events():
+                quit_reason = _quit_reason(event)
+                if quit_reason:
+                    writer.event(t, quit_reason)
+                    return f"aborted ({quit_reason})"
+                message = self.source.handle_event(event)
+                if message:
+                    writer.event(t, message)
+            paused = self.source.paused_reason is not None
+            if paused and pause_start is None:
+                pause_start = t
+            elif not paused and pause_start is not None:
+                paused_total += t - pause_start
+                pause_start = None
+            t_signal = (pause_start if paused else t) - paused_total
+            command = np.array([s(t_signal) for s in self.signals])
+            flown = self.source.read(t_signal)
+            levels = tuple(float(s.level_at(t_signal)) for s in self.signals)
+            if last_levels is not None and levels != last_levels:
+                self.ticker.tick()
+            last_levels = levels
+            writer.frame(k, t, t_signal, paused, command, flown)
+            if self.display is not None:
+                state = FrameState(t, t_signal, command, flown, countdown=-t if t < 0 else None,
+                                   message=self.source.paused_reason)
+                r0 = self.clock.now()
+                self.display.render(self.surface, state)
+                if self.window is not None:
+                    import pygame
+                    pygame.display.flip()
+                self.render_times_.append(self.clock.now() - r0)
+                if self.screenshot_every and self.screenshot_dir and t >= next_shot:
+                    self.screenshot(f"frame_{k:05d}.png")
+                    next_shot = t + self.screenshot_every
+            if t_signal >= self.t_end:
+                return "completed"
+            k += 1
+            # next slot on the grid anchored at t0, after the present: late frames skip slots
+            slot = np.floor((self.clock.now() - t0) * self.rate + 1e-9) + 1
+            self.clock.sleep_until(t0 + slot / self.rate)
+
+    def screenshot(self, name: str) -> Path | None:
+        """Save the current frame as PNG in ``screenshot_dir``."""
+        if self.surface is None or self.screenshot_dir is None:
+            return None
+        import pygame
+        self.screenshot_dir.mkdir(parents=True, exist_ok=True)
+        path = self.screenshot_dir / name
+        pygame.image.save(self.surface, str(path))
+        return path
+
+    def _show_end(self, lines: list[str]) -> None:
+        log = self.log_
+        last = log.columns
+        n = len(self.signals)
+        state = FrameState(float(log.time[-1]), float(last["t_signal"][-1]),
+                           np.array([last[i + "_cmd"][-1] for i in self.inputs]).reshape(n),
+                           np.array([last[i][-1] for i in self.inputs]).reshape(n), end_lines=lines)
+        self.display.render(self.surface, state)
+        if self.screenshot_dir is not None:
+            self.screenshot("end.png")
+        if self.window is not None:
+            import pygame
+            pygame.display.flip()
+            deadline = self.clock.now() + self.end_screen
+            while self.clock.now() < deadline:
+                if any(e.type in (pygame.QUIT, pygame.KEYDOWN) for e in self._pending_events()):
+                    break
+                self.clock.sleep_until(self.clock.now() + 0.05)
+
+
+def _quit_reason(event) -> str | None:
+    import pygame
+    if event.type == pygame.QUIT:
+        return "window closed"
+    if event.type == pygame.KEYDOWN and event.key == pygame.K_ESCAPE:
+        return "pilot pressed Escape"
+    return None

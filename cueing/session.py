@@ -1,0 +1,93 @@
+"""One flown run end to end: fly, turn the frame log into a run file, simulate the aircraft, score."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from identify import LinearModel, load_profile, simulate_run
+from identify.runs import Run
+
+from .clock import FakeClock
+from .errors import CueingError
+from .flightlog import CMD, FrameLog, frame_log_path, log_to_run
+from .runner import Runner
+from .scoring import Score, score_run
+
+
+@dataclass
+class Flight:
+    """A flown run: the frame ``log``, the uniform ``run`` (written to ``path``), its ``score`` and
+    the ``runner`` that flew it (render times, screenshots)."""
+
+    log: FrameLog
+    run: Run
+    path: Path
+    score: Score
+    runner: Runner | None = None
+
+
+def simulate_test_point(run: Run, profile, noise_fraction: float = 0.02, seed: int | None = None) -> Run:
+    """Drive ``profile``'s model with the run's flown inputs; add every response channel.
+
+    Profile inputs the run does not hold are zero (the pilot held them still).
+    """
+    model = profile if isinstance(profile, LinearModel) else LinearModel(load_profile(profile))
+    p = model.profile
+    flown = [c for c in run.channels if c + CMD in run.channels]
+    unknown = [c for c in flown if c not in p.input_names]
+    if unknown:
+        raise CueingError(f"profile '{p.name}' has no input {', '.join(unknown)} "
+                          f"(its inputs: {', '.join(p.input_names)})")
+    u = np.column_stack([run.channels.get(name, np.zeros(len(run))) for name in p.input_names])
+    sim = simulate_run(model, run.time, u, noise_fraction=noise_fraction, seed=seed,
+                       meta={**run.meta, "source_of_response": "simulation"})
+    extra = {c: v for c, v in run.channels.items() if c not in sim.channels}
+    return Run(sim.time, {**sim.channels, **extra}, {**run.meta, **sim.meta,
+                                                   "simulated_profile": p.name}, source=run.source)
+
+
+def fly(signals, source, out, *, simulate=None, noise_fraction: float = 0.02, seed: int | None = None,
+        model=None, fast: bool = False, pilot: str = "", **runner_options) -> Flight:
+    """Fly ``signals`` with ``source``; write the run file ``out`` (frame log beside it).
+
+    ``simulate``: profile (name, path or LinearModel) whose response is added; ``model``: model for
+    the information-retained score (default: the simulated one); ``fast``: fake clock, no waiting
+    (only for sources that need no human).
+    """
+    out = Path(out)
+    sim_model = None
+    if simulate is not None:
+        sim_model = simulate if isinstance(simulate, LinearModel) else LinearModel(load_profile(simulate))
+    model = model if model is not None else sim_model
+    if fast:
+        runner_options["clock"] = FakeClock()
+    runner = Runner(signals, source, frame_log_path(out), meta={"pilot": pilot or "(unnamed)"},
+                    **runner_options)
+    holder = {}
+
+    def end_lines(log):
+        holder["flight"] = _finish(log, signals, out, sim_model, noise_fraction, seed, model)
+        lines = holder["flight"].score.lines()
+        lines[0] = f"Run {'complete' if not log.aborted else log.status} - score"
+        return lines
+
+    log = runner.fly(score_lines=end_lines)
+    if "flight" not in holder:  # no display: nothing asked for the score yet
+        holder["flight"] = _finish(log, signals, out, sim_model, noise_fraction, seed, model)
+    flight = holder["flight"]
+    flight.runner = runner
+    return flight
+
+
+def _finish(log, signals, out, sim_model, noise_fraction, seed, model) -> Flight:
+    run = log_to_run(log, signals=signals)
+    if sim_model is not None:
+        run = simulate_test_point(run, sim_model, noise_fraction, seed)
+    score = score_run(run, signals, model)
+    run = run.with_channels({}, score=", ".join(f"{k} {v:.4g}" for k, v in score.to_dict().items()
+                                                if isinstance(v, (int, float)) and v is not None))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    run.to_csv(out)
+    return Flight(log, run, out, score)
