@@ -38,3 +38,53 @@ def d_efficiency(M: np.ndarray, M_ref: np.ndarray) -> float:
 def cramer_rao_std(M: np.ndarray) -> np.ndarray:
     """Cramér-Rao standard errors sqrt(diag(M^-1))."""
     return np.sqrt(np.diag(np.linalg.pinv(M)))
+
+
+# Assumed measurement noise (1 sigma) per unit: typical flight-test sensor levels after
+# anti-alias filtering. One place, printed by the command line, overridable per output.
+DEFAULT_NOISE_BY_UNIT = {
+    "rad": 0.0035,  # 0.2 deg attitude / rotor tilt
+    "rad/s": 0.0035,  # 0.2 deg/s rate gyro
+    "rad/s^2": 0.02,  # differentiated rates
+    "m/s": 0.2,  # airspeed components near hover are poorly measured
+    "m/s^2": 0.05,  # accelerometers after smoothing
+}
+_FALLBACK_NOISE = 0.01
+
+
+def output_units(profile) -> dict[str, str]:
+    """Unit of every output: a state's unit, ``<unit>/s`` for a state derivative (``rad/s/s`` is
+    written ``rad/s^2``), and for a defined output the unit of its first derivative or state term."""
+    units = {}
+    for y in profile.outputs:
+        terms = [t for t, c in profile.output_terms(y).items() if c and t not in profile.inputs]
+        derivs = [t for t in terms if t.endswith("_dot") and t[:-4] in profile.states]
+        term = (derivs or terms or [y])[0]
+        if term in profile.states:
+            units[y] = profile.states[term]
+        elif term.endswith("_dot") and term[:-4] in profile.states:
+            base = profile.states[term[:-4]]
+            units[y] = base[:-2] + "/s^2" if base.endswith("/s") else base + "/s"
+        else:
+            units[y] = "?"
+    return units
+
+
+def default_noise(profile, overrides: dict[str, float] | None = None) -> np.ndarray:
+    """Measurement noise standard deviation (ny,) per output from :data:`DEFAULT_NOISE_BY_UNIT`."""
+    units = output_units(profile)
+    overrides = overrides or {}
+    return np.array([overrides.get(y, DEFAULT_NOISE_BY_UNIT.get(units[y], _FALLBACK_NOISE))
+                     for y in profile.outputs])
+
+
+def format_noise(profile, noise_std) -> str:
+    """One line listing the assumed noise per output, for printing alongside results."""
+    units = output_units(profile)
+    return "assumed noise (1 sigma): " + ", ".join(
+        f"{y} {s:g} {units[y]}" for y, s in zip(profile.outputs, noise_std))
+
+
+def relative_cramer_rao(M: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Cramér-Rao standard errors relative to the parameter values |theta| (p,)."""
+    return cramer_rao_std(M) / np.maximum(np.abs(theta), 1e-12)

@@ -1,0 +1,93 @@
+"""Tuned baseline signals at a given duration and amplitude, and the comparison table the
+``design`` and ``compare`` commands and the benchmark print.
+
+Baselines are tuned on the a priori model the same way the optimised sequence is: the pulse
+width of each doublet, 3211 and PRTS is the one (on the time-step grid, within the duration)
+that maximises log det of the Fisher information. The multisine spans the harmonics of
+2 pi / duration up to twice the required band's top (at least three). Several axes get the same
+signal type at once (the paper's "combined input"): doublets and 3211s with their widths tuned
+jointly per axis (identical signals on two axes cannot separate the axes' control derivatives),
+orthogonal multisines, and a PRTS rotated by a third of its period on the second axis.
+"""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from .baselines import doublet, m3211, multisine, orthogonal_multisines, prts
+from .evaluate import DesignError, Evaluator, tune_width
+
+
+def _grid(lo: float, hi: float, dt: float) -> np.ndarray:
+    i0, i1 = max(int(np.ceil(lo / dt - 1e-9)), 1), int(np.floor(hi / dt + 1e-9))
+    return np.round(np.arange(i0, i1 + 1) * dt, 10)
+
+
+def _on_axes(factory, inputs, amplitude):
+    """Signals of one type on every axis from one width per axis (or one width for all)."""
+    amps = np.broadcast_to(np.asarray(amplitude, float), (len(inputs),))
+
+    def build(w):
+        widths = np.broadcast_to(np.asarray(w, float), (len(inputs),))
+        return [factory(float(wi), a, name) for wi, name, a in zip(widths, inputs, amps)]
+    return build
+
+
+def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400):
+    """Best widths: one per axis tuned jointly on a coarsened grid when there are several axes
+    (identical signals on two axes cannot tell their control derivatives apart), else the grid."""
+    build = _on_axes(factory, inputs, amplitude)
+    if len(inputs) == 1:
+        sigs, w = tune_width(build, widths, ev)
+        return sigs, f"{w:g}"
+    step = max(1, int(np.ceil(widths.size / max_pairs ** (1 / len(inputs)))))
+    coarse = widths[::step]
+    combos = [tuple(c) for c in itertools.product(coarse, repeat=len(inputs))]
+    sigs, w = tune_width(build, combos, ev)
+    return sigs, "/".join(f"{x:g}" for x in w)
+
+
+def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float | None = None,
+                    prts_order: int = 3) -> list[tuple[str, list]]:
+    """[(label, signals)] for the best doublet, best 3211, the multisine and the best PRTS."""
+    dt, inputs = ev.dt, ev.inputs
+    out = []
+    widths = _grid(min(0.1, duration / 2), duration / 2, dt)
+    if widths.size:
+        sigs, w = _tune(doublet, widths, ev, inputs, amplitude)
+        out.append((f"doublet, best width {w} s", sigs))
+    widths = _grid(min(0.1, duration / 7), duration / 7, dt)
+    if widths.size:
+        sigs, w = _tune(m3211, widths, ev, inputs, amplitude)
+        out.append((f"3211, best width {w} s", sigs))
+    w0 = 2 * np.pi / duration
+    top = max(3.05 * w0, 2 * band_high if band_high else 0.0)
+    if len(inputs) == 1:
+        ms = [multisine(duration, (0.0, top), float(np.atleast_1d(amplitude)[0]), inputs[0], dt)]
+    else:
+        ms = orthogonal_multisines(inputs, duration, (0.0, max(top, (len(inputs) * 3 + 0.05) * w0)), amplitude, dt)
+    out.append((f"multisine {len(ms[0].params['harmonics'])} harmonics", ms))
+    period = 3 ** prts_order - 1
+    widths = _grid(dt, duration / period, dt)
+    if widths.size:
+        def factory(w, a, name):
+            return prts(period * w, prts_order, a, name)
+
+        def on_axes(w):
+            sigs = _on_axes(factory, inputs, amplitude)(w)
+            # decorrelate the axes by rotating the period (not by half of it: over GF(3) that is
+            # the negated sequence, perfectly anti-correlated)
+            for k, s in enumerate(sigs[1:], start=1):
+                s.levels = np.roll(s.levels, k * (period // 3))
+            return sigs
+        sigs, w = tune_width(on_axes, widths, ev)
+        out.append((f"PRTS {period} steps, best width {w:g} s", sigs))
+    if not any(label.startswith("3211") for label, _ in out):
+        raise DesignError(f"duration {duration:g} s is too short for a 3211 on a {dt:g} s grid")
+    return out
+
+
+def reference_of(baselines) -> list:
+    """The best 3211: the reference every D-efficiency and peak ratio is relative to."""
+    return next(s for label, s in baselines if label.startswith("3211"))
