@@ -39,6 +39,7 @@ def build_parser() -> Parser:
     p.add_argument("--save-reduced", metavar="TOML", help="write the reduced profile here")
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
+    _add_refine_parser(sub)
     return parser
 
 
@@ -97,6 +98,53 @@ def _add_estimate_parser(sub) -> None:
                    help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
                         '"matrix": ..., "dt": ...} as a file or inline JSON')
     p.set_defaults(func=cmd_estimate)
+
+
+def cmd_refine(args) -> int:
+    """Fit, find what the residuals say the model lacks, add it, re-identify; write the evidence."""
+    from .candidates import KINDS
+    from .refine import Refine
+    from .refine_report import write
+    from .runs import read_run
+
+    kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+    refiner = Refine(args.profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
+                     zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
+                     tau_max=args.tau_max)
+    refiner.fit([read_run(f) for f in args.runs], validate=[read_run(f) for f in args.validate or []])
+    out = write(refiner, args.out)
+    if refiner.nothing_found:
+        print("nothing found: no candidate effect is significant")
+    for i, s in enumerate(refiner.steps_, start=1):
+        params = ", ".join(f"{k} = {v['value']:.5g} ± {v['std']:.2g}" for k, v in s.parameters.items())
+        print(f"step {i}: {s.effect} on {s.target}: {params} (score {s.statistic:.4g} > {s.threshold:.4g})")
+    for s in refiner.rejected_:
+        print(f"rejected: {s.effect} on {s.target}: {s.reason}")
+    for where in refiner.error_before_:
+        print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
+              f"{refiner.error_after_[where]['overall']:.4g}")
+    print(f"written to {out}: refine.json, report.md, final_profile.toml")
+    return 0
+
+
+def _add_refine_parser(sub) -> None:
+    p = sub.add_parser("refine", help="find unmodelled effects in the residuals, add them, re-identify")
+    p.add_argument("runs", nargs="+", help="run files (.csv) to fit")
+    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
+    p.add_argument("--method", choices=("ml", "ls", "iv"), default="ml", help="estimator (default ml)")
+    p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
+                   "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
+    p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    p.add_argument("--max-steps", type=int, default=6, help="effects added at most (default 6)")
+    p.add_argument("--no-zero-shifts", action="store_true",
+                   help="do not estimate per-run output zero shifts (then a common bias is a candidate)")
+    p.add_argument("--frequency", type=float, action="append", metavar="HZ",
+                   help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
+    p.add_argument("--f-min", type=float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
+    p.add_argument("--tau-max", type=float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
+    p.set_defaults(func=cmd_refine)
 
 
 def main(argv=None) -> int:
