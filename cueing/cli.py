@@ -13,7 +13,7 @@ UNATTENDED = ("pilot", "replay", "external")  # sources that need no human: may 
 
 def cmd_demo(args) -> int:
     from .demo import run_demo
-    report = run_demo(args.out, args.profile)
+    report = run_demo(args.out, args.profile, quick=args.quick)
     print(f"demo written to {report.parent}/ (open {report})")
     return 0
 
@@ -154,6 +154,7 @@ def build_parser() -> Parser:
     p = sub.add_parser("demo", help="run the whole pipeline on the default profile, without a window")
     p.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
     p.add_argument("--profile", default="s61_hover_8state", help="profile path or bundled name")
+    p.add_argument("--quick", action="store_true", help="reduced size (shorter runs, shorter search)")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("fly", help="fly one run on the two-needle display")

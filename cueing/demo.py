@@ -1,61 +1,258 @@
 """The whole job on the bundled default profile, without a window: ``make demo``.
 
-Design -> fly -> identify, as far as the pipeline exists. Each stage writes into one output folder
-and ``report.md`` links what it wrote.
+1. design: optimised three-level sequences for both cyclics from the a priori model;
+2. fly: a simulated pilot flies each through the off-screen two-needle display (every frame
+   logged), and the flown stick drives the "real aircraft" — a truth that differs from the a priori
+   model and has a control-system time delay the a priori profile does not declare;
+3. identify: LS, IV and ML from the two logged runs;
+4. refine: the residuals are traced to the undeclared effect, which is added and re-identified,
+   checked on a third (validation) run;
+5. report: ``report.md`` with the figures, in one folder.
 """
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from identify import LinearModel, format_modes, load_profile, residualize, simulate_run
-from signaldesign import Signal, save_signals
+from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, simulate_run
+from identify.plots import plot_residuals, plot_time_histories
+from identify.refine import Refine
+from identify.refine_report import write as write_refine
+from signaldesign import save_signals
+from signaldesign.baselines import m3211
+from signaldesign.design import SequenceDesign
+from signaldesign.spectrum import half_power_band, plot_signals
+
+from .session import fly
+from .sources import PilotSource
 
 DEFAULT_PROFILE = "s61_hover_8state"
+AMPLITUDE = 0.01  # rad of cyclic: keeps the unstable S 61 within small perturbations over 20 s
+DELAY = 0.10  # s: the truth's control-system delay, not in the a priori profile
+NOISE = 0.03  # measurement noise, fraction of each response channel's standard deviation
+PERTURBATION = 0.15  # the real aircraft's derivatives differ from the a priori ones by up to this
 
 
-def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, seed: int = 1) -> Path:
-    """Run the pipeline into ``out``; return the path of its report."""
+@dataclass
+class Size:
+    """How big the demo is: the full one, or the reduced one the tests run."""
+
+    record: float = 20.0  # s per run
+    duration: float = 7.0  # s of designed input
+    n_iter: int = 3000  # annealing iterations per width
+    frame_rate: float = 50.0  # Hz display and log rate
+
+
+FULL, QUICK = Size(), Size(record=12.0, duration=5.0, n_iter=400, frame_rate=30.0)
+
+
+def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = False, seed: int = 1,
+             say=print) -> Path:
+    """Run the pipeline into ``out``; return the path of its ``report.md``."""
+    import os
+
     import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    for var in ("SDL_VIDEODRIVER", "SDL_AUDIODRIVER"):  # no window, no sound: the display is off-screen
+        os.environ.setdefault(var, "dummy")
+    size = QUICK if quick else FULL
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    truth = LinearModel(load_profile(profile))
-    reduced = residualize(truth, ["theta_R", "phi_R"]) if "theta_R" in truth.profile.states else None
-    report = [f"# pseudostep demo: {truth.profile.name}", "", "## A priori model", "", "```",
-              format_modes(truth.modes()), "```"]
-    if reduced is not None:
-        report += ["", "4-DOF reduction (rotor tilt instantaneous):", "", "```",
-                   format_modes(LinearModel(reduced).modes()), "```"]
+    t0 = time.perf_counter()
+    apriori = LinearModel(load_profile(profile))
+    truth = _real_aircraft(apriori, seed)
+    report = _intro(apriori, truth)
 
-    signal = Signal(kind="doublet", input=truth.profile.input_names[0], dt=2.0, levels=[1, -1],
-                    amplitude=0.02, delay=1.0, params={"width": 2.0})
-    save_signals(signal, out / "signal.json")
-    dt, t_end = 0.01, 20.0
-    time = np.arange(int(round(t_end / dt)) + 1) * dt
-    u = np.zeros((time.size, truth.n_inputs))
-    u[:, 0] = signal(time)
-    run = simulate_run(truth, time, u, noise_fraction=0.02, seed=seed,
-                       meta={"signal": "doublet 2 s", "pilot": "exact"})
-    run.to_csv(out / "run_simulated.csv")
+    say("1/5 designing the input signals ...")
+    designs = _design(apriori, size, seed)
+    report += _design_section(designs, out)
 
-    fig, axes = plt.subplots(len(truth.profile.outputs) + 1, 1, sharex=True, figsize=(8, 12))
-    axes[0].step(time, u[:, 0], where="post")
-    axes[0].set_ylabel(truth.profile.input_names[0])
-    for ax, y in zip(axes[1:], truth.profile.outputs):
-        ax.plot(time, run[y], lw=0.8)
-        ax.set_ylabel(y)
-    axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(out / "time_history.png", dpi=80)
-    plt.close(fig)
-    report += ["", "## Simulated test point", "",
-               f"Doublet on `{signal.input}` (2 s, amplitude {signal.amplitude} rad), 20 s at 100 Hz, "
-               "2 % measurement noise: [`run_simulated.csv`](run_simulated.csv).", "",
-               "![time history](time_history.png)"]
+    say("2/5 flying them with the simulated pilot (off-screen display) ...")
+    fit_runs, flights = [], []
+    for i, design in enumerate(designs):
+        frames = out / f"display_frames_{i + 1}"
+        flight = fly(design.signals_, PilotSource(skill=0.6, seed=seed + i), out / f"flown_{i + 1}.csv",
+                     model=apriori, fast=True, pilot="simulated pilot", display="headless", audio=False,
+                     preview=2.0, rate=size.frame_rate, countdown=1.0,
+                     tail=size.record - design.duration - 1.0, screenshot_dir=frames, screenshot_every=1.0)
+        flights.append(flight)
+        fit_runs.append(_response(truth, flight.run, seed + 10 + i))
+        fit_runs[-1].to_csv(out / f"testpoint_{i + 1}.csv")
+    validation = _validation_run(truth, size, seed)
+    validation.to_csv(out / "testpoint_validation.csv")
+    report += _fly_section(flights, out)
+
+    say("3/5 identifying with LS, IV and ML ...")
+    results = {name: est(apriori.profile).fit(fit_runs).result_ for name, est in
+               (("LS", LS), ("IV", IV), ("ML", ML))}
+    report += _identify_section(results, truth, out)
+
+    say("4/5 refining: tracing the residuals to what the model lacks ...")
+    refiner = Refine(apriori.profile).fit(fit_runs, validate=[validation])
+    write_refine(refiner, out / "refine")
+    report += _refine_section(refiner, truth, out)
+
+    report += ["", f"Total run time: {time.perf_counter() - t0:.0f} s."]
+    say("5/5 writing the report ...")
     path = out / "report.md"
     path.write_text("\n".join(report) + "\n")
     return path
+
+
+# -- the truth ------------------------------------------------------------------------------------
+def _real_aircraft(apriori: LinearModel, seed: int) -> LinearModel:
+    """The aircraft flown: every free derivative off its a priori value by up to PERTURBATION."""
+    rng = np.random.default_rng(seed)
+    return apriori.with_theta(apriori.theta * rng.uniform(1 - PERTURBATION, 1 + PERTURBATION, apriori.theta.size))
+
+
+def _response(truth: LinearModel, flown: Run, seed: int) -> Run:
+    """The measured run: the stick as flown, the aircraft's response to it DELAY s later, noise.
+
+    State derivatives are not measured (no such sensors): LS and IV differentiate the rates.
+    """
+    p = truth.profile
+    dt = flown.dt
+    stick = np.column_stack([flown.channels.get(name, np.zeros(len(flown))) for name in p.input_names])
+    shift = int(round(DELAY / dt))
+    if abs(shift * dt - DELAY) > 1e-6 * DELAY:  # the truth's delay must be what the report says
+        raise ValueError(f"the {DELAY} s delay is not a whole number of {dt:g} s samples")
+    delayed = np.vstack([np.zeros((shift, stick.shape[1])), stick[:-shift]])
+    sim = simulate_run(truth, flown.time, delayed, noise_fraction=NOISE, seed=seed)
+    channels = {name: stick[:, j] for j, name in enumerate(p.input_names)}
+    channels.update({y: sim[y] for y in p.outputs})
+    channels.update({k: v for k, v in flown.channels.items() if k.endswith("_cmd")})
+    meta = {**flown.meta, "truth": "a priori derivatives perturbed, plus a control delay",
+            "noise_fraction": str(NOISE)}
+    return Run(flown.time, channels, meta, source=str(flown.meta.get("out", "flown run")))
+
+
+def _validation_run(truth: LinearModel, size: Size, seed: int) -> Run:
+    """A held-out run: 3211s on both cyclics, staggered, flown exactly."""
+    p = truth.profile
+    dt = 1.0 / size.frame_rate
+    time_ = np.arange(int(round(size.record / dt)) + 1) * dt
+    width = size.duration / 7
+    u = np.column_stack([m3211(width, AMPLITUDE, name, delay=1.0 + 2.0 * j)(time_)
+                         for j, name in enumerate(p.input_names)])
+    stick = Run(time_, {name: u[:, j] for j, name in enumerate(p.input_names)}, {"signal": "3211 on each cyclic"},
+                source="validation run")
+    return _response(truth, stick, seed + 99)
+
+
+# -- stages -------------------------------------------------------------------------------------
+def _design(apriori: LinearModel, size: Size, seed: int) -> list[SequenceDesign]:
+    return [SequenceDesign(inputs=name, duration=size.duration, record=size.record, amplitude=AMPLITUDE,
+                           delay=1.0, n_iter=size.n_iter, seed=seed).fit(apriori)
+            for name in apriori.profile.input_names]
+
+
+def _intro(apriori: LinearModel, truth: LinearModel) -> list[str]:
+    return ["# pseudostep demo", "",
+            f"A priori model: **{apriori.profile.name}**. The aircraft actually flown (the truth of this "
+            f"simulation) has every free derivative off its a priori value by up to {PERTURBATION:.0%} and a "
+            f"{DELAY * 1000:.0f} ms control-system delay on both cyclics that the a priori profile does not "
+            f"declare. Measurement noise {NOISE:.0%} of each response channel's standard deviation.", "",
+            "A priori modes:", "", "```", format_modes(apriori.modes()), "```"]
+
+
+def _design_section(designs: list[SequenceDesign], out: Path) -> list[str]:
+    signals = [s for d in designs for s in d.signals_]
+    save_signals(signals, out / "signals.json")
+    plot_signals(signals, out / "signals.png", title="designed inputs and their energy spectra")
+    lines = ["", "## 1. Design", "",
+             "Optimised three-level sequences (D-optimal for the a priori model, 20 s record), one per "
+             "cyclic: [`signals.json`](signals.json).", "",
+             "| input | step width [s] | steps | half-power band [rad/s] | design time [s] |",
+             "| --- | --- | --- | --- | --- |"]
+    for d, s in zip(designs, signals):
+        lo, hi, _ = half_power_band(s)
+        lines.append(f"| {s.input} | {d.width_:.2f} | {s.levels.size} | {lo:.2f} – {hi:.2f} | {d.seconds_:.1f} |")
+    return lines + ["", "![designed signals](signals.png)"]
+
+
+def _fly_section(flights, out: Path) -> list[str]:
+    import shutil
+
+    import matplotlib.pyplot as plt
+    shots = sorted((out / "display_frames_1").glob("*.png"))
+    if shots:  # one frame a few seconds into the sequence: both needles deflected
+        shutil.copy(shots[min(4, len(shots) - 1)], out / "display.png")
+    fig, axes = plt.subplots(len(flights), 1, figsize=(8, 2.4 * len(flights)), sharex=True, squeeze=False)
+    lines = ["", "## 2. Flight (simulated pilot, off-screen two-needle display)", "",
+             "![the display during the first run](display.png)", "",
+             "| run | RMS tracking error [% of amplitude] | switch timing [ms, mean ± std] | "
+             "information retained (D-efficiency) |", "| --- | --- | --- | --- |"]
+    for ax, flight in zip(axes[:, 0], flights):
+        name = flight.log.inputs[0]
+        ax.plot(flight.run.time, flight.run[name + "_cmd"], label="designed", lw=1.2)
+        ax.plot(flight.run.time, flight.run[name], label="flown", lw=0.9)
+        ax.set_ylabel(f"{name} [rad]")
+        ax.legend(loc="upper right", fontsize=8)
+        sc = flight.score
+        eff = "n/a" if sc.d_efficiency is None else f"{sc.d_efficiency:.3f}"
+        lines.append(f"| `{flight.path.name}` | {100 * sc.rms:.1f} | {1000 * sc.timing_mean:+.0f} ± "
+                     f"{1000 * sc.timing_std:.0f} | {eff} |")
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(out / "flown_vs_designed.png", dpi=80)
+    plt.close(fig)
+    return lines + ["", "![flown vs designed](flown_vs_designed.png)"]
+
+
+def _identify_section(results: dict, truth: LinearModel, out: Path) -> list[str]:
+    plot_time_histories(results["ML"], out / "time_history_ml.png", run=0)
+    plot_residuals(results["ML"], out / "residuals_ml.png")
+    names = truth.names
+    lines = ["", "## 3. Identification (declared model, two runs)", "",
+             "| parameter | a priori | truth | " + " | ".join(f"{m} (± CR std)" for m in results) + " |",
+             "| --- | --- | --- | " + " | ".join("---" for _ in results) + " |"]
+    apriori = dict(zip(names, next(iter(results.values())).apriori))
+    for i, n in enumerate(names):
+        cells = [f"{r.theta[i]:.4g} ± {r.std[i]:.2g}" for r in results.values()]
+        lines.append(f"| `{n}` | {apriori[n]:.4g} | {truth.theta[i]:.4g} | " + " | ".join(cells) + " |")
+    lines.append("| average relative error vs truth | " + _avg_err(np.array(list(apriori.values())), truth.theta)
+                 + " | | " + " | ".join(_avg_err(r.theta, truth.theta) for r in results.values()) + " |")
+    return lines + ["", "![ML time histories](time_history_ml.png)", "", "![ML residuals](residuals_ml.png)"]
+
+
+def _avg_err(estimate: np.ndarray, truth: np.ndarray) -> str:
+    return f"{np.mean(np.abs((estimate - truth) / truth)):.1%}"
+
+
+def _refined_parameters(refiner: Refine, truth: LinearModel) -> list[str]:
+    """Average error of the aircraft's derivatives before and after refinement (ML both)."""
+    def err(result):
+        est = dict(zip(result.names, result.theta))
+        return _avg_err(np.array([est[n] for n in truth.names]), truth.theta)
+    return ["", f"Average relative error of the {len(truth.names)} derivatives against the truth (ML): "
+                f"declared model {err(refiner.initial_result_)}, refined model {err(refiner.result_)}."]
+
+
+def _refine_section(refiner: Refine, truth: LinearModel, out: Path) -> list[str]:
+    lines = ["", "## 4. Closing the loop", ""]
+    if refiner.nothing_found:
+        lines.append("Nothing found: no candidate effect is significant.")
+    for i, s in enumerate(refiner.steps_, start=1):
+        params = ", ".join(f"`{k}` = {v['value']:.4g} ± {v['std']:.2g}" for k, v in s.parameters.items())
+        lines.append(f"- step {i}: **{s.effect}** on `{s.target}`: {params} "
+                     f"(score {s.statistic:.4g} > threshold {s.threshold:.4g})")
+    for s in refiner.rejected_:
+        lines.append(f"- rejected: {s.effect} on `{s.target}`: {s.reason}")
+    lines += ["", f"The truth's delay is {DELAY:g} s on each cyclic (estimates within 3 standard errors of it "
+                  "confirm the step)."]
+    lines += _refined_parameters(refiner, truth)
+    lines += ["",
+              "| error (normalised RMS, all outputs) | before | after |", "| --- | --- | --- |"]
+    for where in refiner.error_before_:
+        lines.append(f"| {where} runs | {refiner.error_before_[where]['overall']:.4g} | "
+                     f"{refiner.error_after_[where]['overall']:.4g} |")
+    figures = sorted(p.name for p in (out / "refine").glob("*.png"))
+    lines += ["", "Full evidence: [`refine/report.md`](refine/report.md), "
+              "[`refine/refine.json`](refine/refine.json), final model "
+              "[`refine/final_profile.toml`](refine/final_profile.toml).", ""]
+    lines += [f"![{name}](refine/{name})" for name in figures]
+    return lines

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -112,9 +113,16 @@ def evaluate(profile: Profile, runs: list[Run], zero_shifts: bool = True, segmen
         z = run.matrix(list(profile.outputs))
         segs = segments(len(run), run.dt, segment)
         y, _, nuis = run_design(model, u, run.dt, segs, zero_shifts=zero_shifts, sensitivities=False)
-        X = nuis.reshape(-1, nuis.shape[2])
-        beta, *_ = np.linalg.lstsq(X, (z - y).ravel(), rcond=None)
-        y = y + (X @ beta).reshape(z.shape)
+        # weighted as ML weights them: outputs in different units and noise levels must not let
+        # the largest numbers (m/s) set the initial states at the expense of the rest (rad);
+        # weights from the channels' spread first, then relaxed once to the residuals' RMS
+        w = 1.0 / np.maximum(z.std(axis=0), 1e-12)
+        for _ in range(2):
+            X = (nuis * w[None, :, None]).reshape(-1, nuis.shape[2])
+            beta, *_ = np.linalg.lstsq(X, ((z - y) * w).ravel(), rcond=None)
+            fitted = y + (nuis.reshape(-1, nuis.shape[2]) @ beta).reshape(z.shape)
+            w = 1.0 / np.maximum(np.sqrt(np.mean((z - fitted) ** 2, axis=0)), 1e-12 * np.max(1 / w))
+        y = fitted
         res.append(z - y)
         mod.append(y)
         x0s.append(beta[:n * len(segs)].reshape(len(segs), n))
@@ -321,7 +329,10 @@ class Refine:
         cls = self.estimator or estimator_class(self.method)
         options = dict(self.estimator_options)
         if self.estimator is None and self.method == "ml":
-            options.setdefault("estimate_bias", self.zero_shifts)  # the same nuisance as the score test
+            # the same nuisance and the same segments as the score test and the evaluations, so
+            # that likelihoods before and after a step compare
+            options.setdefault("estimate_bias", self.zero_shifts)
+            options.setdefault("segment", getattr(self, "segment_", None))
         return cls(profile, **options).fit(runs).result_
 
     def _eval(self, p: Profile, runs: list[Run] | None = None) -> Evaluation:
@@ -534,15 +545,20 @@ class Refine:
 
 
     def _search_delay(self, nll_at, best_tau0: float, dt: float) -> float:
-        """Minimise the profile likelihood over tau in [0, tau_max]: successive parabolas through
-        three ML re-fits, started from the score test's linearised estimate ``best_tau0``."""
+        """Minimise the profile likelihood over tau in [0, tau_max]: a coarse grid first (the
+        score test's linearised estimate ``best_tau0`` is only good for small delays, and the
+        profile likelihood of a large one is not quadratic from 0), then successive parabolas
+        through three ML re-fits around the best grid point."""
         f = lambda t: nll_at(float(np.clip(t, 0.0, self.tau_max)))[0]  # noqa: E731
-        tau = float(np.clip(best_tau0, dt, self.tau_max))
-        h = max(dt, 0.25 * tau)
+        grid = np.unique(np.clip(np.r_[np.linspace(0.0, self.tau_max, 11), best_tau0], 0.0, self.tau_max))
+        tau = float(min(grid, key=f))
+        h = max(dt, 0.5 * self.tau_max / 10)
         for _ in range(6):
             pts = np.clip([tau - h, tau, tau + h], 0.0, self.tau_max)
             vals = [f(t) for t in pts]
-            a, b, _ = np.polyfit(pts, vals, 2)
+            with warnings.catch_warnings():  # repeated points at the bounds: the fallback handles it
+                warnings.simplefilter("ignore", np.exceptions.RankWarning)
+                a, b, _ = np.polyfit(pts, vals, 2)
             new = -b / (2 * a) if a > 0 else pts[int(np.argmin(vals))]
             new = float(np.clip(new, max(tau - 2 * h, 0.0), min(tau + 2 * h, self.tau_max)))
             done = abs(new - tau) < dt / 100  # well inside the statistical error of any usable delay
