@@ -27,8 +27,11 @@ correlated with the true states but not with the measurement noise, which remove
 errors-in-variables bias. For an unstable model (the S 61 in hover) a simulation over a whole run
 drifts away from the data, and instruments that no longer resemble the states make ``Z^T X``
 ill-conditioned; so by default (``reinit="auto"``) the simulation restarts from the measured state
-every doubling time of the fastest unstable mode of the starting model (at least 1 s), which bounds the drift to about a
-factor two while keeping the instruments noise-free between restarts.
+every half doubling time of the fastest unstable mode of the starting model (1 to 5 s, as ML's
+multiple shooting cuts its segments), which bounds the drift while keeping the instruments
+noise-free between restarts. Should a later estimate be so much more unstable that even this
+diverges, the interval is halved for the rest of the iteration (never lengthened, so the
+iteration cannot cycle between two instrument sets).
 """
 from __future__ import annotations
 
@@ -43,6 +46,7 @@ from .preprocess import processing_steps, smooth_derivative
 from .profile import DOT, Profile
 from .result import IdentificationResult, fit_metrics
 from .runs import Run
+from .shooting import auto_segment
 from .simulate import discretize, propagate
 
 DEFAULT_DIFF_CUTOFF_HZ = 6.25
@@ -225,12 +229,6 @@ def _solve(X_blocks, y_blocks, Z_blocks, names):
 
 
 # -- simulation for instruments and modelled outputs ------------------------------------------
-def doubling_time(model: LinearModel) -> float:
-    """Time to double of the fastest-growing mode (inf for a stable model), s."""
-    growth = max((m.eigenvalue.real for m in model.modes()), default=-1.0)
-    return np.log(2) / growth if growth > 0 else np.inf
-
-
 def simulate_states(model: LinearModel, u: np.ndarray, dt: float, x_meas: np.ndarray, bias: np.ndarray,
                     segment: float | None) -> np.ndarray:
     """States (N, n) simulated with constant forcing ``bias`` (n,), restarted from the measured
@@ -248,12 +246,13 @@ def simulate_states(model: LinearModel, u: np.ndarray, dt: float, x_meas: np.nda
     return x
 
 
-def _segment(model: LinearModel, reinit) -> float | None:
+def _segment(model: LinearModel, reinit, duration: float) -> float | None:
+    """Restart interval (s) of simulations over runs up to ``duration`` s; None: no restarts."""
     if reinit is None:
         return None
     if reinit == "auto":
-        t2 = doubling_time(model)
-        return None if not np.isfinite(t2) else max(t2, MIN_SEGMENT_S)
+        seg = auto_segment(model, duration)
+        return None if not np.isfinite(seg) else seg
     return float(reinit)
 
 
@@ -366,7 +365,8 @@ class _EquationError(Estimator):
         except SimulationError:
             ys, drift = None, True
         if drift:
-            segment = _segment(model, "auto" if self.reinit is None else self.reinit) or MIN_SEGMENT_S
+            longest = max(d.run.duration for d in data)
+            segment = _segment(model, "auto" if self.reinit is None else self.reinit, longest) or MIN_SEGMENT_S
             ys = outputs(self._simulate(model, data, biases, segment))
             how = f"simulation restarted from the measured states every {segment:.3g} s (plain one drifts)"
         return measured, ys, how
@@ -443,14 +443,20 @@ class IV(_EquationError):
         history, converged = [], False
         # restart interval fixed from the starting model: letting it follow each estimate can make
         # the iteration cycle between two instrument sets instead of converging
-        segment = _segment(self.model_.with_theta(theta), self.reinit)
+        longest = max(d.run.duration for d in data)
+        segment = _segment(self.model_.with_theta(theta), self.reinit, longest)
+        dt = min(d.run.dt for d in data)
         for it in range(1, self.max_iter + 1):
             model = self.model_.with_theta(theta)
-            try:
-                Z = self._simulate(model, data, biases, segment)
-            except SimulationError:
-                raise EstimationError(f"IV: the instrument simulation diverged at iteration {it}; "
-                                      f"use reinit=<seconds> or shorter runs") from None
+            while True:
+                try:
+                    Z = self._simulate(model, data, biases, segment)
+                    break
+                except SimulationError:
+                    segment = 0.5 * (longest if segment is None else segment)
+                    if segment < 5 * dt:
+                        raise EstimationError(f"IV: the instrument simulation diverged at iteration {it} "
+                                              f"even when restarted every {2 * segment:.3g} s") from None
             new, cc, cw, biases, rstd = self._estimate(data, Z)
             change = float(np.max(np.abs(new - theta) / np.maximum(np.abs(new), 1e-3)))
             theta = new

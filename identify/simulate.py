@@ -90,11 +90,12 @@ def simulate(model: LinearModel, u: np.ndarray, dt: float, x0=None, w: np.ndarra
 def simulate_run(model: LinearModel, time: np.ndarray, u: np.ndarray, x0=None, *,
                  noise: dict[str, float] | None = None, noise_fraction: float = 0.0,
                  bias: dict[str, float] | None = None, process_noise: float | np.ndarray = 0.0,
-                 seed: int | None = None, meta: dict | None = None) -> Run:
+                 seed: int | None = None, meta: dict | None = None, derivatives: bool = True) -> Run:
     """A run simulated from a known truth, with optional measurement errors.
 
-    The run holds the inputs, every state, every state derivative (``<state>_dot``) and every
-    defined output. ``noise`` gives absolute white-noise standard deviations per channel;
+    The run holds the inputs, every state, every state derivative (``<state>_dot``; leave them out
+    with ``derivatives=False`` to imitate a flight without such sensors, so that equation error
+    differentiates the rates) and every defined output. ``noise`` gives absolute white-noise standard deviations per channel;
     ``noise_fraction`` adds noise of that fraction of each non-input channel's standard deviation;
     ``bias`` adds constant offsets; ``process_noise`` is the standard deviation (scalar or per
     state) of a white disturbance on the state derivatives. Inputs stay exact unless named in
@@ -111,7 +112,8 @@ def simulate_run(model: LinearModel, time: np.ndarray, u: np.ndarray, x0=None, *
     sim = simulate(model, u, dt, x0, w)
     channels = {name: u[:, j] for j, name in enumerate(p.input_names)}
     channels.update({s: sim.x[:, j] for j, s in enumerate(p.state_names)})
-    channels.update({s + DOT: sim.xdot[:, j] for j, s in enumerate(p.state_names)})
+    if derivatives:
+        channels.update({s + DOT: sim.xdot[:, j] for j, s in enumerate(p.state_names)})
     channels.update({y: sim.y[:, j] for j, y in enumerate(p.outputs)})
     inputs = set(p.input_names)
     for name in list(channels):

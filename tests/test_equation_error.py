@@ -212,6 +212,18 @@ def test_iv_reports_progress_and_converges_from_a_poor_a_priori_model(s61, s61_r
     assert info["converged"] and len(calls) == info["iterations"] >= 1
     assert calls[-1][1] < 1e-9
     assert relative_error(est.theta_, s61.theta).max() < 5e-7
+
+
+def test_iv_shortens_the_restart_interval_when_an_estimate_diverges(s61, s61_run_20s):
+    """A start far more unstable than the data: instruments restarted every 20 s would diverge
+    (a rotor mode growing at 10 1/s), so the interval is halved until they do not, and IV still
+    converges."""
+    wild = s61.theta.copy()
+    wild[s61.names.index("theta_R_theta_R")] *= -1
+    profile = s61.with_theta(wild).to_profile()
+    est = IV(profile, reinit=20.0, start="apriori").fit(s61_run_20s)
+    assert est.result_.info["instrument_segment_s"] < 20.0
+    assert relative_error(est.theta_, s61.theta).max() < 5e-7
     with pytest.raises(EstimationError, match="start"):
         IV(s61.profile, start="guess")
     with pytest.raises(EstimationError, match="reinit"):
@@ -230,8 +242,10 @@ def test_result_exports_and_the_identified_profile_is_the_next_a_priori_model(s6
 
 
 def test_restarted_simulation_bounds_the_drift_of_a_wrong_unstable_model(s61, s61_run_20s):
-    from identify.equation_error import doubling_time, simulate_states
-    assert doubling_time(s61) == pytest.approx(np.log(2) / 0.0945, rel=0.01)  # the 0.36 rad/s pair
+    from identify.equation_error import _segment, simulate_states
+    # auto: half the 0.36 rad/s pair's 7.3 s time to double, as ML's multiple shooting cuts
+    assert _segment(s61, "auto", 20.0) == pytest.approx(0.5 * np.log(2) / 0.0945, rel=0.01)
+    assert _segment(s61, "auto", 5.0) is None  # a run shorter than one doubling: no restarts
     wrong = s61.with_theta(1.3 * s61.theta)
     run = s61_run_20s
     x, u = run.matrix(s61.profile.state_names), run.matrix(s61.profile.input_names)
@@ -245,4 +259,16 @@ def test_restarted_simulation_bounds_the_drift_of_a_wrong_unstable_model(s61, s6
     # IV still works with a plain (never restarted) instrument simulation on this stable-enough run
     est = IV(s61.profile, reinit=None, start="apriori").fit(run)
     assert est.result_.info["instrument_segment_s"] is None
+    assert relative_error(est.theta_, s61.theta).max() < 5e-7
+
+
+def test_iv_shortens_the_restart_interval_when_an_estimate_diverges(s61, s61_run_20s):
+    """A start far more unstable than the data: instruments restarted every 20 s would diverge
+    (a rotor mode growing at 10 1/s), so the interval is halved until they do not, and IV still
+    converges."""
+    wild = s61.theta.copy()
+    wild[s61.names.index("theta_R_theta_R")] *= -1
+    profile = s61.with_theta(wild).to_profile()
+    est = IV(profile, reinit=20.0, start="apriori").fit(s61_run_20s)
+    assert est.result_.info["instrument_segment_s"] < 20.0
     assert relative_error(est.theta_, s61.theta).max() < 5e-7

@@ -108,3 +108,9 @@ def test_discretize_is_exact_for_a_scalar():
     Phi, Gamma = discretize(np.array([[-2.0]]), np.array([[3.0]]), 0.1)
     assert Phi[0, 0] == pytest.approx(np.exp(-0.2), rel=1e-14)
     assert Gamma[0, 0] == pytest.approx(1.5 * (1 - np.exp(-0.2)), rel=1e-13)
+
+
+def test_simulated_run_without_derivative_sensors(s61):
+    t = np.arange(201) * 0.02
+    run = simulate_run(s61, t, np.zeros((201, 2)), derivatives=False)
+    assert "q" in run.channels and not any(c.endswith("_dot") for c in run.channels)
