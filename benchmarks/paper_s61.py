@@ -168,26 +168,12 @@ def max_error(values: dict[str, float], reference: dict[str, float]) -> float:
     return float(max(abs((v - reference[k]) / reference[k]) for k, v in values.items()))
 
 
-RETRY_REINIT = 0.25  # s: instrument restart interval when the default one lets the simulation diverge
-RETRIES: list[str] = []  # evaluations that needed it (printed with the tables)
-
-
-def fit_iv(profile, runs, what=""):
-    """IV parameters {name: value}, or the error text when the evaluation fails.
-
-    IV restarts its instrument simulation every doubling time of the *starting* (LS) model; when
-    an iteration's estimate is far more unstable than that, the simulation diverges. Then the
-    evaluation is repeated once with restarts every RETRY_REINIT s (and listed in RETRIES)."""
-    with np.errstate(over="ignore", invalid="ignore"):  # the divergence is caught and reported below
+def fit_iv(profile, runs):
+    """IV parameters {name: value}, or the error text when the evaluation fails."""
+    with np.errstate(over="ignore", invalid="ignore"):  # IV shortens its restarts when a simulation diverges
         try:
             return IV(profile).fit(runs).result_.parameters()
         except PseudostepError as exc:  # a failed evaluation is a result too: report it, go on
-            if "instrument simulation diverged" not in str(exc):
-                return str(exc)
-        RETRIES.append(what)
-        try:
-            return IV(profile, reinit=RETRY_REINIT).fit(runs).result_.parameters()
-        except PseudostepError as exc:
             return str(exc)
 
 
@@ -220,8 +206,8 @@ def single_runs(cases, p8, p4, do_ml: bool):
         for T in (DURATION, SHORT):
             for noise in ("clean", "noisy"):
                 run = spans([getattr(c, noise)], T)
-                res[("8", T, noise)] = fit_iv(f8, run, f"{c.label}, 8-state, {T:g} s, {noise}")
-                res[("4", T, noise)] = fit_iv(f4, run, f"{c.label}, 4-DOF, {T:g} s, {noise}")
+                res[("8", T, noise)] = fit_iv(f8, run)
+                res[("4", T, noise)] = fit_iv(f4, run)
                 if do_ml:
                     res[("ml", T, noise)] = fit_ml(fml, run)
             if do_ml:
@@ -237,11 +223,11 @@ def two_runs(cases, p4, do_ml: bool):
         res = {}
         for noise in ("clean", "noisy"):
             runs = spans([getattr(by[l], noise) for l in labels], SHORT)
-            res[("4", SHORT, noise)] = fit_iv(p4, runs, f"two runs {name}, 4-DOF, {noise}")
+            res[("4", SHORT, noise)] = fit_iv(p4, runs)
             if do_ml:
                 res[("ml", SHORT, noise)] = fit_ml(ml_profile(p4), runs)
         # the same two runs over their whole 20 s: what remains is the structural (rotor-lag) error
-        res[("4", DURATION, "clean")] = fit_iv(p4, [by[l].clean for l in labels], f"two runs {name}, 4-DOF, 20 s")
+        res[("4", DURATION, "clean")] = fit_iv(p4, [by[l].clean for l in labels])
         out[name] = res
     return out
 
@@ -473,7 +459,7 @@ def monte_carlo(model: LinearModel, cases, p4, n_seeds: int) -> list[list[str]]:
         jobs = [(c.label, T, free_for(p4, c.axes), [noisy[c.label]]) for c in cases for T in (DURATION, SHORT)]
         jobs += [(f"two runs {name}", SHORT, p4, [noisy[l] for l in labels]) for name, labels in TWO_RUN.items()]
         for label, T, prof, runs in jobs:
-            params = fit_iv(prof, spans(runs, T), f"Monte Carlo seed {s}: {label}, {T:g} s")
+            params = fit_iv(prof, spans(runs, T))
             if isinstance(params, str):
                 fails[(label, T)] = fails.get((label, T), 0) + 1
             else:
@@ -532,9 +518,6 @@ def main(argv=None):
     single = single_runs(cases, p8, p4, do_ml)
     two = two_runs(cases, p4, do_ml)
     print(f"\nidentification ({'IV and ML' if do_ml else 'IV'}): {time.perf_counter() - t0:.1f} s")
-    for what in RETRIES:
-        print(f"  IV instrument simulation diverged with the default restarts; repeated with restarts every "
-              f"{RETRY_REINIT:g} s: {what}")
     failures = [(l, k, v) for res in (single, two) for l, r in res.items() for k, v in r.items() if isinstance(v, str)]
     for l, k, v in failures:
         print(f"  failed: {l} {k}: {v}")
