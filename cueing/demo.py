@@ -83,7 +83,7 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
         fit_runs[-1].to_csv(out / f"testpoint_{i + 1}.csv")
     validation = _validation_run(truth, size, seed)
     validation.to_csv(out / "testpoint_validation.csv")
-    report += _fly_section(flights, out)
+    report += _fly_section(flights, out, designs[0].signals_[0])
 
     say("3/5 identifying with LS, IV and ML ...")
     results = {name: est(apriori.profile).fit(fit_runs).result_ for name, est in
@@ -174,13 +174,14 @@ def _design_section(designs: list[SequenceDesign], out: Path) -> list[str]:
     return lines + ["", "![designed signals](signals.png)"]
 
 
-def _fly_section(flights, out: Path) -> list[str]:
+def _fly_section(flights, out: Path, first_signal) -> list[str]:
     import shutil
 
     import matplotlib.pyplot as plt
-    shots = sorted((out / "display_frames_1").glob("*.png"))
-    if shots:  # one frame a few seconds into the sequence: both needles deflected
-        shutil.copy(shots[min(4, len(shots) - 1)], out / "display.png")
+    shots = sorted((out / "display_frames_1").glob("*.png"))  # one a second from t = -countdown
+    if shots:  # the frame a second before the second switch: needles deflected, switch in the preview
+        t_shot = first_signal.switch_times()[min(1, first_signal.switch_times().size - 1)] - 1.0
+        shutil.copy(shots[int(np.clip(round(t_shot + 1.0), 0, len(shots) - 1))], out / "display.png")
     fig, axes = plt.subplots(len(flights), 1, figsize=(8, 2.4 * len(flights)), sharex=True, squeeze=False)
     lines = ["", "## 2. Flight (simulated pilot, off-screen two-needle display)", "",
              "![the display during the first run](display.png)", "",
