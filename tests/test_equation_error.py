@@ -212,7 +212,6 @@ def test_iv_reports_progress_and_converges_from_a_poor_a_priori_model(s61, s61_r
     assert info["converged"] and len(calls) == info["iterations"] >= 1
     assert calls[-1][1] < 1e-9
     assert relative_error(est.theta_, s61.theta).max() < 5e-7
-
     with pytest.raises(EstimationError, match="start"):
         IV(s61.profile, start="guess")
     with pytest.raises(EstimationError, match="reinit"):
