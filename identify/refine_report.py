@@ -127,41 +127,35 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
 
 
 def _plots(r: Refine, outdir: Path) -> list[str]:
+    outputs = list(r.profile.outputs)
+    ev = r.final_evaluation_
+    before, after = ev["before"].residuals, ev["fit"].residuals
+    _before_after(ev["time"][0], before[0], after[0], outputs, "time [s]",
+                  "residuals (first fit run)", outdir / "residuals.png", log=False)
+    dt = r._raw[0].dt
+    sb, sa = spectral_peak(before, dt), spectral_peak(after, dt)
+    _before_after(sb["freqs"][1:], sb["psd"][1:], sa["psd"][1:], outputs, "frequency [Hz]",
+                  "residual spectra (periodogram, fit runs averaged)", outdir / "residual_spectra.png", log=True)
+    return ["residuals.png", "residual_spectra.png"]
+
+
+def _before_after(x, before, after, outputs, xlabel: str, title: str, path: Path, log: bool) -> None:
+    """One panel per output, before and after refinement; ``before``/``after`` (N, ny)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    outputs = list(r.profile.outputs)
-    ev = r.final_evaluation_
-    t = ev["time"][0]
-    before, after = ev["before"].residuals[0], ev["fit"].residuals[0]
     ny = len(outputs)
     fig, axes = plt.subplots(ny, 1, figsize=(8, 1.6 * ny + 0.6), sharex=True, squeeze=False)
     for j, y in enumerate(outputs):
         ax = axes[j, 0]
-        ax.plot(t, before[:, j], lw=0.7, label="before")
-        ax.plot(t, after[:, j], lw=0.7, label="after")
+        draw = ax.semilogy if log else ax.plot
+        draw(x, before[:, j], lw=0.7, label="before")
+        draw(x, after[:, j], lw=0.7, label="after")
         ax.set_ylabel(y, fontsize=8)
     axes[0, 0].legend(fontsize=7, loc="upper right")
-    axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle("residuals (first fit run)")
+    axes[-1, 0].set_xlabel(xlabel)
+    fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(outdir / "residuals.png", dpi=90)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
-
-    dt = r._raw[0].dt
-    sb = spectral_peak(ev["before"].residuals, dt)
-    sa = spectral_peak(ev["fit"].residuals, dt)
-    fig, axes = plt.subplots(ny, 1, figsize=(8, 1.6 * ny + 0.6), sharex=True, squeeze=False)
-    for j, y in enumerate(outputs):
-        ax = axes[j, 0]
-        ax.semilogy(sb["freqs"][1:], sb["psd"][1:, j], lw=0.7, label="before")
-        ax.semilogy(sa["freqs"][1:], sa["psd"][1:, j], lw=0.7, label="after")
-        ax.set_ylabel(y, fontsize=8)
-    axes[0, 0].legend(fontsize=7, loc="upper right")
-    axes[-1, 0].set_xlabel("frequency [Hz]")
-    fig.suptitle("residual spectra (periodogram, fit runs averaged)")
-    fig.tight_layout()
-    fig.savefig(outdir / "residual_spectra.png", dpi=90)
-    plt.close(fig)
-    return ["residuals.png", "residual_spectra.png"]
