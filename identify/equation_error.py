@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._colour import autocorr_apply as _autocorr_apply
 from .errors import EstimationError, SimulationError
 from .estimator import Estimator
 from .model import LinearModel
@@ -191,15 +192,6 @@ def _check_rank(X: np.ndarray, names: list[str]) -> np.ndarray:
         raise EstimationError(f"not identifiable from these runs (regressors nearly collinear): "
                               f"{', '.join(involved)}")
     return scale
-
-
-def _autocorr_apply(v: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """``R Z`` for R the Toeplitz matrix of v's biased autocorrelation, via FFT (N, q)."""
-    N = len(v)
-    V = np.fft.rfft(v, 2 * N)
-    # |V|^2 / N is the spectrum of the circular autocorrelation of v zero-padded to 2N, whose
-    # circular convolution with a zero-padded column equals the Toeplitz product on 0..N-1
-    return np.fft.irfft((np.abs(V) ** 2 / N)[:, None] * np.fft.rfft(Z, 2 * N, axis=0), 2 * N, axis=0)[:N]
 
 
 def _solve(X_blocks, y_blocks, Z_blocks, names):
