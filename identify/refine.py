@@ -3,8 +3,9 @@
 ``Refine(profile).fit(runs, validate=val_runs)`` fits the declared model (ML by default), then
 repeats:
 
-1. residuals of every output on every run (the model simulated from the inputs, with each run's
-   initial state and, by default, output zero shifts fitted by linear least squares);
+1. residuals of every output on every run (the model simulated from the inputs, with each
+   segment's initial state and, by default, each run's output zero shifts fitted by linear least
+   squares weighted by each output's noise, as ML weights them);
 2. a score (Lagrange-multiplier) test of every candidate of the catalogue
    (:mod:`identify.candidates`) at its null value, from exact output sensitivities, against the
    chi-square threshold at a Šidák-corrected family level ``alpha`` over all candidates tested;
@@ -103,8 +104,8 @@ def run_design(model: LinearModel, u: np.ndarray, dt: float, segs: list[slice], 
 def evaluate(profile: Profile, runs: list[Run], zero_shifts: bool = True, segment: float = math.inf) -> Evaluation:
     """Simulate the profile's model (a priori values = the estimates) over runs, each cut into
     segments of at most ``segment`` s (``inf``: whole runs) as ML cuts them; every segment's
-    initial state and (``zero_shifts``) each run's output biases are the least-squares fit to the
-    measured outputs, exact because the outputs are linear in them."""
+    initial state and (``zero_shifts``) each run's output biases are the weighted least-squares
+    fit to the measured outputs, exact because the outputs are linear in them."""
     model = LinearModel(profile)
     res, mod, x0s, biases = [], [], [], []
     ny, n = model.n_outputs, model.n_states
