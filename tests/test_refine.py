@@ -273,3 +273,21 @@ def test_periodic_disturbance_at_a_given_rotor_harmonic():
     step = check_first_step(r, "periodic", "theta", "a_cos_theta", amp, halve=False)
     assert step.threshold < 20  # not charged for a frequency search
     assert r.error_after_["validation"]["theta"] < 0.5 * r.error_before_["validation"]["theta"]
+
+
+def test_evaluation_of_the_true_model_leaves_only_the_noise(s61):
+    """The evaluation behind every likelihood and score: with each segment's initial state fitted,
+    the true model's residuals must be the measurement noise on every output, however different
+    their units (m/s next to rad). Unweighted, the rotor-tilt residuals were 15x the noise."""
+    from identify import simulate_run
+    from identify.refine import evaluate
+
+    t = np.arange(501) * 0.02
+    u = np.zeros((501, 2))
+    u[50:150, 0], u[150:250, 0], u[100:200, 1] = 0.01, -0.01, 0.01
+    clean = simulate_run(s61, t, u)
+    noise = {y: 0.03 * float(np.std(clean[y])) for y in s61.profile.outputs}
+    run = simulate_run(s61, t, u, noise=noise, seed=5)
+    ev = evaluate(s61.profile, [run], zero_shifts=True, segment=3.0)
+    rms = np.sqrt(np.mean(ev.residuals[0] ** 2, axis=0))
+    np.testing.assert_allclose(rms, [noise[y] for y in s61.profile.outputs], rtol=0.25)
