@@ -11,7 +11,7 @@ import pytest
 
 from cueing.cli import main
 from cueing.flightlog import read_frame_log
-from identify import LinearModel, load_profile, read_run
+from identify import ML, LinearModel, load_profile, read_run
 from signaldesign import Signal, save_signals
 from tests.helpers import ROOT, one_error_line, run_cli
 
@@ -106,11 +106,10 @@ def test_simulated_test_point_loads_in_identify_and_ml_converges(two_axis_file, 
     assert run.meta["status"] == "completed" and "pilot model" in run.meta["source"]
     # flown, not designed: the pilot's input differs from the command
     assert np.sqrt(np.mean((run["theta_s"] - run["theta_s_cmd"]) ** 2)) > 0.1 * AMP
-    ml_module = pytest.importorskip("identify.ml")
     # start 30 % off the truth in every free derivative
     start = truth.profile.with_values({n: 1.3 * v for n, v in truth.parameters().items()
                                        if n in truth.names}, name="perturbed")
-    ml = ml_module.ML(start).fit(run)
+    ml = ML(start).fit(run)
     info = ml.result_.info
     assert info["converged"], info["stop"]
     err = np.abs(ml.theta_ - truth.theta)
