@@ -264,6 +264,19 @@ def error_summary(rows, columns, subset):
     return out
 
 
+def print_table_and_errors(rows, columns, prefix: str, of_truth: str) -> None:
+    """The Table 1 layout, the mean errors over Table 1's and all free derivatives, and the
+    agreement of each method with ML."""
+    print(format_table(rows, columns))
+    for subset_name, subset in (("Table 1 derivatives", set(TABLE1)),
+                                ("all free derivatives", {r[0] for r in rows})):
+        summ = error_summary(rows, columns, subset)
+        print(f"\n{prefix}mean |error| / |truth| over {subset_name}, and estimates within 2 std"
+              f"{' ' + of_truth if of_truth else ''}:")
+        print("  " + "; ".join(f"{c}: {m:.0f} %, {i}/{n}" for c, (m, i, n) in summ.items()))
+    agreement_with_ml(rows, columns)
+
+
 def agreement_with_ml(rows, columns):
     """Mean |column - ML| / |ML| over the Table 1 derivatives each column has, here and in the paper:
     the paper could not know the truth, so agreement with ML is how it judged its columns."""
@@ -531,14 +544,7 @@ def main(argv=None):
     rows = table_rows(apriori, truth_p, results)
     print("\nTable 1 layout, every channel smoothed alike (inputs too): estimate ± standard error (LS/IV: "
           "coloured-residual asymptotic; ML: Cramér-Rao corrected for coloured residuals), truth = simulation")
-    print(format_table(rows, columns))
-    for subset_name, subset in (("Table 1 derivatives", set(TABLE1)),
-                                ("all free derivatives", {r[0] for r in rows})):
-        summ = error_summary(rows, columns, subset)
-        print(f"\nmean |error| / |truth| over {subset_name}, and estimates within 2 std of truth:")
-        print("  " + "; ".join(f"{c}: {m:.0f} %, {i}/{n}" for c, (m, i, n) in summ.items()))
-
-    agreement_with_ml(rows, columns)
+    print_table_and_errors(rows, columns, "", "of truth")
 
     # the same seed with the paper's processing (accelerations and rates smoothed, inputs not)
     t0 = time.perf_counter()
@@ -546,13 +552,7 @@ def main(argv=None):
     rows_paper = table_rows(apriori, truth_p, results_paper)
     print(f"\nTable 1 layout, the paper's processing (accelerations and rates smoothed, inputs not; "
           f"{time.perf_counter() - t0:.1f} s):")
-    print(format_table(rows_paper, columns))
-    for subset_name, subset in (("Table 1 derivatives", set(TABLE1)),
-                                ("all free derivatives", {r[0] for r in rows_paper})):
-        summ = error_summary(rows_paper, columns, subset)
-        print(f"\nthe paper's processing: mean |error| / |truth| over {subset_name}, and estimates within 2 std:")
-        print("  " + "; ".join(f"{c}: {m:.0f} %, {i}/{n}" for c, (m, i, n) in summ.items()))
-    agreement_with_ml(rows_paper, columns)
+    print_table_and_errors(rows_paper, columns, "the paper's processing: ", "")
     print("\nmodes of the identified models, the paper's processing:")
     for k, (res, _) in results_paper.items():
         print(f"  {k}: {modes_line(res.model)}")
