@@ -35,6 +35,8 @@ def _fly_options(args) -> dict:
         raise CueingError("--rate must be positive; --countdown, --tail and --preview must not be negative")
     if not 0 <= args.skill <= 1:
         raise CueingError(f"--skill must be between 0 and 1, got {args.skill:g}")
+    if args.noise < 0 or (args.screenshot_every is not None and args.screenshot_every <= 0):
+        raise CueingError("--noise must not be negative and --screenshot-every must be positive")
     if args.fast and args.source.partition(":")[0] not in UNATTENDED:
         raise CueingError(f"--fast needs a source that flies itself ({', '.join(UNATTENDED)}), "
                           f"not '{args.source}'")

@@ -64,7 +64,7 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
     t0 = time.perf_counter()
     apriori = LinearModel(load_profile(profile))
     truth = _real_aircraft(apriori, seed)
-    report = _intro(apriori, truth)
+    report = _intro(apriori)
 
     say("1/5 designing the input signals ...")
     designs = _design(apriori, size, seed)
@@ -150,7 +150,7 @@ def _design(apriori: LinearModel, size: Size, seed: int) -> list[SequenceDesign]
             for name in apriori.profile.input_names]
 
 
-def _intro(apriori: LinearModel, truth: LinearModel) -> list[str]:
+def _intro(apriori: LinearModel) -> list[str]:
     return ["# pseudostep demo", "",
             f"A priori model: **{apriori.profile.name}**. The aircraft actually flown (the truth of this "
             f"simulation) has every free derivative off its a priori value by up to {PERTURBATION:.0%} and a "
@@ -209,7 +209,7 @@ def _identify_section(results: dict, truth: LinearModel, out: Path) -> list[str]
     plot_residuals(results["ML"], out / "residuals_ml.png")
     names = truth.names
     lines = ["", "## 3. Identification (declared model, two runs)", "",
-             "| parameter | a priori | truth | " + " | ".join(f"{m} (± CR std)" for m in results) + " |",
+             "| parameter | a priori | truth | " + " | ".join(f"{m} (± std error)" for m in results) + " |",
              "| --- | --- | --- | " + " | ".join("---" for _ in results) + " |"]
     apriori = dict(zip(names, next(iter(results.values())).apriori))
     for i, n in enumerate(names):

@@ -68,12 +68,18 @@ class ExternalSource(InputSource):
     name = "external"
 
     def __init__(self, func, label: str = "external"):
+        if not callable(func):
+            raise CueingError(f"external source '{label}' is not a function of the signal time")
         self.func = func
         self.label = label
 
     def read(self, t_signal: float) -> np.ndarray:
-        value = np.atleast_1d(np.asarray(self.func(t_signal), float))
-        return np.broadcast_to(value, (len(self.signals),)).copy()
+        try:
+            value = np.atleast_1d(np.asarray(self.func(t_signal), float))
+            return np.broadcast_to(value, (len(self.signals),)).copy()
+        except (TypeError, ValueError) as exc:  # the simulator's stick gave no usable deflection
+            raise CueingError(f"external source '{self.label}' at t = {t_signal:.3f} s: "
+                              f"expected {len(self.signals)} number(s), got an error: {exc}") from None
 
     def describe(self) -> str:
         return f"external ({self.label})"

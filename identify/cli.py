@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from .cliutil import Parser, run
+from .errors import EstimationError
 from .model import LinearModel, format_modes, residualize
 from .profile import load_profile
 
@@ -108,6 +109,8 @@ def cmd_refine(args) -> int:
     from .runs import read_run
 
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+    if not kinds:
+        raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
     refiner = Refine(args.profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max)

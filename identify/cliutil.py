@@ -31,17 +31,22 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
     except PseudostepError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except OSError as exc:  # an output that cannot be written: a bad path, not a bug
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"{parser.prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
 
 
-def progress(iterable, total: int, label: str, stream=None, width: int = 30):
-    """Yield from ``iterable`` while drawing a one-line text progress bar on stderr."""
-    stream = stream or sys.stderr
-    for i, item in enumerate(iterable, start=1):
-        yield item
+def progress_bar(label: str, stream=None, width: int = 30):
+    """A ``progress(i, total)`` callback drawing a one-line text progress bar on stderr."""
+    def show(i: int, total: int) -> None:
+        out = stream or sys.stderr
         filled = int(width * i / max(total, 1))
-        stream.write(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {i}/{total}")
-        stream.flush()
-    stream.write("\n")
+        out.write(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {i}/{total}")
+        if i >= total:
+            out.write("\n")
+        out.flush()
+    return show

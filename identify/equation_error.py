@@ -47,11 +47,10 @@ from .preprocess import processing_steps, smooth_derivative
 from .profile import DOT, Profile
 from .result import IdentificationResult, fit_metrics
 from .runs import Run
-from .shooting import auto_segment
+from .shooting import MIN_SEGMENT, auto_segment
 from .simulate import discretize, propagate
 
 DEFAULT_DIFF_CUTOFF_HZ = 6.25
-MIN_SEGMENT_S = 1.0
 _RANK_RTOL = 1e-10
 
 
@@ -74,9 +73,11 @@ def state_derivatives(run: Run, profile: Profile, cutoff_hz: float | None = None
         if derived is not None:
             xdot[:, j], sources[s] = derived
             continue
-        fc = min(cutoff_hz or DEFAULT_DIFF_CUTOFF_HZ, 0.4 / run.dt)
+        wanted = cutoff_hz or DEFAULT_DIFF_CUTOFF_HZ
+        fc = min(wanted, 0.4 / run.dt)  # the differentiator's band must stay below Nyquist
         xdot[:, j] = smooth_derivative(run[s], run.dt, fc)
-        sources[s] = f"smoothed differentiation of {s} at {fc:g} Hz"
+        capped = f" (asked {wanted:g} Hz, capped below Nyquist)" if fc < wanted else ""
+        sources[s] = f"smoothed differentiation of {s} at {fc:g} Hz{capped}"
     return xdot, sources
 
 
@@ -248,11 +249,6 @@ def _segment(model: LinearModel, reinit, duration: float) -> float | None:
     return float(reinit)
 
 
-def _output_matrices(model: LinearModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """C (ny, n), D (ny, m) and Cd (ny, n), the part of the outputs made of state derivatives."""
-    return model.C, model.D, model.Cd
-
-
 # -- estimators -------------------------------------------------------------------------------
 class _EquationError(Estimator):
     """Shared machinery of LS and IV."""
@@ -261,6 +257,8 @@ class _EquationError(Estimator):
                  coloured: bool = True, reinit="auto"):
         super().__init__(profile)
         self.bias = bias
+        if diff_cutoff_hz is not None and not diff_cutoff_hz > 0:
+            raise EstimationError(f"differentiator cut-off must be positive, got {diff_cutoff_hz} Hz")
         self.diff_cutoff_hz = diff_cutoff_hz
         self.coloured = coloured
         if not (reinit in (None, "auto") or (isinstance(reinit, (int, float)) and reinit > 0)):
@@ -343,7 +341,7 @@ class _EquationError(Estimator):
     def _modelled(self, model: LinearModel, data: list[_Data], biases: np.ndarray):
         """Output-error simulation of the identified model from each run's measured initial state;
         restarted as for the instruments only if a plain simulation diverges or drifts away."""
-        C, D, Cd = _output_matrices(model)
+        C, D, Cd = model.C, model.D, model.Cd
         measured = [d.run.matrix(list(self.profile.outputs)) for d in data]
 
         def outputs(xs):
@@ -358,7 +356,7 @@ class _EquationError(Estimator):
             ys, drift = None, True
         if drift:
             longest = max(d.run.duration for d in data)
-            segment = _segment(model, "auto" if self.reinit is None else self.reinit, longest) or MIN_SEGMENT_S
+            segment = _segment(model, "auto" if self.reinit is None else self.reinit, longest) or MIN_SEGMENT
             ys = outputs(self._simulate(model, data, biases, segment))
             how = f"simulation restarted from the measured states every {segment:.3g} s (plain one drifts)"
         return measured, ys, how

@@ -125,8 +125,10 @@ class ML(Estimator):
         try:
             ev = prob.evaluate(beta)
         except SimulationError as exc:
+            hint = "shorter segments (ML(segment=<s>))" if form == "multiple shooting" \
+                else "multiple shooting (ML(segment=<s>))"
             raise EstimationError(f"ML ({form}): the a priori model diverges: {exc}; "
-                                  f"use multiple shooting (segment=<s>) or better a priori values") from None
+                                  f"use {hint} or better a priori values") from None
         solver = _Solver(self, prob, ev, z)
         solver.run()
         self.problem_, self.beta_ = prob, solver.beta

@@ -233,6 +233,10 @@ def residualize(model: LinearModel, fast: list[str], name: str | None = None,
     missing = [s for s in fast if s not in p.states]
     if missing:
         raise ProfileError(f"{p.source}: cannot reduce: unknown state(s) {', '.join(missing)}")
+    if len(set(fast)) != len(fast):
+        raise ProfileError(f"{p.source}: cannot reduce: a state is listed twice in {', '.join(fast)}")
+    if len(fast) >= model.n_states:
+        raise ProfileError(f"{p.source}: cannot reduce: no state would be left")
     f_idx = [p.state_names.index(s) for s in fast]
     s_idx = [i for i in range(model.n_states) if i not in f_idx]
     A, B = model.A, model.B

@@ -326,10 +326,14 @@ class Refine:
                 if self.estimator is None and self.method == "ml" else math.inf
         return math.inf if seg == "plain" else float(seg)
 
-    def _estimate(self, profile: Profile, runs: list[Run]) -> IdentificationResult:
+    def _estimate(self, profile: Profile, runs: list[Run], bounds: bool = True) -> IdentificationResult:
+        """Fit ``profile``; ``bounds=False`` when only the estimate and its likelihood are used
+        (the fits inside a delay search), which spares ML's coloured-residual correction."""
         cls = self.estimator or estimator_class(self.method)
         options = dict(self.estimator_options)
         if self.estimator is None and self.method == "ml":
+            if not bounds:
+                options.setdefault("coloured", False)
             # the same nuisance and the same segments as the score test and the evaluations, so
             # that likelihoods before and after a step compare
             options.setdefault("estimate_bias", self.zero_shifts)
@@ -415,8 +419,7 @@ class Refine:
             if c.linear and c in linear:
                 Jc = Jall[:, [col[k] for k in c.params]]
             elif isinstance(c, Delay):
-                Jc = stack([self._delay_sensitivity(base_model, run, c.target, x0)[:, :, None]
-                            for run, x0 in zip(runs, ev.x0)])
+                Jc = stack([self._delay_sensitivity(base_model, run, c.target)[:, :, None] for run in runs])
             else:
                 continue
             stat, q = sb.statistic(Jc)
@@ -430,10 +433,9 @@ class Refine:
         # Šidák over every elementary hypothesis: a periodic candidate is the best of n_tests
         # frequencies, so it is compared with the same per-hypothesis threshold as the others
         n_tests = sum(t["candidate"].n_tests for t in tested)
-        level = 1 - (1 - self.alpha) ** (1 / max(n_tests, 1))
         for t in tested:
             t["n_tests"] = n_tests
-            t["threshold"] = float(stats.chi2.isf(level, t["dof"]))
+            t["threshold"] = dg.sidak_threshold(self.alpha, n_tests, t["dof"])
             t["p_value"] = float(math.exp(t["log_p"]))
         if self.verbose:
             top = sorted(tested, key=lambda t: t["log_p"])[:5]
@@ -441,7 +443,7 @@ class Refine:
                              for t in top])
         return tested
 
-    def _delay_sensitivity(self, model: LinearModel, run: Run, input_name: str, x0) -> np.ndarray:
+    def _delay_sensitivity(self, model: LinearModel, run: Run, input_name: str) -> np.ndarray:
         """dy/dtau at tau = 0: the response to -du/dt of the delayed input (N, ny), each segment
         from rest (its initial state is a nuisance parameter anyway)."""
         p = model.profile
@@ -512,7 +514,7 @@ class Refine:
             if key not in fits:
                 d = Delay(cand.target, tau)
                 ext_p = d.profile(p, {d.params[0]: tau})
-                res = self._estimate(ext_p, prepare_runs(ext_p, self._raw))
+                res = self._estimate(ext_p, prepare_runs(ext_p, self._raw), bounds=False)
                 prof = _keep_meta(res.identified_profile(p.name), ext_p)
                 fits[key] = (self._nll(prof), prof, res)
             return fits[key]
@@ -526,7 +528,8 @@ class Refine:
             c = tau if tau >= h else h
             curv = (at(c + h)[0] - 2 * at(c)[0] + at(c - h)[0]) / h ** 2
             std = 1 / math.sqrt(curv) if curv > 0 else math.inf
-            nll, prof, res = at(tau)
+            nll, prof, _ = at(tau)
+            res = self._estimate(prof, prepare_runs(prof, self._raw))  # the same fit, with its bounds
             options.append((nll, prof, res, {f"tau_{cand.target}": {"value": tau, "std": std}}, "delay"))
         if "lag" in self.kinds:
             tau0 = options[0][3][f"tau_{cand.target}"]["value"] if options else 0.1

@@ -1,4 +1,4 @@
-"""Identification results: parameter table with Cramér-Rao bounds, fit metrics, export.
+"""Identification results: parameter table with standard errors, fit metrics, export.
 
 Every estimator returns an :class:`IdentificationResult`, in the spirit of a statsmodels results
 object: ``summary()`` prints a table an engineer can paste into a report; ``to_dict()`` /
@@ -35,7 +35,8 @@ def fit_metrics(outputs: list[str], measured: list[np.ndarray], modelled: list[n
 class IdentificationResult:
     """Estimates of a profile's free parameters.
 
-    ``theta`` (p,) estimates; ``std`` (p,) Cramér-Rao standard errors; ``profile`` the a priori
+    ``theta`` (p,) estimates; ``std`` (p,) standard errors (Cramér-Rao bounds, by default
+    corrected for coloured residuals: ``info["standard_errors"]`` says which); ``profile`` the a priori
     profile (structure and a priori values); ``fit`` {output: {"rms", "theil"}}; ``info`` method
     details (iterations, cost history, per-run initial states and zero shifts, ...); ``runs`` the
     runs' sources.
@@ -68,7 +69,7 @@ class IdentificationResult:
 
     @property
     def relative_std(self) -> np.ndarray:
-        """Cramér-Rao standard error in % of |estimate| (inf where the estimate is 0)."""
+        """Standard error in % of |estimate| (inf where the estimate is 0)."""
         with np.errstate(divide="ignore", invalid="ignore"):
             return 100 * self.std / np.abs(self.theta)
 
@@ -83,8 +84,8 @@ class IdentificationResult:
         return self.model.to_profile(name or f"{self.profile.name} - identified ({self.method.upper()})")
 
     def summary(self, truth: dict[str, float] | None = None) -> str:
-        """Parameter table (estimate, CR std, rel. std %, a priori [, truth]), fit and modes."""
-        head = f"{'parameter':<18}{'estimate':>13}{'CR std':>12}{'rel. std %':>11}{'a priori':>12}"
+        """Parameter table (estimate, standard error, rel. std %, a priori [, truth]), fit and modes."""
+        head = f"{'parameter':<18}{'estimate':>13}{'std error':>12}{'rel. std %':>11}{'a priori':>12}"
         if truth:
             head += f"{'truth':>12}"
         lines = [f"{self.method.upper()} identification of '{self.profile.name}' from "
@@ -94,6 +95,7 @@ class IdentificationResult:
             if truth:
                 row += f"{truth.get(name, float('nan')):12.5g}"
             lines.append(row)
+        lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]

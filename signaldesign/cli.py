@@ -1,9 +1,7 @@
 """``python -m signaldesign``: frequency band, signal design, baselines, comparison, plots."""
 from __future__ import annotations
 
-import sys
-
-from identify.cliutil import Parser, run
+from identify.cliutil import Parser, progress_bar, run
 from identify.model import LinearModel
 from identify.profile import load_profile
 
@@ -22,16 +20,6 @@ def _floats(text: str, what: str) -> list[float]:
         return [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise SignalError(f"{what}: expected comma-separated numbers, got '{text}'") from None
-
-
-def _progress_bar(label: str, width: int = 30):
-    def show(i, total):
-        filled = int(width * i / max(total, 1))
-        sys.stderr.write(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {i}/{total}")
-        if i >= total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-    return show
 
 
 def _model(args) -> LinearModel:
@@ -62,7 +50,7 @@ def cmd_design(args) -> int:
                               criterion=args.criterion,
                               perturbations=args.perturbations if args.criterion != "nominal" else 0,
                               spread=args.spread, max_peak=args.max_peak,
-                              seed=args.seed, progress=_progress_bar("designing"))
+                              seed=args.seed, progress=progress_bar("designing"))
     designer.candidate_widths()  # an impossible duration is reported before any work
     band = required_band(model, inputs[0])
     ev = Evaluator(model, inputs, args.record, args.dt, band=(band.low, band.high),

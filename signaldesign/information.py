@@ -17,10 +17,13 @@ from identify.sensitivity import output_sensitivities
 def fisher_information(model: LinearModel, u: np.ndarray, dt: float, noise_std=None, x0=None) -> np.ndarray:
     """Fisher information (p, p) of inputs ``u`` (N, m) held over ``dt`` s about ``model.theta``.
 
-    ``noise_std``: measurement noise standard deviation per output (ny,) (default 1 for all).
+    ``noise_std``: measurement noise standard deviation per output (ny,) (default: the assumed
+    sensor noise by unit, :func:`default_noise`, so that m/s and rad/s outputs weigh as their
+    sensors make them).
     """
     sens = output_sensitivities(model, u, dt, x0)
-    w = np.ones(model.n_outputs) if noise_std is None else 1.0 / np.asarray(noise_std, float) ** 2
+    noise_std = default_noise(model.profile) if noise_std is None else noise_std
+    w = 1.0 / np.asarray(noise_std, float) ** 2
     return np.einsum("kyi,y,kyj->ij", sens.dy, w, sens.dy)
 
 

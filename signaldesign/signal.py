@@ -46,6 +46,8 @@ class Signal:
             raise SignalError(f"signal '{self.kind}': time step must be positive, got {self.dt}")
         if not np.all(np.isfinite(self.levels)) or not np.isfinite(self.amplitude):
             raise SignalError(f"signal '{self.kind}': levels and amplitude must be finite")
+        if not (np.isfinite(self.delay) and self.delay >= 0):
+            raise SignalError(f"signal '{self.kind}': delay must be a finite time >= 0 s, got {self.delay}")
 
     @property
     def duration(self) -> float:

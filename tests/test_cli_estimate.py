@@ -106,3 +106,16 @@ def test_bad_input_gives_one_line_and_status_2(runs, tmp_path, capsys, s61):
     # and through a real subprocess: no traceback, exit status 2
     one_error_line(run_cli("identify", "estimate", "--profile", "s61_hover_8state", "--out", tmp_path / "y",
                            tmp_path / "nope.csv"), "nope.csv")
+
+
+def test_unwritable_outputs_and_bad_options_give_one_line(tmp_path):
+    """Writing to a folder that does not exist, or nonsense options: one line, exit 2, no traceback."""
+    from .helpers import one_error_line, run_cli
+
+    one_error_line(run_cli("identify", "model", "s61_hover_8state", "--reduce", "theta_R",
+                           "--save-reduced", tmp_path / "no" / "dir" / "r.toml"), "r.toml")
+    one_error_line(run_cli("identify", "model", "s61_hover_4dof", "--reduce", "u,v,p,q,theta,phi"),
+                   "no state would be left")
+    one_error_line(run_cli("identify", "model", "s61_hover_8state", "--reduce", "theta_R,theta_R"), "twice")
+    one_error_line(run_cli("signaldesign", "make", "doublet", "--width", "1", "--input", "theta_s",
+                           "--out", tmp_path / "no" / "dir" / "s.json"), "s.json")

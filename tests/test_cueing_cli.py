@@ -76,6 +76,10 @@ def test_no_joystick_gives_one_line_and_status_2(sig_file, tmp_path):
     (["--signal", "{sig}", "--source", "pilot", "--skill", "1.5"], "--skill"),
     (["--signal", "{sig}", "--rate", "0"], "--rate"),
     (["--signal", "{sig}", "--source", "joystick", "--axes", "one"], "--axes"),
+    (["--signal", "{sig}", "--source", "pilot", "--noise", "-1"], "--noise"),
+    (["--signal", "{sig}", "--source", "pilot", "--screenshot-every", "-1"], "--screenshot-every"),
+    (["--signal", "{sig}", "--source", "external:math:pi"], "not a function"),
+    (["--signal", "{sig}", "--source", "external:os.path:join", "--fast", "--countdown", "0"], "external source"),
 ])
 def test_bad_input_gives_one_line_and_status_2(args, needle, sig_file, tmp_path, capsys):
     argv = ["fly", "--headless", "--out", str(tmp_path / "x.csv")] + [

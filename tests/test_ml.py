@@ -255,7 +255,7 @@ def test_result_has_table_fit_metrics_and_per_run_histories(s61):
     ml = ML(s61.profile).fit(runs)
     res = ml.result_
     text = ml.summary()
-    assert "CR std" in text and all(name in text for name in s61.names)
+    assert "std error" in text and "coloured-residual" in text and all(name in text for name in s61.names)
     assert set(res.fit) == set(s61.profile.outputs) and all(0 < v["theil"] < 0.2 for v in res.fit.values())
     assert len(res.time) == len(res.measured) == len(res.modelled) == 2
     assert res.modelled[1].shape == (len(t), len(s61.profile.outputs))

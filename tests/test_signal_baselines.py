@@ -123,3 +123,11 @@ def test_signal_json_and_run_csv_round_trip(tmp_path):
     again = read_run(tmp_path / "sig.csv")
     np.testing.assert_allclose(again["theta_s"], sigs[0](again.time))
     assert again["theta_s"][0] == 0.02 and again["theta_s"][-1] == 0.0
+
+
+def test_a_signal_with_a_nan_delay_is_rejected():
+    import pytest
+
+    from signaldesign.signal import Signal, SignalError
+    with pytest.raises(SignalError, match="delay"):
+        Signal("doublet", "theta_s", 1.0, [1, -1], delay=float("nan"))
