@@ -127,7 +127,7 @@ def _response(truth: LinearModel, flown: Run, seed: int) -> Run:
     channels.update({k: v for k, v in flown.channels.items() if k.endswith("_cmd")})
     meta = {**flown.meta, "truth": "a priori derivatives perturbed, plus a control delay",
             "noise_fraction": str(NOISE)}
-    return Run(flown.time, channels, meta, source=str(flown.meta.get("out", "flown run")))
+    return Run(flown.time, channels, meta, source=flown.source)
 
 
 def _validation_run(truth: LinearModel, size: Size, seed: int) -> Run:

@@ -337,7 +337,7 @@ class Refine:
             # the same nuisance and the same segments as the score test and the evaluations, so
             # that likelihoods before and after a step compare
             options.setdefault("estimate_bias", self.zero_shifts)
-            options.setdefault("segment", getattr(self, "segment_", None))
+            options.setdefault("segment", self.segment_)
         return cls(profile, **options).fit(runs).result_
 
     def _eval(self, p: Profile, runs: list[Run] | None = None) -> Evaluation:
