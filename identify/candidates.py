@@ -28,8 +28,6 @@ periodic       output          pseudo-inputs ``cos_<y>``, ``sin_<y>`` at frequen
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from itertools import combinations
-
 import numpy as np
 
 from .errors import ProfileError
@@ -52,6 +50,7 @@ class Candidate:
     n_tests: int = 1  # how many hypotheses choosing this candidate stands for (multiple testing)
     spec: dict = field(default_factory=dict)
     null_dof: int | None = None  # degrees of freedom of the null distribution if not len(params)
+    complexity = 0  # 1: ranked below the simpler explanations (nonlinear terms)
 
     @property
     def name(self) -> str:
@@ -85,6 +84,29 @@ def _add(p: Profile, *, free=None, ties=None, inputs=None, states=None, meta=Non
 
 def _values(c: Candidate, values):
     return {**c.null_values(), **(values or {})}
+
+
+def extend_all(p: Profile, candidates: list[Candidate]) -> tuple[Profile, list[Candidate]]:
+    """One profile holding every candidate (each at its null value) that only *adds* to ``p``
+    (free parameters, ties, inputs, meta), and the candidates that could be built: the score test
+    of all of them from one sensitivity computation. Built as one union, validated once."""
+    free, ties, inputs, meta = dict(p.free), dict(p.ties), dict(p.inputs), dict(p.meta)
+    built = []
+    for c in candidates:
+        try:
+            q = c.profile(p)
+        except ProfileError:
+            continue  # a candidate that cannot be built on this profile is not tested
+        free.update(q.free)
+        ties.update(q.ties)
+        inputs.update(q.inputs)
+        for key, value in q.meta.items():  # delays, periodic {name: value}; pseudo_inputs [names]
+            if isinstance(value, dict):
+                meta[key] = {**dict(meta.get(key, {})), **value}
+            else:
+                meta[key] = list(dict.fromkeys(list(meta.get(key, [])) + list(value)))
+        built.append(c)
+    return replace(p, free=free, ties=ties, inputs=inputs, meta=meta), built
 
 
 class Derivative(Candidate):
@@ -203,10 +225,14 @@ def scale(output: str) -> OutputTerm:
 
 class Nonlinear(Candidate):
     """A library term of measured channels (``a_absa`` = a|a|, ``a_sq`` = a^2, ``a_x_b`` = a b)
-    as a pseudo-input with a B entry in ``equation``: target ``<equation>:<term>``."""
+    as a pseudo-input with a B entry in ``equation``: target ``<equation>:<term>``; ``why`` the
+    physical reason that ties the term to the equation (stated in the report)."""
 
-    def __init__(self, equation: str, term: str, factors: tuple[str, ...], op: str):
-        super().__init__("nonlinear", f"{equation}:{term}", [f"{equation}_{term}"], spec={"term": term, "op": op})
+    complexity = 1
+
+    def __init__(self, equation: str, term: str, factors: tuple[str, ...], op: str, why: str = ""):
+        super().__init__("nonlinear", f"{equation}:{term}", [f"{equation}_{term}"],
+                         spec={"term": term, "op": op, "why": why})
         self.equation, self.term, self.factors = equation, term, factors
 
     def channel(self, run: Run) -> np.ndarray:
@@ -360,21 +386,35 @@ def _lagged(p: Profile, u: str) -> bool:
 
 
 def nonlinear_library(p: Profile, runs: list[Run], products: bool = True) -> list[Nonlinear]:
-    """x|x| and x^2 of every measured state and every input, and (``products``) pairwise products,
-    each tried in every equation that has a free parameter (the dynamic equations)."""
-    channels = _measured_states(p, runs) + [u for u in _base_inputs(p) if all(u in r.channels for r in runs)]
-    terms = [(f"{a}_abs{a}", (a,), "absq") for a in channels] + [(f"{a}_sq", (a,), "sq") for a in channels]
-    if products:
-        terms += [(f"{a}_x_{b}", (a, b), "prod") for a, b in combinations(channels, 2)]
+    """Nonlinear terms with a physical reason, in every equation that has a free parameter (the
+    dynamic equations): the equation's own state x as x|x| (quadratic damping) and x^2 (an
+    asymmetry), each declared control input u as u|u| and u^2 (a nonlinear control effectiveness)
+    and (``products``) x u (a control effectiveness that varies with the equation's own state).
+    Terms of other states (alpha|alpha| in the speed equation, q theta in X) have no such story in
+    that equation and are not tried."""
+    measured = set(_measured_states(p, runs))
+    controls = [u for u in _base_inputs(p) if all(u in r.channels for r in runs)]
     free_rows = {e.row for name in p.free for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
-    equations = [p.equation(p.state_names[i]) for i in sorted(free_rows)
-                 if not p.state_names[i].endswith("_lag")]
     out = []
-    for eq in equations:
-        for term, factors, op in terms:
+    for i in sorted(free_rows):
+        x = p.state_names[i]
+        if x.endswith("_lag"):
+            continue
+        eq = p.equation(x)
+        terms = []
+        if x in measured:
+            terms += [(f"{x}_abs{x}", (x,), "absq", f"quadratic damping: {eq} in {x}|{x}|, its own state"),
+                      (f"{x}_sq", (x,), "sq", f"asymmetry of {eq} in its own state {x}")]
+        for u in controls:
+            terms += [(f"{u}_abs{u}", (u,), "absq", f"control effectiveness of the declared input {u} nonlinear"),
+                      (f"{u}_sq", (u,), "sq", f"control effectiveness of the declared input {u} asymmetric")]
+            if products and x in measured:
+                terms.append((f"{x}_x_{u}", (x, u), "prod",
+                              f"effectiveness of the declared input {u} varies with {x}, the equation's own state"))
+        for term, factors, op, why in terms:
             if term in p.inputs or f"{eq}_{term}" in p.parameters:
                 continue
-            c = Nonlinear(eq, term, factors, op)
+            c = Nonlinear(eq, term, factors, op, why)
             try:
                 c.profile(p)
             except ProfileError:
@@ -385,4 +425,4 @@ def nonlinear_library(p: Profile, runs: list[Run], products: bool = True) -> lis
 
 __all__ = ["KINDS", "Candidate", "Derivative", "Delay", "Lag", "OutputTerm", "Nonlinear", "Periodic",
            "bias", "drift", "scale", "catalogue", "nonlinear_library", "delay_run", "apply_delays",
-           "periodic_channels", "apply_periodic", "prepare_runs"]
+           "periodic_channels", "apply_periodic", "prepare_runs", "extend_all"]

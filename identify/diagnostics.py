@@ -152,24 +152,31 @@ class ScoreBase:
         """Score statistic of candidate columns ``J_c`` (rows as the stacked residual, (M, q),
         unweighted) and the rank ``q`` it adds (0: the candidate is not identifiable beside the
         model, i.e. lies in the span of its columns)."""
-        Jw = J_c * np.tile(self.weights, len(self.e) // len(self.weights))[:, None]
+        return self.statistics(J_c, [list(range(J_c.shape[1]))], rtol)[0]
+
+    def statistics(self, J: np.ndarray, groups: list[list[int]], rtol: float = 1e-6) -> list[tuple[float, int]]:
+        """:meth:`statistic` of several candidates at once: ``J`` (M, K) all their columns,
+        ``groups`` the column indices of each candidate. One projection for all columns."""
+        Jw = self._weighted(J)
         perp = Jw - self.Q @ (self.Q.T @ Jw)
         norms = np.linalg.norm(Jw, axis=0)
-        U, s, _ = np.linalg.svd(perp, full_matrices=False)
-        # a direction that the model's own columns explain to 1 part in 1e6 adds nothing testable
-        rank = int(np.sum(s > rtol * max(norms.max(), 1e-300)))
-        if rank == 0:
-            return 0.0, 0
-        U = U[:, :rank]
         e_perp = self.e - self.Q @ (self.Q.T @ self.e)
-        return float(np.sum((U.T @ e_perp) ** 2)), rank
+        out = []
+        for g in groups:
+            U, s, _ = np.linalg.svd(perp[:, g], full_matrices=False)
+            # a direction that the model's own columns explain to 1 part in 1e6 adds nothing testable
+            rank = int(np.sum(s > rtol * max(norms[g].max(), 1e-300)))
+            out.append((float(np.sum((U[:, :rank].T @ e_perp) ** 2)), rank) if rank else (0.0, 0))
+        return out
 
+    def _weighted(self, J: np.ndarray) -> np.ndarray:
+        return J * np.tile(self.weights, len(self.e) // len(self.weights))[:, None]
 
     def linear_estimate(self, J_c: np.ndarray) -> float:
         """Gauss-Newton estimate of a single candidate parameter from its null value: the
         least-squares coefficient of the residual on the part of ``J_c`` (M, 1) orthogonal to the
         model's columns."""
-        Jw = J_c[:, 0] * np.tile(self.weights, len(self.e) // len(self.weights))
+        Jw = self._weighted(J_c)[:, 0]
         perp = Jw - self.Q @ (self.Q.T @ Jw)
         return float(perp @ self.e / max(perp @ perp, 1e-300))
 
