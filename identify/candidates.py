@@ -353,9 +353,10 @@ def catalogue(p: Profile, runs: list[Run], kinds=KINDS, nonlinear_products: bool
     dynamic = [s for s in p.states if s not in lag_states]
     base_inputs = _base_inputs(p)
     if "derivative" in kinds:
-        for i, s in enumerate(p.state_names):
-            if s in lag_states:
-                continue
+        # in the dynamic equations only: an equation whose every entry is fixed (theta_dot = q) is
+        # kinematics, known exactly; an input or a state does not enter it unseen
+        for i in _dynamic_rows(p):
+            s = p.state_names[i]
             for j, s2 in enumerate(p.state_names):
                 if ("A", i, j) not in taken and s2 in dynamic:
                     out.append(Derivative(p.entry_name("A", i, j)))
@@ -381,6 +382,12 @@ def catalogue(p: Profile, runs: list[Run], kinds=KINDS, nonlinear_products: bool
     return out
 
 
+def _dynamic_rows(p: Profile) -> list[int]:
+    """Rows of A/B with a free parameter (the dynamic equations), lag states excepted."""
+    rows = {e.row for name in p.free for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
+    return [i for i in sorted(rows) if not p.state_names[i].endswith("_lag")]
+
+
 def _lagged(p: Profile, u: str) -> bool:
     return f"{u}_lag" in p.states
 
@@ -394,12 +401,9 @@ def nonlinear_library(p: Profile, runs: list[Run], products: bool = True) -> lis
     that equation and are not tried."""
     measured = set(_measured_states(p, runs))
     controls = [u for u in _base_inputs(p) if all(u in r.channels for r in runs)]
-    free_rows = {e.row for name in p.free for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
     out = []
-    for i in sorted(free_rows):
+    for i in _dynamic_rows(p):
         x = p.state_names[i]
-        if x.endswith("_lag"):
-            continue
         eq = p.equation(x)
         terms = []
         if x in measured:
