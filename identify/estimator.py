@@ -12,6 +12,7 @@ import numpy as np
 
 from .errors import EstimationError
 from .profile import Profile, load_profile
+from .pseudo_inputs import prepare
 from .result import IdentificationResult
 from .runs import Run
 
@@ -36,12 +37,17 @@ class Estimator:
         raise NotImplementedError
 
     def check_runs(self, runs: Run | list[Run], channels: list[str] | None = None) -> list[Run]:
-        """One or several runs, each holding the channels the profile needs and enough samples."""
+        """One or several runs, each holding the channels the profile needs and enough samples.
+
+        The runs are returned as the profile needs them: inputs delayed by its ``meta.delays`` and
+        its pseudo-inputs (a refined model's nonlinear terms, drifts, vibrations) computed from the
+        runs' own channels (:func:`identify.pseudo_inputs.prepare`)."""
         runs = [runs] if isinstance(runs, Run) else list(runs)
         if not runs:
             raise EstimationError("no runs given")
         if not self.profile.free:
             raise EstimationError(f"{self.profile.source}: the profile has no free parameters")
+        runs = prepare(self.profile, runs)
         for run in runs:
             run.require(channels or self.profile.channels, f"profile '{self.profile.name}'")
             if len(run) < MIN_SAMPLES:

@@ -57,16 +57,22 @@ class NoiseModel:
 
     @classmethod
     def fit(cls, residuals: list[np.ndarray], dt: float, f_min: float = 0.5,
-            max_order: int = MAX_ORDER) -> "NoiseModel":
-        """Fit the VAR model to residuals (list of (N_r, ny) arrays, one per run)."""
+            max_order: int = MAX_ORDER, order: int | None = None, deterministic: bool = True) -> "NoiseModel":
+        """Fit the VAR model to residuals (list of (N_r, ny) arrays, one per run); ``order`` fixes
+        the order (else Akaike's choice up to ``max_order``); ``deterministic``: remove each run's
+        mean, trend and the most prominent line first (for the score tests), else fit the
+        residuals as they are (the noise model of a hypothesis, for likelihoods)."""
         runs = [np.atleast_2d(np.asarray(e, float).T).T for e in residuals]
         ny = runs[0].shape[1]
         sigma = np.sqrt(np.mean(np.vstack(runs) ** 2, axis=0))
         sigma = np.where(sigma > 0, sigma, 1.0)
-        freqs = [line_frequency([e[:, j] for e in runs], dt, f_min) for j in range(ny)]
-        clean = [_deterministic_removed(e / sigma, dt, freqs) for e in runs]
+        freqs = [line_frequency([e[:, j] for e in runs], dt, f_min) if deterministic else np.nan
+                 for j in range(ny)]
+        clean = [_deterministic_removed(e / sigma, dt, freqs) if deterministic else e / sigma for e in runs]
         p_max = int(min(max_order, min(len(e) for e in clean) // 10,
                         max(sum(len(e) for e in clean) // (4 * ny) - 1, 0)))
+        if order is not None:
+            p_max = min(int(order), p_max)
         Y = np.vstack([e[p_max:] for e in clean])  # (n, ny)
         X = np.vstack([np.hstack([e[p_max - k:len(e) - k] for k in range(1, p_max + 1)]) if p_max
                        else np.zeros((len(e), 0)) for e in clean])  # (n, ny p_max), lag-major
@@ -76,7 +82,7 @@ class NoiseModel:
         G = Q.T @ Y
         YY = Y.T @ Y
         best, best_aic = 0, np.inf
-        for p in range(p_max + 1):
+        for p in (range(p_max + 1) if order is None else [p_max]):
             c = ny * p
             S = (YY - G[:c].T @ G[:c]) / max(n - c, 1)
             aic = n * _logdet(S) + 2.0 * c * ny
@@ -106,6 +112,15 @@ class NoiseModel:
         """Sum of squared whitened residuals over runs: twice the Gaussian negative log-likelihood
         (up to a constant) of the residuals under this noise model."""
         return float(sum(np.sum(self.whiten(e) ** 2) for e in residuals))
+
+    def nll(self, residuals: list[np.ndarray], skip: int = 0) -> float:
+        """Gaussian negative log-likelihood of residuals (constant dropped) under this noise model,
+        over the samples ``t >= max(skip, order)`` of each run: comparable between noise models of
+        different parameters (``skip`` = the larger order of the two)."""
+        k = max(skip, self.order) - self.order
+        logdet = 2.0 * float(np.sum(np.log(self.sigma))) - 2.0 * float(np.linalg.slogdet(self.L_inv)[1])
+        return 0.5 * sum(float(np.sum(w[k:] ** 2)) + (len(w) - k) * logdet
+                         for w in (self.whiten(e) for e in residuals))
 
     def to_dict(self) -> dict:
         return {"order": self.order, "sigma": self.sigma.tolist()}

@@ -33,7 +33,6 @@ import importlib
 import math
 import sys
 import time
-import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -41,7 +40,7 @@ import numpy as np
 from scipy import stats
 
 from . import diagnostics as dg
-from .candidates import KINDS, Candidate, Delay, Lag, Periodic, catalogue, extend_all, prepare_runs
+from .candidates import KINDS, Candidate, Context, catalogue, extend_all, prepare_runs
 from .errors import EstimationError, PseudostepError
 from .model import LinearModel
 from .noise import NoiseModel, line_frequency
@@ -357,7 +356,7 @@ class Refine:
     def _check(self, runs: list[Run], validate: list[Run]) -> None:
         if not runs:
             raise EstimationError("refine: no runs given")
-        for run in runs + validate:
+        for run in prepare_runs(self.profile, runs + validate):
             run.require(self.profile.channels, f"profile '{self.profile.name}'")
             if len(run) < MIN_SAMPLES:
                 raise EstimationError(f"{run.source}: only {len(run)} samples; refine needs at least "
@@ -435,29 +434,8 @@ class Refine:
 
     # -- score tests -------------------------------------------------------------------------
     def _candidates(self, p: Profile, runs: list[Run], ev: Evaluation, excluded: set[str]) -> list[Candidate]:
-        cands = catalogue(p, runs, self.kinds, self.nonlinear_products)
-        if "periodic" in self.kinds:
-            cands += self._periodic(p, ev)
-        return [c for c in cands if c.name not in excluded]
-
-    def _periodic(self, p: Profile, ev: Evaluation) -> list[Periodic]:
-        dt = self._raw[0].dt
-        done = set(dict(p.meta.get("periodic", {})))
-        n_runs = len(self._raw)
-        n_bins = int(np.sum((np.fft.rfftfreq(min(len(e) for e in ev.residuals), dt) > self.f_min)))
-        out = []
-        for j, y in enumerate(p.outputs):
-            if y in done:
-                continue
-            if self.frequencies:
-                out += [Periodic(y, f, n_runs=n_runs) for f in self.frequencies[:1]]
-                continue
-            f = line_frequency([e[:, j] for e in ev.residuals], dt, self.f_min)
-            if np.isfinite(f):
-                # the frequency was chosen as the most prominent line: count every bin as a test,
-                # twice for the sub-bin search
-                out.append(Periodic(y, f, n_tests=2 * max(n_bins, 1), n_runs=n_runs))
-        return out
+        context = Context(runs, ev.residuals, self.dt, self.f_min, tuple(self.frequencies), self.nonlinear_products)
+        return [c for c in catalogue(p, context, self.kinds) if c.name not in excluded]
 
     def _score(self, p: Profile, excluded: set[str]) -> list[dict]:
         """Score statistic, threshold and p-value of every candidate at the fitted profile ``p``.
@@ -480,19 +458,22 @@ class Refine:
             ext_runs = c.runs(ext_runs)
         evj = evaluate(ext_p, ext_runs, self.zero_shifts, self.segment_, jacobian=True)
         self.evaluations_ += 1
-        delays = [c for c in cands if isinstance(c, Delay)]
-        # per run (N_r, ny, columns): the model's parameters, then every candidate's columns
-        dy = [np.concatenate([d] + [s[:, :, None] for s in cols], axis=2)
-              for d, *cols in zip(evj.dy, *[self._delay_sensitivity(p, c.target) for c in delays])]
+        # per run (N_r, ny, columns): the model's parameters, then every candidate's columns (the
+        # output sensitivities of the extended profile, then those the other candidates supply)
+        own = [(c, c.score_columns(self, p)) for c in cands if not c.linear]
+        dy = [np.concatenate([d] + [cols[r] for _, cols in own], axis=2) for r, d in enumerate(evj.dy)]
         nb = len(p.free)
         col = {name: i - nb for i, name in enumerate(ext_p.free_names)}
-        n_lin = len(ext_p.free) - nb
-        groups = [(c, [col[k] for k in c.params]) for c in linear] + [(c, [n_lin + i]) for i, c in enumerate(delays)]
+        groups = [(c, [col[k] for k in c.params]) for c in linear]
+        width = len(ext_p.free) - nb
+        for c, cols in own:
+            groups.append((c, list(range(width, width + cols[0].shape[2]))))
+            width += cols[0].shape[2]
         sigma = np.sqrt(np.mean(np.vstack(ev.residuals) ** 2, axis=0))
         sigma = np.where(sigma > 0, sigma, 1.0)
         design = (ev.residuals, dy, evj.nuisance, nb)
         white = NoiseModel.white(sigma)
-        null = NoiseModel.fit(ev.residuals, self._raw[0].dt, self.f_min) if self.coloured else white
+        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min) if self.coloured else white
         self.noise_orders_.append(null.order)
         self._say(f"  {len(cands)} candidates, residual noise model order {null.order}")
         tested = self._tests(null, design, groups, "residual")
@@ -502,7 +483,7 @@ class Refine:
                 c, cols = next(g for g in groups if g[0] is t["candidate"])
                 keep = list(range(nb)) + [nb + k for k in cols]
                 alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
-                                     self._raw[0].dt, self.f_min)
+                                     self.dt, self.f_min)
                 tested += self._tests(alt, design, [(c, cols)], "alternative")
         # Šidák over every elementary hypothesis of both families: a periodic candidate is the best
         # of n_tests frequencies, so it is compared with the same per-hypothesis threshold as the others
@@ -537,22 +518,36 @@ class Refine:
             q = max(q, c.null_dof or 0)
             out.append({"candidate": c, "statistic": stat, "dof": q, "log_p": float(stats.chi2.logsf(stat, q)),
                         "noise": noise, "metric": metric,
-                        "tau0": sb.linear_estimate(J[:, [where[cols[0]]]]) if isinstance(c, Delay) else None})
+                        # a linearised estimate: where a non-linear candidate's search starts
+                        "hint": None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])})
         return out
 
-    def _delay_sensitivity(self, p: Profile, input_name: str) -> list[np.ndarray]:
-        """dy/dtau at tau = 0 per fit run: the response to -du/dt of the delayed input (N_r, ny),
-        each segment from rest (its initial state is a nuisance parameter anyway)."""
+    # -- what candidates ask of the loop ------------------------------------------------------
+    @property
+    def dt(self) -> float:
+        return self._raw[0].dt
+
+    def input_response(self, p: Profile, input_name: str, transform) -> list[np.ndarray]:
+        """Per fit run (N_r, ny): the model's response to ``transform(u, dt)`` of one input (the
+        others zero), each segment from rest (its initial state is a nuisance parameter anyway)."""
         runs = prepare_runs(p, self._raw)
         j = p.input_names.index(input_name)
         inputs = []
         for run in runs:
             u = np.zeros((len(run), len(p.inputs)))
-            u[:, j] = -np.gradient(run[input_name], run.dt)
+            u[:, j] = transform(run[input_name], run.dt)
             inputs.append(u)
         prob = _problem(p, runs, self.segment_, False, inputs)
         beta = np.concatenate([LinearModel(p).theta, np.zeros(prob.n_beta - prob.p)])
         return prob.per_run(prob.evaluate(beta, jacobian=False).y)
+
+    def refit(self, ext_p: Profile, p: Profile, bounds: bool = True) -> tuple[Profile, IdentificationResult]:
+        """ML re-fit of an extended profile: the fitted profile (named as ``p``) and the result."""
+        result = self._estimate(ext_p, prepare_runs(ext_p, self._raw), bounds=bounds)
+        return _keep_meta(result.identified_profile(p.name), ext_p), result
+
+    def residuals(self, p: Profile) -> list[np.ndarray]:
+        return self._eval(p).residuals
 
     # -- one step ----------------------------------------------------------------------------
     def _try(self, p: Profile, best: dict, tested: list[dict]):
@@ -562,33 +557,35 @@ class Refine:
         A delay-type candidate yields two fits, delay and lag, tried in order of likelihood."""
         cand: Candidate = best["candidate"]
         noise = best["noise"]
-        cost0 = noise.cost(self._eval(p).residuals)
-        before, held0 = self._errors(p), self._held_out_costs(p, noise)
+        before = self._errors(p)
         runner_up = [{"effect": t["candidate"].kind, "target": t["candidate"].target,
                       "statistic": t["statistic"], "threshold": t["threshold"]}
                      for t in sorted(tested, key=_rank)[1:4]]
         common = dict(statistic=best["statistic"], threshold=best["threshold"], dof=best["dof"],
                       p_value=best["p_value"], tested=len(tested), runner_up=runner_up,
-                      why=cand.spec.get("why", ""), noise_order=noise.order, metric=best["metric"])
+                      why=cand.spec.get("why", ""), metric=best["metric"])
         try:
-            options = self._fit_delay_or_lag(p, cand, noise, best["tau0"]) if isinstance(cand, Delay) \
-                else [self._fit(p, cand, noise)]
+            options = cand.estimate(self, p, noise, best["hint"])
         except PseudostepError as exc:  # e.g. an equation-error method and an output-only effect
             step = Step(cand.kind, cand.target, {}, lr_statistic=float("nan"), error_before=before,
                         error_after=before, accepted=False, reason=f"could not be estimated: {exc}", **common)
             return step, p, None
         first = None
-        for cost1, new_p, result, params, kind in options:
-            after, held1 = self._errors(new_p), self._held_out_costs(new_p, noise)
+        for new_p, result, params, kind in options:
+            # in the metric of the noise model that selected the candidate: likelihood ratio on the
+            # fit runs, prediction errors (twice the negative log-likelihood) on the held-out data
+            lr = noise.cost(self.residuals(p)) - noise.cost(self.residuals(new_p))
+            held = {data: (noise.cost(self._eval(p, data).residuals), noise.cost(self._eval(new_p, data).residuals))
+                    for data in ("choosing", "validation") if self._data[data]}
             wald = float(sum((v["value"] / v["std"]) ** 2 if v["std"] > 0 else math.inf for v in params.values()))
-            step = Step(kind, cand.target, params, lr_statistic=float(cost0 - cost1), error_before=before,
-                        error_after=after, wald=wald, held_out={k: (held0[k], held1[k]) for k in held0}, **common)
+            step = Step(kind, cand.target, params, lr_statistic=float(lr), error_before=before,
+                        error_after=self._errors(new_p), wald=wald, held_out=held, noise_order=noise.order, **common)
             reason = self._refusal(step, stats.chi2.isf(best["level"], len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
-                if "validation" in held0 and held1["validation"] >= held0["validation"]:
+                if "validation" in held and held["validation"][1] >= held["validation"][0]:
                     reason = ("did not lower the prediction error on the judging data (noise-model cost "
-                              f"{held0['validation']:.6g} -> {held1['validation']:.6g})")
+                              f"{held['validation'][0]:.6g} -> {held['validation'][1]:.6g})")
                 step.accepted, step.reason = not reason, reason
                 return step, new_p, result
             step.accepted, step.reason = False, reason
@@ -599,8 +596,8 @@ class Refine:
     def _refusal(step: Step, wald_threshold: float) -> str:
         """Why a fitted candidate is refused before the judging data ('' if it is not)."""
         if step.lr_statistic < step.threshold:
-            return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in the residual noise model's "
-                    f"metric) below the threshold {step.threshold:.3g}")
+            return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in the test's noise-model metric) "
+                    f"below the threshold {step.threshold:.3g}")
         if step.wald < wald_threshold:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
@@ -608,90 +605,6 @@ class Refine:
             b, a = step.held_out["choosing"]
             return f"prediction error on the choosing data not reduced (noise-model cost {b:.6g} -> {a:.6g})"
         return ""
-
-    def _held_out_costs(self, p: Profile, noise: NoiseModel) -> dict:
-        """Prediction error of ``p`` on the choosing and judging data: the sum of squared residuals
-        whitened by the step's noise model (fitted on the fit runs), i.e. twice their negative
-        log-likelihood. Turbulence the model cannot predict swamps a plain RMS error (a real
-        q|q| term lowered it by nothing measurable); the whitened cost discounts it as the tests do."""
-        return {data: noise.cost(self._eval(p, data).residuals)
-                for data in ("choosing", "validation") if self._data[data]}
-
-    def _fit(self, p: Profile, cand: Candidate, noise: NoiseModel) -> tuple:
-        """ML re-fit of a candidate linear in its parameters: ``(cost, profile, result, parameters, kind)``."""
-        ext_p, _ = cand.apply(p, [])
-        result = self._estimate(ext_p, prepare_runs(ext_p, self._raw))
-        new_p = _keep_meta(result.identified_profile(p.name), ext_p)
-        params = {k: {"value": float(result.theta[result.names.index(k)]),
-                      "std": float(result.std[result.names.index(k)])} for k in cand.params}
-        return noise.cost(self._eval(new_p).residuals), new_p, result, params, cand.kind
-
-    def _fit_delay_or_lag(self, p: Profile, cand: Delay, noise: NoiseModel, tau0: float) -> list[tuple]:
-        """Delay by profile likelihood (ML re-fit at each tau), lag by ML: both fits as
-        ``(cost, profile, result, parameters, kind)``, the more likely first. Costs are in the
-        noise model's metric (twice a negative log-likelihood), so the curvature of half the cost
-        over tau gives the delay's coloured-residual bound."""
-        dt = self._raw[0].dt
-        fits: dict[float, tuple] = {}
-
-        def at(tau: float):
-            key = round(float(tau), 9)
-            if key not in fits:
-                d = Delay(cand.target, tau)
-                ext_p = d.profile(p, {d.params[0]: tau})
-                res = self._estimate(ext_p, prepare_runs(ext_p, self._raw), bounds=False)
-                prof = _keep_meta(res.identified_profile(p.name), ext_p)
-                fits[key] = (0.5 * noise.cost(self._eval(prof).residuals), prof, res)
-            return fits[key]
-
-        options = []
-        if "delay" in self.kinds:
-            tau = self._search_delay(at, best_tau0=tau0, dt=dt)
-            # bound from the curvature of the profile likelihood (central difference, shifted off
-            # the bound tau = 0)
-            h = max(dt / 2, 0.05 * tau)
-            c = tau if tau >= h else h
-            curv = (at(c + h)[0] - 2 * at(c)[0] + at(c - h)[0]) / h ** 2
-            std = 1 / math.sqrt(curv) if curv > 0 else math.inf
-            half, prof, _ = at(tau)
-            res = self._estimate(prof, prepare_runs(prof, self._raw))  # the same fit, with its bounds
-            options.append((2 * half, prof, res, {f"tau_{cand.target}": {"value": tau, "std": std}}, "delay"))
-        if "lag" in self.kinds:
-            tau0 = options[0][3][f"tau_{cand.target}"]["value"] if options else 0.1
-            lag = Lag(cand.target, k=1.0 / max(tau0, 2 * dt))
-            try:
-                options.append(self._fit(p, lag, noise))
-            except PseudostepError:
-                pass  # a lag that diverges or cannot be fitted is not the effect
-        if not options:
-            raise EstimationError(f"neither a delay nor a lag on '{cand.target}' could be fitted")
-        return sorted(options, key=lambda o: o[0])
-
-
-    def _search_delay(self, nll_at, best_tau0: float, dt: float) -> float:
-        """Minimise the profile likelihood over tau in [0, tau_max]: a coarse grid first (the
-        score test's linearised estimate ``best_tau0`` is only good for small delays, and the
-        profile likelihood of a large one is not quadratic from 0), then successive parabolas
-        through three ML re-fits around the best grid point."""
-        f = lambda t: nll_at(float(np.clip(t, 0.0, self.tau_max)))[0]  # noqa: E731
-        grid = np.unique(np.clip(np.r_[np.linspace(0.0, self.tau_max, 11), best_tau0], 0.0, self.tau_max))
-        tau = float(min(grid, key=f))
-        h = max(dt, 0.5 * self.tau_max / 10)
-        for _ in range(6):
-            pts = np.clip([tau - h, tau, tau + h], 0.0, self.tau_max)
-            vals = [f(t) for t in pts]
-            with warnings.catch_warnings():  # repeated points at the bounds: the fallback handles it
-                warnings.simplefilter("ignore", np.exceptions.RankWarning)
-                a, b, _ = np.polyfit(pts, vals, 2)
-            new = -b / (2 * a) if a > 0 else pts[int(np.argmin(vals))]
-            new = float(np.clip(new, max(tau - 2 * h, 0.0), min(tau + 2 * h, self.tau_max)))
-            done = abs(new - tau) < dt / 100  # well inside the statistical error of any usable delay
-            tau, h = new, max(dt / 10, min(h, 2 * abs(new - tau)))
-            if done:
-                break
-        # keep the best point evaluated (the parabola may overshoot on a rough cost)
-        cands = [tau] + [t for t in np.clip([tau - h, tau + h], 0, self.tau_max)]
-        return float(min(cands, key=f))
 
 
 def _rank(t: dict) -> tuple:
