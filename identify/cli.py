@@ -41,6 +41,7 @@ def build_parser() -> Parser:
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
+    _add_freq_parser(sub)
     return parser
 
 
@@ -77,6 +78,10 @@ def cmd_estimate(args) -> int:
         est = LS(profile, diff_cutoff_hz=args.diff_cutoff)
     result = est.fit(runs).result_
     print(result.summary())
+    from .frequency import cost_report
+    text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
+                                                              "a priori": LinearModel(profile)})
+    print("\n" + text)
     out = result.save(args.out)
     plots = save_plots(result, out)
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
@@ -148,6 +153,37 @@ def _add_refine_parser(sub) -> None:
     p.add_argument("--f-min", type=float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
     p.add_argument("--tau-max", type=float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
     p.set_defaults(func=cmd_refine)
+
+
+def cmd_freq(args) -> int:
+    """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
+    from .frequency import cost_report, frequency_response, plot_bode
+    from .runs import read_run
+    from pathlib import Path
+
+    profile = load_profile(args.profile)
+    runs = [read_run(f) for f in args.runs]
+    f_range = None if args.f_min is None and args.f_max is None else (args.f_min or 0.05, args.f_max or 5.0)
+    fr = frequency_response(runs, profile.input_names, list(profile.outputs), f_range=f_range)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    models = {"a priori": LinearModel(profile)}
+    plots = plot_bode(fr, models, out)
+    fr.to_csv(out / "frequency_response.csv")
+    print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
+    print(cost_report(runs, models)[0])
+    print(f"written to {out}: frequency_response.csv, {', '.join(p.name for p in plots)}")
+    return 0
+
+
+def _add_freq_parser(sub) -> None:
+    p = sub.add_parser("freq", help="frequency responses with coherence (Bode plots, CSV, fit cost J)")
+    p.add_argument("runs", nargs="+", help="run files (.csv)")
+    p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--f-min", type=float, metavar="HZ", help="lowest frequency (default: from the windows)")
+    p.add_argument("--f-max", type=float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
+    p.set_defaults(func=cmd_freq)
 
 
 def main(argv=None) -> int:
