@@ -70,6 +70,9 @@ def cmd_estimate(args) -> int:
     if args.method == "ml":
         from .ml import ML
         est = ML(profile, progress=show)
+    elif args.method == "fdee":
+        from .frequency_ee import FDEE
+        est = FDEE(profile)
     elif args.method == "iv":
         from .equation_error import IV
         est = IV(profile, progress=show, diff_cutoff_hz=args.diff_cutoff, max_iter=args.max_iter)
@@ -92,7 +95,8 @@ def _add_estimate_parser(sub) -> None:
     p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
     p.add_argument("runs", nargs="+", help="run files (.csv, or .mat with --channel-map)")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
+    p.add_argument("--method", choices=("ls", "iv", "ml", "fdee"), default="iv",
+                   help="estimator (default iv; fdee: frequency-domain equation error)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--smooth", type=float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=float, metavar="HZ",
