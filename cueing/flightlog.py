@@ -213,7 +213,9 @@ def log_to_run(log: FrameLog, sample_rate: float | None = None, signals: list[Si
     grid = np.arange(int(np.floor(t_end * rate + 1e-9)) + 1) / rate
     if grid.size < 2:
         raise CueingError(f"{log.path}: the flown part is shorter than one sample")
-    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)
+    # times are logged to the microsecond: a frame stamped up to 1 us after a grid instant is that
+    # instant's frame (without the tolerance two thirds of a 60 Hz log's inputs came one frame late)
+    idx = np.clip(np.searchsorted(t, grid + 1e-6, side="right") - 1, 0, t.size - 1)
     t_sig = np.interp(grid, t, ts)
     channels: dict[str, np.ndarray] = {}
     for name in log.inputs:

@@ -42,7 +42,8 @@ class Runner:
     def __init__(self, signals, source: InputSource, log_path, *, clock=None, rate: float = DEFAULT_RATE,
                  countdown: float = 3.0, tail: float = 1.0, preview: float = 0.0, display: str | None = None,
                  audio: bool = True, events=None, meta: dict | None = None, size=(800, 480),
-                 screenshot_dir=None, screenshot_every: float | None = None, end_screen: float = 0.0):
+                 screenshot_dir=None, screenshot_every: float | None = None, end_screen: float = 0.0,
+                 live=None):
         self.signals = list(signals)
         self.source = source
         self.log_path = Path(log_path)
@@ -59,6 +60,7 @@ class Runner:
         self.screenshot_dir = Path(screenshot_dir) if screenshot_dir else None
         self.screenshot_every = screenshot_every
         self.end_screen = end_screen
+        self.live = live  # cueing.live.LiveIdentification: fed every frame, its panel beside the needles
         self.inputs = [s.input for s in self.signals]
         self.t_end = max(s.end_time for s in self.signals) + self.tail
 
@@ -77,12 +79,18 @@ class Runner:
                 self.window = pygame.display.set_mode(self.size)
         except pygame.error as exc:
             raise CueingError(f"cannot open a display window ({exc}): use --headless") from None
-        self.display = Display(self.signals, self.size, self.preview)
+        w, h = self.size
+        panel = 0
+        if self.live is not None:
+            from .live import PANEL_WIDTH as panel
+            self.live_rect = (w - panel, 0, panel, h)
+        self.display = Display(self.signals, (w - panel, h), self.preview)
         if self.display_mode == WINDOW:
             pygame.display.set_caption("pseudostep cueing")
             self.surface = self.window
         else:
             self.surface = pygame.Surface(self.size)
+        self.needle_surface = self.surface.subsurface((0, 0, w - panel, h)) if panel else self.surface
         if isinstance(self.source, MouseSource) and self.source.value_of_x is None:
             self.source.value_of_x = self.display.value_of_x
 
@@ -158,11 +166,15 @@ class Runner:
                 self.ticker.tick()
             last_levels = levels
             writer.frame(k, t, t_signal, paused, command, flown)
+            if self.live is not None:
+                self.live.frame(k, t, t_signal, flown, paused)
             if self.display is not None:
                 state = FrameState(t, t_signal, command, flown, countdown=-t if t < 0 else None,
                                    message=self.source.paused_reason)
                 r0 = self.clock.now()
-                self.display.render(self.surface, state)
+                self.display.render(self.needle_surface, state)
+                if self.live is not None:
+                    self.live.draw(self.surface, self.live_rect)
                 if self.window is not None:
                     import pygame
                     pygame.display.flip()
@@ -194,7 +206,7 @@ class Runner:
         state = FrameState(float(log.time[-1]), float(last["t_signal"][-1]),
                            np.array([last[i + "_cmd"][-1] for i in self.inputs]).reshape(n),
                            np.array([last[i][-1] for i in self.inputs]).reshape(n), end_lines=lines)
-        self.display.render(self.surface, state)
+        self.display.render(self.needle_surface, state)
         if self.screenshot_dir is not None:
             self.screenshot("end.png")
         if self.window is not None:
