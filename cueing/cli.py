@@ -69,6 +69,9 @@ def cmd_fly(args) -> int:
     signals = _signals(args.signal)
     options = _fly_options(args)
     source = _source(args, args.skill, args.seed)
+    if args.live:
+        from .live import cmd_fly_live
+        return cmd_fly_live(args, signals, options, source)
     flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
     print("\n".join(flight.score.lines()[1:]))
     print(f"run written to {flight.path} ({flight.log.status}); frame log {flight.log.path}")
@@ -162,6 +165,12 @@ def build_parser() -> Parser:
     p = sub.add_parser("fly", help="fly one run on the two-needle display")
     _add_fly_arguments(p)
     p.add_argument("--out", required=True, help="run file to write (the frame log grows beside it)")
+    p.add_argument("--live", metavar="PROFILE", help="identify this profile while flying (recursive "
+                   "frequency-domain equation error; response from --simulate or --live-response)")
+    p.add_argument("--targets", metavar="LIST", help="--live: parameters and Cramér-Rao %% targets, e.g. "
+                   "M_q:10,L_p:15 (default: each moment equation's damping and control derivative at 20 %%)")
+    p.add_argument("--live-response", metavar="MODULE:FUNCTION",
+                   help="--live: f(t, stick) -> measured states, e.g. from a flight simulator")
     p.set_defaults(func=cmd_fly)
 
     p = sub.add_parser("practice", help="fly a signal several times, score each attempt, keep the history")

@@ -124,12 +124,28 @@ def flown_profile(profile: Profile, flown_inputs: list[str]) -> tuple[Profile, l
                    fixed={**profile.fixed, **{k: profile.free[k] for k in fixed}}), fixed
 
 
+def primary_derivatives(profile: Profile) -> list[str]:
+    """Per moment equation (L, M, N): its largest a priori rate derivative (the damping, ``M_q``)
+    and its largest control derivative (the control power, ``M_theta_s``): what a handling-qualities
+    test point is flown for. Falls back to every free parameter for a profile without them."""
+    rates = {"p", "q", "r"} & set(profile.states)
+    picks = []
+    for state in sorted(rates):
+        eq = profile.state_names.index(state)
+        for matrix, wanted in (("A", lambda c: profile.state_names[c] in rates), ("B", lambda c: True)):
+            cands = [n for n in profile.free
+                     if [(e.matrix, e.row) for e, _ in profile.parameter_entries(n)] == [(matrix, eq)]
+                     and wanted(profile.parameter_entries(n)[0][0].col)]
+            if cands:
+                picks.append(max(cands, key=lambda n: abs(profile.free[n])))
+    return picks or list(profile.free)
+
+
 def parse_targets(spec: str | None, profile: Profile) -> dict[str, float]:
-    """``"M_q:10,L_p"`` -> {name: target %} (DEFAULT_TARGET where none given); default: every free
-    parameter of the moment equations (L, M, N)."""
+    """``"M_q:10,L_p"`` -> {name: target %} (DEFAULT_TARGET where none given); default: the
+    primary damping and control derivatives (:func:`primary_derivatives`)."""
     if not spec:
-        names = [n for n in profile.free if n[:2] in ("L_", "M_", "N_")] or list(profile.free)
-        return {n: DEFAULT_TARGET for n in names}
+        return {n: DEFAULT_TARGET for n in primary_derivatives(profile)}
     out = {}
     for item in (s.strip() for s in spec.split(",") if s.strip()):
         name, _, pct = item.partition(":")
@@ -188,6 +204,8 @@ class LiveIdentification:
         self._round_start = -np.inf
         self._in_round = False
         self._panel = None  # cached rendered panel: redrawn only when the estimate changes
+        self._stale = False  # a new estimate awaits drawing
+        self._busy = False  # this frame already solved: the redraw waits for the next one
         self._fonts = {}
         self._file = None
 
@@ -225,6 +243,7 @@ class LiveIdentification:
         if t < 0 or paused:
             return
         w0 = time.perf_counter()
+        self._busy = False
         x = self.response.read(t, flown)
         if x.shape != (len(self.profile.states),):
             raise CueingError(f"{self.response.describe()}: gave {x.size} states at t = {t:.3f} s, "
@@ -247,6 +266,7 @@ class LiveIdentification:
         if not self._in_round:
             return None
         est = self.estimator.step()
+        self._busy = True
         if est is None:
             return None
         self._in_round = False
@@ -257,15 +277,17 @@ class LiveIdentification:
         rel = est.relative_std[self._target_idx]
         if self.complete_at_ is None and np.all(rel <= np.array(list(self.targets.values()))):
             self.complete_at_ = t
-        self._panel = None
+        self._stale = True
         return est
 
     # -- the panel --------------------------------------------------------------------------------
     def draw(self, surface, rect) -> None:
         """Blit the panel (re-rendered only after a new estimate) into ``rect`` (x, y, w, h)."""
         w0 = time.perf_counter()
-        if self._panel is None or self._panel.get_size() != tuple(rect[2:]):
+        # re-rendering the text costs about a millisecond: never on a frame that also solved
+        if self._panel is None or (self._stale and not self._busy) or self._panel.get_size() != tuple(rect[2:]):
             self._panel = self._render(rect[2:])
+            self._stale = False
         surface.blit(self._panel, rect[:2])
         if self.times_:
             self.times_[-1] += time.perf_counter() - w0
@@ -406,3 +428,21 @@ def fly_live(signals, source, out, profile, *, simulate=None, response=None, tar
             return flight, live, None
         out.with_name(out.stem + ".live.md").write_text(comparison(live, ml_result))
     return flight, live, ml_result
+
+
+def cmd_fly_live(args, signals, options: dict, source) -> int:
+    """``cueing fly --live PROFILE``: fly with the live estimate, then print it beside ML."""
+    opts = dict(options)
+    simulate, noise, seed = opts.pop("simulate"), opts.pop("noise_fraction"), opts.pop("seed")
+    response = ExternalResponse(args.live_response) if args.live_response else None
+    flight, live, ml_result = fly_live(signals, source, args.out, args.live, simulate=simulate, response=response,
+                                       targets=args.targets, noise_fraction=noise, seed=seed,
+                                       pilot=args.pilot or "", **opts)
+    print("\n".join(flight.score.lines()[1:]))
+    report = Path(args.out).with_name(Path(args.out).stem + ".live.md")
+    print(report.read_text() if report.exists() else "no live estimate (the run ended before the first re-solve)")
+    times = np.array(live.times_) * 1e3
+    if times.size:
+        print(f"live work per frame: median {np.median(times):.2f} ms, 99th percentile {np.percentile(times, 99):.2f} ms")
+    print(f"run written to {flight.path} ({flight.log.status}); frame log {flight.log.path}; live log {live.log_path}")
+    return 0

@@ -107,18 +107,16 @@ def _blocks(model: LinearModel, g: Group, trs: list[Transform], omega: np.ndarra
     """Complex regressor blocks (nf, q) and targets (nf,) per (run, equation) of a group."""
     ne, npar, nr = len(g.equations), len(g.params), len(trs)
     q = npar + (nr * ne if bias else 0)
-    jw = 1j * omega[:, None]
     Xb, yb, Tb = [], [], []
     for r, tr in enumerate(trs):
-        reg = (np.einsum("pij,fj->fip", model.dA, tr.X) + np.einsum("pij,fj->fip", model.dB, tr.U))
-        known = jw * tr.X + tr.end - tr.X @ model.A0.T - tr.U @ model.B0.T  # (nf, n)
         for k, e in enumerate(g.equations):
             block = np.zeros((len(omega), q), complex)
-            block[:, :npar] = reg[:, e][:, g.params]
+            # column j: (dA[j] X + dB[j] U)_e, only for the group's parameters
+            block[:, :npar] = tr.X @ model.dA[g.params, e].T + tr.U @ model.dB[g.params, e].T
             if bias:
                 block[:, npar + r * ne + k] = tr.one
             Xb.append(block)
-            yb.append(known[:, e])
+            yb.append(1j * omega * tr.X[:, e] + tr.end[:, e] - tr.X @ model.A0[e] - tr.U @ model.B0[e])
             Tb.append(tr.T)
     return Xb, yb, Tb
 
@@ -131,23 +129,55 @@ def _smooth(p: np.ndarray, half: int = SMOOTH_HALF_WIDTH) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)
 
 
+class _Kernels:
+    """``K(w_k - w_l)`` and ``K(w_k + w_l)`` (nf, nf) for record lengths T: evaluated on the few
+    distinct sums and differences of the grid (2 nf - 1 for an even one) and spread by index."""
+
+    def __init__(self, omega: np.ndarray):
+        scale = max(float(np.abs(omega).max()), 1e-12)
+        d, s = omega[:, None] - omega[None, :], omega[:, None] + omega[None, :]
+        self.d_vals, self.d_idx = np.unique(np.round(d / scale, 12), return_inverse=True)
+        self.s_vals, self.s_idx = np.unique(np.round(s / scale, 12), return_inverse=True)
+        self.d_vals, self.s_vals = self.d_vals * scale, self.s_vals * scale
+        self.shape = d.shape
+        self._T, self._K = None, None
+
+    def __call__(self, T: float):
+        if T != self._T:
+            self._T = T
+            self._K = (_kernel(self.d_vals, T)[self.d_idx].reshape(self.shape),
+                       _kernel(self.s_vals, T)[self.s_idx].reshape(self.shape))
+        return self._K
+
+
+_KERNELS: dict[bytes, _Kernels] = {}
+
+
+def _kernels(omega: np.ndarray) -> _Kernels:
+    key = omega.tobytes()
+    if key not in _KERNELS:
+        if len(_KERNELS) > 16:  # a handful of grids at a time; no unbounded growth
+            _KERNELS.clear()
+        _KERNELS[key] = _Kernels(omega)
+    return _KERNELS[key]
+
+
 def _middle(Xb, res, Tb, omega, coloured: bool) -> np.ndarray:
     """``sum_blocks 1/2 Re(X^H V X + X^H V' conj X)``: the residuals' share of the sandwich."""
-    dm = omega[:, None] - omega[None, :]
-    sm = omega[:, None] + omega[None, :]
+    kernels = _kernels(omega)
     total = 0.0
     for X, e, T in zip(Xb, res, Tb):
         p = np.abs(e) ** 2 / T
         S = _smooth(p) if coloured else np.full_like(p, p.mean())
         root = np.sqrt(S)
-        V = np.outer(root, root) * _kernel(dm, T)
-        Vp = np.outer(root, root) * _kernel(sm, T)
-        total = total + 0.5 * np.real(X.conj().T @ V @ X + X.conj().T @ Vp @ X.conj())
+        Kd, Ks = kernels(T)
+        W = root[:, None] * X  # V = diag(root) K diag(root)
+        total = total + 0.5 * np.real(W.conj().T @ (Kd @ W) + W.conj().T @ (Ks @ W.conj()))
     return total
 
 
 def solve_groups(model: LinearModel, groups: list[Group], trs: list[Transform], omega: np.ndarray,
-                 bias: bool = True, only: list[int] | None = None):
+                 bias: bool = True, only: list[int] | None = None, white: bool = True):
     """Estimate the groups' parameters from transforms. Returns per group index a dict with
     ``theta`` (group parameters), ``cov``/``cov_white`` (their covariances), ``biases`` (runs, ne)
     and ``residual_rms`` per equation; a group the data cannot identify yet gets ``error``."""
@@ -165,13 +195,18 @@ def solve_groups(model: LinearModel, groups: list[Group], trs: list[Transform], 
             continue
         Xs = X / scale
         M = np.real(Xs.conj().T @ Xs)
-        Minv = np.linalg.inv(M)
+        try:
+            Minv = np.linalg.inv(M)
+        except np.linalg.LinAlgError:
+            out[gi] = {"error": f"not identifiable from these data (singular information): {', '.join(names)}"}
+            continue
         est = Minv @ np.real(Xs.conj().T @ y) / scale
         res = [yy - XX @ est for XX, yy in zip(Xb, yb)]
         n_real, q = 2 * len(y), X.shape[1]
         dof = n_real / max(n_real - q, 1)
         covs = [dof * Minv @ _middle([b / scale for b in Xb], res, Tb, omega, c) @ Minv / np.outer(scale, scale)
-                for c in (True, False)]
+                for c in ((True, False) if white else (True,))]
+        covs.append(covs[0] if not white else covs[1])
         k, ne = len(g.params), len(g.equations)
         out[gi] = {"theta": est[:k], "cov": covs[0][:k, :k], "cov_white": covs[1][:k, :k],
                    "biases": est[k:].reshape(len(trs), ne) if bias else np.zeros((len(trs), ne)),
@@ -322,7 +357,7 @@ class RecursiveFDEE:
 
     def _solve(self, only) -> None:
         tr = self.transform()
-        self._results.update(solve_groups(self.model, self.groups, [tr], self.omega, self.bias, only))
+        self._results.update(solve_groups(self.model, self.groups, [tr], self.omega, self.bias, only, white=False))
 
     def solve(self) -> LiveEstimate:
         """Re-solve every group now."""
