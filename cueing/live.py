@@ -200,7 +200,8 @@ class LiveIdentification:
         self.history_ = LiveHistory(self.names)
         self.latest = None
         self.complete_at_: float | None = None
-        self.times_: list[float] = []
+        self.times_: list[float] = []  # wall time of the live work per frame (s)
+        self.cpu_times_: list[float] = []  # the same in this thread's CPU time: without other load
         self._round_start = -np.inf
         self._in_round = False
         self._panel = None  # cached rendered panel: redrawn only when the estimate changes
@@ -242,7 +243,7 @@ class LiveIdentification:
             self.open()
         if t < 0 or paused:
             return
-        w0 = time.perf_counter()
+        w0, c0 = time.perf_counter(), time.thread_time()
         self._busy = False
         x = self.response.read(t, flown)
         if x.shape != (len(self.profile.states),):
@@ -259,6 +260,7 @@ class LiveIdentification:
         self._file.write(",".join(row) + "\n")
         self._file.flush()
         self.times_.append(time.perf_counter() - w0)
+        self.cpu_times_.append(time.thread_time() - c0)
 
     def _work(self, t: float):
         if not self._in_round and t - self._round_start >= ROUND_PERIOD:
@@ -283,7 +285,7 @@ class LiveIdentification:
     # -- the panel --------------------------------------------------------------------------------
     def draw(self, surface, rect) -> None:
         """Blit the panel (re-rendered only after a new estimate) into ``rect`` (x, y, w, h)."""
-        w0 = time.perf_counter()
+        w0, c0 = time.perf_counter(), time.thread_time()
         # re-rendering the text costs about a millisecond: never on a frame that also solved
         if self._panel is None or (self._stale and not self._busy) or self._panel.get_size() != tuple(rect[2:]):
             self._panel = self._render(rect[2:])
@@ -291,6 +293,7 @@ class LiveIdentification:
         surface.blit(self._panel, rect[:2])
         if self.times_:
             self.times_[-1] += time.perf_counter() - w0
+            self.cpu_times_[-1] += time.thread_time() - c0
 
     def _render(self, size):
         import pygame

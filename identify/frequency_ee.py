@@ -176,6 +176,13 @@ def _middle(Xb, res, Tb, omega, coloured: bool) -> np.ndarray:
     return total
 
 
+def _independent(omega: np.ndarray, Tb: list[float]) -> float:
+    """Independent real equations of the blocks: frequencies closer than 1/T are correlated, so a
+    record of T s gives about (band width x T + 1) independent complex points, twice as many reals."""
+    width = (omega[-1] - omega[0]) / (2 * np.pi)
+    return float(sum(2 * min(len(omega), width * T + 1) for T in Tb))
+
+
 def solve_groups(model: LinearModel, groups: list[Group], trs: list[Transform], omega: np.ndarray,
                  bias: bool = True, only: list[int] | None = None, white: bool = True):
     """Estimate the groups' parameters from transforms. Returns per group index a dict with
@@ -202,8 +209,12 @@ def solve_groups(model: LinearModel, groups: list[Group], trs: list[Transform], 
             continue
         est = Minv @ np.real(Xs.conj().T @ y) / scale
         res = [yy - XX @ est for XX, yy in zip(Xb, yb)]
-        n_real, q = 2 * len(y), X.shape[1]
-        dof = n_real / max(n_real - q, 1)
+        n_real, q = _independent(omega, Tb), X.shape[1]
+        if n_real < q + 2:  # early in a live record: the residual would be fitted away
+            out[gi] = {"error": f"record too short: about {n_real:.0f} independent real equations in the band "
+                                f"for {q} unknowns ({', '.join(names[:len(g.params)])})"}
+            continue
+        dof = n_real / (n_real - q)
         covs = [dof * Minv @ _middle([b / scale for b in Xb], res, Tb, omega, c) @ Minv / np.outer(scale, scale)
                 for c in ((True, False) if white else (True,))]
         covs.append(covs[0] if not white else covs[1])
