@@ -161,9 +161,10 @@ def _add_refine_parser(sub) -> None:
 
 def cmd_freq(args) -> int:
     """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
+    from pathlib import Path
+
     from .frequency import cost_report, frequency_response, plot_bode
     from .runs import read_run
-    from pathlib import Path
 
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]
@@ -172,6 +173,8 @@ def cmd_freq(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models = {"a priori": LinearModel(profile)}
+    if args.identified:  # e.g. identified_profile.toml from identify estimate
+        models["identified"] = LinearModel(load_profile(args.identified))
     plots = plot_bode(fr, models, out)
     fr.to_csv(out / "frequency_response.csv")
     print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
@@ -185,6 +188,7 @@ def _add_freq_parser(sub) -> None:
     p.add_argument("runs", nargs="+", help="run files (.csv)")
     p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--identified", metavar="TOML", help="an identified profile to overlay and judge (J) too")
     p.add_argument("--f-min", type=float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)

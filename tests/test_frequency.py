@@ -126,8 +126,13 @@ def test_cli_writes_plots_and_csv(truth, tmp_path):
     profile = tmp_path / "model.toml"
     profile.write_text(STABLE)
     out = tmp_path / "freq"
-    proc = run_cli("identify", "freq", "--profile", profile, *paths, "--out", out)
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(STABLE.replace("M_q = -1.2", "M_q = -2.4"))
+    proc = run_cli("identify", "freq", "--profile", wrong, "--identified", profile, *paths, "--out", out)
     assert proc.returncode == 0, proc.stderr
+    j = {label: float(line.split()[-1]) for label, line in zip(("a priori", "identified"),
+                                                               [l for l in proc.stdout.splitlines() if "mean" in l])}
+    assert j["identified"] < j["a priori"]
     assert (out / "bode_theta_s.png").stat().st_size > 10_000 and (out / "bode_theta_c.png").exists()
     rows = (out / "frequency_response.csv").read_text().splitlines()
     assert rows[0].startswith("omega_rad_s") and len(rows) == 1 + 80 * 6
