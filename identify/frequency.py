@@ -77,8 +77,13 @@ class FrequencyResponse:
 
     @property
     def phase_deg(self) -> np.ndarray:
-        """Phase in deg, unwrapped along frequency."""
-        return np.degrees(np.unwrap(np.angle(self.H), axis=0))
+        """Phase in deg, unwrapped along frequency over the frequencies with an estimate (nan elsewhere)."""
+        angle = np.angle(self.H)
+        out = np.full(angle.shape, np.nan)
+        for j, i in np.ndindex(angle.shape[1:]):
+            ok = np.isfinite(angle[:, j, i])
+            out[ok, j, i] = np.degrees(np.unwrap(angle[ok, j, i]))
+        return out
 
     def pair(self, output: str, input: str) -> tuple[int, int]:
         return self.outputs.index(output), self.inputs.index(input)
@@ -293,6 +298,7 @@ def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = Non
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -325,6 +331,8 @@ def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = Non
             a_c.set_ylim(0, 1.05)
             a_m.set_title(f"{y} / {u}")
             a_c.set_xlabel("frequency [Hz]")
+            a_c.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            a_c.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         axes[0, 0].set_ylabel("magnitude [dB]")
         axes[1, 0].set_ylabel("phase [deg]")
         axes[2, 0].set_ylabel("coherence")
