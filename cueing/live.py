@@ -93,6 +93,7 @@ class ExternalResponse:
     """A function ``f(t, flown) -> states`` (n,), e.g. a flight simulator's measured response."""
 
     def __init__(self, spec: str):
+        spec = spec.removeprefix("external:")
         module, _, name = spec.rpartition(":")
         try:
             self.func = getattr(importlib.import_module(module), name)
@@ -238,10 +239,11 @@ class LiveIdentification:
     # -- every frame ------------------------------------------------------------------------------
     def frame(self, k: int, t: float, t_signal: float, flown, paused: bool) -> None:
         """One frame: read the response, update the transforms, do this frame's share of a re-solve,
-        log the row. Nothing happens during the countdown or a pause (the record is the flown part)."""
+        log the row. Nothing happens during the countdown; a pause (the stick lost) stops the signal,
+        not the aircraft, so the record goes on."""
         if self._file is None:
             self.open()
-        if t < 0 or paused:
+        if t < 0:
             return
         w0, c0 = time.perf_counter(), time.thread_time()
         self._busy = False

@@ -34,7 +34,8 @@ class Runner:
     logged after the sequence ends; ``preview``: s of preview strip (0: none); ``display``: None
     (no drawing), ``"headless"`` (off-screen Surface) or ``"window"``; ``events``: callable
     returning pending pygame events (default ``pygame.event.get`` whenever pygame's display is
-    up); ``screenshot_every``: s between PNG screenshots written to ``screenshot_dir``.
+    up); ``screenshot_every``: s between PNG screenshots written to ``screenshot_dir``; ``live``: a
+    :class:`~cueing.live.LiveIdentification` fed every frame, its panel drawn right of the needles.
     After :meth:`fly`, ``log_`` is the frame log read back and ``render_times_`` the per-frame
     drawing times (s).
     """

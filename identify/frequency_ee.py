@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .equation_error import Group, _check_rank, _Data, _EquationError, equation_groups
+from .equation_error import Group, _check_rank, _EquationError, equation_groups
 from .errors import EstimationError
 from .model import LinearModel
 from .profile import Profile, load_profile
@@ -248,18 +248,6 @@ class FDEE(_EquationError):
         if n_freq is not None and not (isinstance(n_freq, int) and n_freq >= 2):
             raise EstimationError(f"n_freq must be an integer of at least 2, got {n_freq!r}")
         self.band, self.n_freq, self.held_inputs = band, n_freq, held_inputs
-
-    def _prepare(self, runs: list[Run]) -> list[_Data]:
-        p = self.profile
-        out = []
-        for run in runs:
-            for name in p.state_names + p.input_names:
-                bad = np.flatnonzero(~np.isfinite(run[name]))
-                if bad.size:
-                    raise EstimationError(f"{run.source}: channel '{name}': non-finite value at t = "
-                                          f"{run.time[bad[0]]:g} s")
-            out.append(_Data(run, run.matrix(p.state_names), run.matrix(p.input_names), None, {}))
-        return out
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         data = self._prepare(runs)
