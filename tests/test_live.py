@@ -109,3 +109,39 @@ def test_cli_live_without_a_response_is_one_error_line(tmp_path):
     proc = run_cli("cueing", "fly", "--signal", sig, "--source", "pilot", "--fast", "--headless", "--no-audio",
                    "--live", PROFILE, "--live-response", "no_such_module:f", "--out", tmp_path / "run.csv")
     one_error_line(proc, "no_such_module")
+
+
+# an "external simulator" for the --live-response path: measured states as a function of (t, stick)
+_EXTERNAL = {}
+
+
+def external_states(t, stick):
+    from cueing.live import SimulatedAircraft
+    if "aircraft" not in _EXTERNAL:
+        _EXTERNAL["aircraft"] = SimulatedAircraft(LinearModel(load_profile(PROFILE)), signals(), RATE, 0.02, seed=9)
+    return _EXTERNAL["aircraft"].read(t, stick)
+
+
+def test_external_response_feeds_the_live_estimate(tmp_path):
+    from cueing.live import ExternalResponse
+    _EXTERNAL.clear()
+    response = ExternalResponse("external:tests.test_live:external_states")
+    flight, live, ml = fly_live(signals(), PilotSource(skill=0.6, seed=3), tmp_path / "run.csv", PROFILE,
+                                response=response, fast=True, audio=False, countdown=0.5, tail=5.0, rate=RATE)
+    assert "external" in read_live_log(live.log_path)[0]["response"]
+    assert live.complete_at_ is not None and ml is not None
+    assert "q" in flight.run.channels and flight.run["q"].std() > 0
+
+
+def three_states(t, stick):
+    return [0.0, 0.0, 0.0]
+
+
+def test_external_response_of_the_wrong_size_is_named(tmp_path):
+    from cueing.errors import CueingError
+    from cueing.live import ExternalResponse
+    with pytest.raises(CueingError, match="gave 3 states.*6"):
+        fly_live(signals(), PilotSource(skill=0.6, seed=3), tmp_path / "run.csv", PROFILE,
+                 response=ExternalResponse("tests.test_live:three_states"), fast=True, audio=False,
+                 countdown=0.5, tail=1.0, rate=RATE)
+    assert "# end: aborted" in (tmp_path / "run.live.csv").read_text()
