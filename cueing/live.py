@@ -393,13 +393,14 @@ def comparison(live: LiveIdentification, ml_result) -> str:
 
 def fly_live(signals, source, out, profile, *, simulate=None, response=None, targets=None,
              noise_fraction: float = 0.02, seed: int | None = None, rate: float = 60.0, ml: bool = True,
-             **fly_options):
+             band=DEFAULT_BAND, n_freq: int = 60, **fly_options):
     """Fly with the live estimate; returns (flight, live, ml_result or None).
 
     ``profile``: the a priori profile estimated live; ``simulate``: profile or LinearModel of the
     aircraft (a simulation), or ``response``: an object with ``read(t, flown)`` (e.g.
-    :class:`ExternalResponse`). The run file gets the measured response; ML is run on it (``ml``)
-    and ``<out>.live.md`` compares the two.
+    :class:`ExternalResponse`); ``band`` (Hz) and ``n_freq``: the live estimator's frequencies.
+    The run file gets the measured response; ML is run on it (``ml``) and ``<out>.live.md``
+    compares the two.
     """
     from identify import ML
 
@@ -415,7 +416,7 @@ def fly_live(signals, source, out, profile, *, simulate=None, response=None, tar
         response = SimulatedAircraft(aircraft, signals, rate, noise_fraction, seed)
     live = LiveIdentification(profile, signals, response, live_path(out),
                               parse_targets(targets, flown_profile(profile, [s.input for s in signals])[0])
-                              if not isinstance(targets, dict) else targets)
+                              if not isinstance(targets, dict) else targets, band=band, n_freq=n_freq)
     try:
         flight = fly(signals, source, out, live=live, rate=rate, seed=seed, **fly_options)
     except BaseException as exc:
