@@ -24,8 +24,7 @@ import numpy as np  # noqa: E402
 
 from cueing.pilot import PilotModel, PilotParams  # noqa: E402
 from cueing.scoring import information_retained, switch_timing  # noqa: E402
-from identify import LinearModel, load_profile  # noqa: E402
-from identify.runs import Run  # noqa: E402
+from identify import LinearModel, Run, load_profile  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
 

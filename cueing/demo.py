@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, simulate_run
-from identify.plots import plot_residuals, plot_time_histories
+from identify.estimators.plots import plot_residuals, plot_time_histories
 from identify.refine import Refine
-from identify.refine_report import write as write_refine
+from identify.refine.report import write as write_refine
 from signaldesign import save_signals
 from signaldesign.baselines import m3211
 from signaldesign.design import SequenceDesign

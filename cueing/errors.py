@@ -1,6 +1,5 @@
-"""The cueing layer's input errors (one clear line, exit status 2 on the command line)."""
-from identify.errors import PseudostepError
+"""The cueing layer's input errors (one clear line, exit status 2 on the command line); the class
+lives with every layer's errors in :mod:`identify.errors`."""
+from identify.errors import CueingError
 
-
-class CueingError(PseudostepError):
-    """Bad cueing input: unknown source, missing device, unreadable flight log, bad option."""
+__all__ = ["CueingError"]

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.runs import Run
+from identify import Run
 from signaldesign.signal import Signal
 
 from .errors import CueingError

@@ -21,14 +21,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from identify.runs import Run
+from identify import Run
 from signaldesign.information import d_efficiency, fisher_information
 
 from .flightlog import CMD
 
 
 @dataclass
-class Score:
+class PracticeScore:
     """Scores of one run (see the module doc); ``per_axis`` holds the per-axis details."""
 
     rms: float
@@ -138,7 +138,7 @@ def information_retained(model, run: Run, signals) -> float:
     return d_efficiency(M_f[np.ix_(keep, keep)], M_d[np.ix_(keep, keep)])
 
 
-def score_run(run: Run, signals, model=None) -> Score:
+def score_run(run: Run, signals, model=None) -> PracticeScore:
     """Score a flown run against ``signals``; with ``model`` also the information retained."""
     t = run.time
     ts = run["t_signal"] if "t_signal" in run.channels else t
@@ -155,7 +155,7 @@ def score_run(run: Run, signals, model=None) -> Score:
     timing = np.concatenate([np.asarray(ax["timing"], float) for ax in axes])
     hit = timing[np.isfinite(timing)]
     mean = lambda key: float(np.nanmean([ax[key] for ax in axes]))  # noqa: E731
-    return Score(rms=mean("rms"), timing_mean=float(np.mean(hit)) if hit.size else np.nan,
+    return PracticeScore(rms=mean("rms"), timing_mean=float(np.mean(hit)) if hit.size else np.nan,
                  timing_std=float(np.std(hit)) if hit.size else np.nan,
                  timing_max=float(np.max(np.abs(hit))) if hit.size else np.nan,
                  switches=int(timing.size), missed=int(np.sum(~np.isfinite(timing))),

@@ -6,14 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from identify import LinearModel, load_profile, simulate_run
-from identify.runs import Run
+from identify import LinearModel, Run, load_profile, simulate_run
 
 from .clock import FakeClock
 from .errors import CueingError
 from .flightlog import CMD, FrameLog, frame_log_path, log_to_run
 from .runner import Runner
-from .scoring import Score, score_run
+from .scoring import PracticeScore, score_run
 
 
 @dataclass
@@ -24,7 +23,7 @@ class Flight:
     log: FrameLog
     run: Run
     path: Path
-    score: Score
+    score: PracticeScore
     runner: Runner | None = None
 
 

@@ -107,7 +107,7 @@ class ReplaySource(InputSource):
 
     def __init__(self, path: str | Path):
         from identify.errors import RunError
-        from identify.runs import read_run
+        from identify.data.io import read_run_file
         from .flightlog import FORMAT, read_frame_log
         self.path = Path(path)
         try:
@@ -120,7 +120,7 @@ class ReplaySource(InputSource):
             self.time, self.channels = log.columns["t_signal"], log.columns
         else:
             try:
-                run = read_run(self.path)
+                run = read_run_file(self.path)
             except RunError as exc:
                 raise CueingError(f"replay source: {exc}") from None
             self.time, self.channels = run.time, run.channels

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identify.model import LinearModel
+from identify import LinearModel
 
 from .band import input_index
 from .evaluate import DesignError, Evaluator

@@ -12,9 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import fftconvolve
 
-from identify.errors import PseudostepError
-from identify.model import LinearModel
-from identify.sensitivity import output_sensitivities
+from identify import LinearModel, output_sensitivities
+from identify.errors import DesignError
 
 from .band import excited_parameters, input_index
 from .information import default_noise, log_det, relative_cramer_rao
@@ -22,10 +21,6 @@ from .signal import Signal
 from .spectrum import in_band_fraction
 
 PERTURBATION = 0.3  # the issue's "every derivative scaled by 0.7..1.3"
-
-
-class DesignError(PseudostepError):
-    """A design or evaluation is impossible as asked (constraints, durations, inputs)."""
 
 
 def perturbed_models(model: LinearModel, n: int = 24, spread: float = PERTURBATION,

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.model import LinearModel
-from identify.sensitivity import output_sensitivities
+from identify import LinearModel, output_sensitivities
 
 
 def fisher_information(model: LinearModel, u: np.ndarray, dt: float, noise_std=None, x0=None) -> np.ndarray:

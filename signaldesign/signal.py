@@ -15,15 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.errors import PseudostepError
-from identify.runs import Run
+from identify import Run
+from identify.errors import SignalError
 
 FORMAT = "pseudostep-signal/1"
 _EDGE = 1e-9  # evaluation at a switch time belongs to the new level despite rounding
-
-
-class SignalError(PseudostepError):
-    """A signal file or a signal's definition is invalid."""
 
 
 @dataclass

@@ -2,9 +2,9 @@
 import numpy as np
 
 from identify import LinearModel, parse_profile, simulate, simulate_run
-from identify.candidates import (Delay, Derivative, Lag, Nonlinear, Periodic, bias, catalogue, delay_run, drift,
+from identify.refine.candidates import (Delay, Derivative, Lag, Nonlinear, Periodic, bias, catalogue, delay_run, drift,
                                  prepare_runs, scale)
-from identify.diagnostics import dominant_frequency
+from identify.refine.diagnostics import dominant_frequency
 from tests.test_refine import PROFILE, excitation
 
 DT, N = 0.02, 1001

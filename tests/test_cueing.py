@@ -18,8 +18,7 @@ from cueing.runner import Runner
 from cueing.scoring import score_run, switch_timing
 from cueing.sources import (Calibration, JoystickSource, KeyboardSource, MouseSource, PilotSource, ReplaySource,
                             ScriptedSource, make_source)
-from identify import read_run
-from identify.runs import Run
+from identify import Run, read_run
 from signaldesign import Signal
 
 RATE = 60.0

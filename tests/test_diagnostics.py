@@ -2,7 +2,7 @@
 import numpy as np
 from scipy import signal, stats
 
-from identify import diagnostics as dg
+from identify.refine import diagnostics as dg
 
 
 def test_whiteness_passes_noise_and_flags_coloured_residual(rng):

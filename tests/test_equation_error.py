@@ -4,8 +4,8 @@ import pytest
 
 from identify import (IV, LS, EstimationError, LinearModel, Run, RunError, load_profile, parse_profile,
                       simulate_run)
-from identify.equation_error import equation_groups
-from identify.preprocess import lowpass
+from identify.estimators.equation_error import equation_groups
+from identify.data.preprocess import lowpass
 
 DT = 0.01
 
@@ -230,7 +230,7 @@ def test_result_exports_and_the_identified_profile_is_the_next_a_priori_model(s6
 
 
 def test_restarted_simulation_bounds_the_drift_of_a_wrong_unstable_model(s61, s61_run_20s):
-    from identify.equation_error import _segment, simulate_states
+    from identify.estimators.equation_error import _segment, simulate_states
     # auto: half the 0.36 rad/s pair's 7.3 s time to double, as ML's multiple shooting cuts
     assert _segment(s61, "auto", 20.0) == pytest.approx(0.5 * np.log(2) / 0.0945, rel=0.01)
     assert _segment(s61, "auto", 5.0) is None  # a run shorter than one doubling: no restarts

@@ -5,7 +5,7 @@ import pytest
 from scipy.io import savemat
 
 from identify import RunError, read_mat
-from identify.matfile import load_channel_map, read_run_file
+from identify.data.io import load_channel_map, read_run_file
 
 DT = 0.011
 

@@ -1,4 +1,4 @@
-"""Output-error maximum likelihood (identify.ml.ML) on data simulated from a known truth."""
+"""Output-error maximum likelihood (identify.estimators.ml.ML) on data simulated from a known truth."""
 import math
 
 import numpy as np
@@ -6,8 +6,8 @@ import pytest
 
 from identify import (EstimationError, LinearModel, RunError, parse_profile,
                       simulate, simulate_run)
-from identify.ml import ML
-from identify.shooting import OutputError, auto_segment
+from identify import ML
+from identify.estimators.output_error import OutputError, auto_segment
 
 
 def steps_3211(t, t0, width=0.7, amp=0.03):

@@ -3,7 +3,7 @@ import pytest
 from scipy.signal import butter, sosfilt
 
 from identify import Run, RunError, read_run
-from identify.preprocess import (add_derivatives, central_difference, cg_correction, differentiator_taps, lowpass,
+from identify.data.preprocess import (add_derivatives, central_difference, cg_correction, differentiator_taps, lowpass,
                                  processing_steps, replay, slice_run, smooth, smooth_derivative)
 
 DT = 0.011  # the paper's sample interval

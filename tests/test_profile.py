@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from identify import LinearModel, ProfileError, load_profile, parse_profile, residualize
-from identify.profile import bundled_profiles_dir
+from identify.model.profile import bundled_profiles_dir
 
 from .helpers import one_error_line, run_cli
 

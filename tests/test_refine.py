@@ -8,10 +8,9 @@ be within 3 Cramér-Rao standard errors of the truth, and the validation error m
 import numpy as np
 import pytest
 
-from identify import EstimationError, LinearModel, parse_profile, simulate_run
-from identify.candidates import Lag, delay_run
+from identify import EstimationError, LinearModel, discretize, parse_profile, simulate_run
+from identify.refine.candidates import Lag, delay_run
 from identify.refine import Refine
-from identify.simulate import discretize
 
 TOML = """
 name = "pitch (test)"

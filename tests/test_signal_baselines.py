@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from identify.runs import read_run
+from identify import read_run
 from signaldesign.baselines import (doublet, m3211, make_signal, multisine, multistep, orthogonal_multisines,
                                     prts, step_sequence)
 from signaldesign.signal import SignalError, load_signals, save_signals, signals_to_run

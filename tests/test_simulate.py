@@ -2,8 +2,8 @@ import control
 import numpy as np
 import pytest
 
-from identify import LinearModel, SimulationError, load_profile, output_sensitivities, simulate, simulate_run
-from identify.simulate import discretize
+from identify import (LinearModel, SimulationError, discretize, load_profile, output_sensitivities, simulate,
+                      simulate_run)
 
 
 def _inputs(n, m, dt, rng):

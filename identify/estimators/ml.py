@@ -44,13 +44,13 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from .errors import EstimationError, SimulationError
-from .estimator import Estimator
-from .model import LinearModel
-from .profile import Profile
+from ..errors import EstimationError, SimulationError
+from .base import Estimator
+from ..model.linear import LinearModel
+from ..model.profile import Profile
 from .result import IdentificationResult, fit_metrics
-from .runs import Run
-from .shooting import OutputError, auto_segment
+from ..data.runs import Run
+from .output_error import OutputError, auto_segment
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
 MAX_DAMPING = 1e10

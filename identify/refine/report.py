@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from .diagnostics import spectral_peak
-from .refine import Refine
-from .result import _jsonable
+from .loop import Refine
+from ..estimators.result import _jsonable
 
 
 def to_dict(r: Refine) -> dict:

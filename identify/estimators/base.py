@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import EstimationError
-from .profile import Profile, load_profile
+from ..errors import EstimationError
+from ..model.profile import Profile, load_profile
 from .result import IdentificationResult
-from .runs import Run
+from ..data.runs import Run
 
 MIN_SAMPLES = 10
 

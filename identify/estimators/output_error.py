@@ -27,12 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ._colour import power
-from .model import LinearModel
-from .profile import Profile
-from .sensitivity import discretize_with_derivatives
-from .errors import SimulationError
-from .simulate import DIVERGENCE_LIMIT, discretize, propagate
+from .colour import power
+from ..model.linear import LinearModel
+from ..model.profile import Profile
+from ..model.sensitivity import discretize_with_derivatives
+from ..errors import SimulationError
+from ..model.simulate import DIVERGENCE_LIMIT, discretize, propagate
 
 MIN_SEGMENT = 1.0  # s: shorter segments leave too little response to pin down their own x0
 MAX_SEGMENT = 5.0  # s: longer segments of an unstable model grow too nonlinear in theta
@@ -85,7 +85,7 @@ def cut(run_lengths: list[int], dt: float, segment: float) -> Layout:
 
 
 @dataclass
-class Evaluation:
+class Response:
     """Model response at one ``beta``: ``e`` (L, ny, S) residual z - y (0 on padding), ``y`` (L, ny, S);
     with the Jacobian: ``dy_theta`` (L, ny, p, S) and ``dy_x0`` (L, ny, n) (shared by all segments)."""
 
@@ -173,7 +173,7 @@ class OutputError:
         return out
 
     # -- simulation ------------------------------------------------------------------------------
-    def evaluate(self, beta: np.ndarray, jacobian: bool = True) -> Evaluation:
+    def evaluate(self, beta: np.ndarray, jacobian: bool = True) -> Response:
         """Residuals at ``beta`` and, with ``jacobian``, the exact output sensitivities."""
         theta, x0, b = self.unpack(beta)
         model = self.model0.with_theta(theta)
@@ -188,7 +188,7 @@ class OutputError:
             y = C @ x + D @ self.U + b[:, self.layout.run][None]
         self._check(x, y)
         e = np.where(self.mask[:, None, :] > 0, self.Z - y, 0.0)  # padding may hold inf
-        ev = Evaluation(beta, e, y)
+        ev = Response(beta, e, y)
         if jacobian:
             p, ny = self.p, self.ny
             # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (L, n, p, S)
@@ -218,11 +218,11 @@ class OutputError:
                                       f"at t = {t:.3f} s from the run's start")
 
     # -- cost and normal equations ---------------------------------------------------------------
-    def whitened(self, ev: Evaluation, Wh: np.ndarray) -> np.ndarray:
+    def whitened(self, ev: Response, Wh: np.ndarray) -> np.ndarray:
         """Whitened residuals ``Wh e`` as one flat vector over all valid samples."""
         return (Wh @ ev.e).transpose(2, 0, 1)[self.mask.T > 0].ravel()
 
-    def cost(self, ev: Evaluation, Wh: np.ndarray) -> float:
+    def cost(self, ev: Response, Wh: np.ndarray) -> float:
         """0.5 sum e^T R^-1 e (R^-1 = Wh^T Wh)."""
         return 0.5 * float(np.sum((Wh @ ev.e) ** 2))
 
@@ -230,7 +230,7 @@ class OutputError:
         """Whitened residuals at ``beta`` (what a general least-squares solver minimises)."""
         return self.whitened(self.evaluate(beta, jacobian=False), Wh)
 
-    def _local_jacobian(self, ev: Evaluation, Wh: np.ndarray) -> np.ndarray:
+    def _local_jacobian(self, ev: Response, Wh: np.ndarray) -> np.ndarray:
         """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment,
         (S, L, ny, p + n + ny), 0 on padding."""
         L, ny, S = ev.e.shape
@@ -254,7 +254,7 @@ class OutputError:
                 g[i] += gl[s][keep]
         return M, g
 
-    def normal_equations(self, ev: Evaluation, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def normal_equations(self, ev: Response, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Information matrix ``M = J^T R^-1 J`` (n_beta, n_beta) and ``g = J^T R^-1 e`` (n_beta,),
         J = dy/dbeta; accumulated per segment from its local Jacobian."""
         L, ny, S = ev.e.shape
@@ -264,7 +264,7 @@ class OutputError:
         gl = (Jloc.transpose(0, 2, 1) @ ew)[..., 0]
         return self._scatter(Ml, gl)
 
-    def coloured_information(self, ev: Evaluation, Wh: np.ndarray, cov: np.ndarray,
+    def coloured_information(self, ev: Response, Wh: np.ndarray, cov: np.ndarray,
                              max_iter: int = COLOUR_MAX_ITER, tol: float = COLOUR_TOL):
         """The middle of Morelli & Klein's sandwich for coloured residuals,
         ``B = sum over whitened outputs y and segments s of J_ys^T T_y J_ys`` (n_beta, n_beta).

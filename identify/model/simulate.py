@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from .errors import SimulationError
-from .model import LinearModel
+from ..errors import SimulationError
+from .linear import LinearModel
 from .profile import DOT
-from .runs import Run
+from ..data.runs import Run
 
 DIVERGENCE_LIMIT = 1e6
 

@@ -24,7 +24,7 @@ import json
 import numpy as np
 from scipy.signal import butter, fftconvolve, sosfiltfilt
 
-from .errors import RunError
+from ..errors import RunError
 from .runs import Run
 
 PROCESSING = "processing"

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RunError
+from ..errors import RunError
 
 TIME = "time"
 _UNIFORM_RTOL = 1e-6

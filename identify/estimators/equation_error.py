@@ -39,16 +39,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._colour import autocorr_apply as _autocorr_apply
-from .errors import EstimationError, SimulationError
-from .estimator import Estimator
-from .model import LinearModel
-from .preprocess import processing_steps, smooth_derivative
-from .profile import DOT, Profile
+from .colour import autocorr_apply as _autocorr_apply
+from ..errors import EstimationError, SimulationError
+from .base import Estimator
+from ..model.linear import LinearModel
+from ..data.preprocess import processing_steps, smooth_derivative
+from ..model.profile import DOT, Profile
 from .result import IdentificationResult, fit_metrics
-from .runs import Run
-from .shooting import MIN_SEGMENT, auto_segment
-from .simulate import discretize, propagate
+from ..data.runs import Run
+from .output_error import MIN_SEGMENT, auto_segment
+from ..model.simulate import discretize, propagate
 
 DEFAULT_DIFF_CUTOFF_HZ = 6.25
 _RANK_RTOL = 1e-10

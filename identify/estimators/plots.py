@@ -11,7 +11,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .errors import EstimationError
+from ..errors import EstimationError
 from .result import IdentificationResult
 
 _PANEL_HEIGHT_IN = 1.3

@@ -23,7 +23,6 @@ count alike); the same scale is used before and after and on validation runs.
 """
 from __future__ import annotations
 
-import importlib
 import math
 import warnings
 from dataclasses import dataclass, field, replace
@@ -34,28 +33,16 @@ from scipy import stats
 
 from . import diagnostics as dg
 from .candidates import KINDS, Candidate, Delay, Lag, Periodic, catalogue, prepare_runs
-from .errors import EstimationError, PseudostepError
-from .model import LinearModel
-from .profile import Profile, load_profile
-from .result import IdentificationResult
-from .runs import Run
-from .sensitivity import output_sensitivities
-from .shooting import auto_segment, cut
+from ..errors import EstimationError, PseudostepError
+from ..model.linear import LinearModel
+from ..model.profile import Profile, load_profile
+from ..estimators.result import IdentificationResult
+from ..data.runs import Run
+from ..model.sensitivity import output_sensitivities
+from ..estimators.output_error import auto_segment, cut
+from ..estimators.registry import estimator_class
 
-METHODS = {"ml": ("identify.ml", "ML"), "ls": ("identify.equation_error", "LS"),
-           "iv": ("identify.equation_error", "IV")}
 MIN_SAMPLES = 50  # per run: fewer leave the residual tests without power
-
-
-def estimator_class(method: str):
-    """The estimator class of a method name (``ml``, ``ls``, ``iv``)."""
-    if method not in METHODS:
-        raise EstimationError(f"unknown method '{method}' (choose from {', '.join(METHODS)})")
-    module, name = METHODS[method]
-    try:
-        return getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError):
-        raise EstimationError(f"method '{method}' is not available in this installation") from None
 
 
 # -- evaluation of a model on runs (nuisance by linear least squares) -----------------------------

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal, stats
 
-from .errors import EstimationError
+from ..errors import EstimationError
 
 
 def _stack(residuals) -> list[np.ndarray]:

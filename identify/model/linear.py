@@ -17,7 +17,7 @@ from functools import cached_property
 import control
 import numpy as np
 
-from .errors import ProfileError
+from ..errors import ProfileError
 from .profile import DOT, Profile
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from .model import LinearModel
+from .linear import LinearModel
 from .simulate import DIVERGENCE_LIMIT, check_divergence, propagate
 
 

@@ -23,7 +23,7 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from .errors import ProfileError
+from ..errors import ProfileError
 
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
@@ -154,7 +154,7 @@ def bundled_profiles_dir() -> Path:
     ``profiles/`` sits beside the ``identify`` package both in the source tree and in an
     installation (it is shipped as package data of its own top-level folder).
     """
-    return Path(__file__).resolve().parent.parent / "profiles"
+    return Path(__file__).resolve().parents[2] / "profiles"
 
 
 def resolve_profile_path(spec: str | Path) -> Path:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import LinearModel, format_modes
-from .profile import Profile
+from ..model.linear import LinearModel, format_modes
+from ..model.profile import Profile
 
 
 def theil(measured: np.ndarray, modelled: np.ndarray) -> float:

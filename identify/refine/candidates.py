@@ -32,9 +32,9 @@ from itertools import combinations
 
 import numpy as np
 
-from .errors import ProfileError
-from .profile import Profile
-from .runs import Run
+from ..errors import ProfileError
+from ..model.profile import Profile
+from ..data.runs import Run
 
 KINDS = ("derivative", "delay", "lag", "bias", "drift", "scale", "nonlinear", "periodic")
 
