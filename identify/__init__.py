@@ -7,7 +7,7 @@ Typical use::
 """
 from .errors import EstimationError, ProfileError, PseudostepError, RunError, SimulationError
 from .model.linear import LinearModel, Mode, format_modes, modes_of, residualize
-from .model.profile import Profile, load_profile, parse_profile
+from .model.profile import Profile, load_profile, output_units, parse_profile
 from .estimators.result import IdentificationResult
 from .data.runs import Run, read_run, read_runs
 from .model.sensitivity import output_sensitivities
@@ -15,7 +15,7 @@ from .model.simulate import discretize, simulate, simulate_run
 
 __all__ = ["EstimationError", "ProfileError", "PseudostepError", "RunError", "SimulationError",
            "LinearModel", "Mode", "format_modes", "modes_of", "residualize", "Profile", "load_profile",
-           "parse_profile", "IdentificationResult", "Run", "read_run", "read_runs",
+           "output_units", "parse_profile", "IdentificationResult", "Run", "read_run", "read_runs",
            "output_sensitivities", "discretize", "simulate", "simulate_run"]
 
 # data processing and equation-error estimators (plots stay in identify.plots: matplotlib is slow to import)

@@ -157,3 +157,27 @@ def test_output_equation_parameters_scale_and_offset():
         parse_profile(text.replace('"q:q"', '"zz:q"'))
     with pytest.raises(ProfileError, match="'w' is not a state or input"):
         parse_profile(text.replace('"q:q"', '"q:w"'))
+
+
+def test_one_unit_rule_for_outputs():
+    """Plots and the assumed noise levels read output units from one rule: derivatives in
+    <unit>/s (rad/s/s as rad/s^2), defined outputs from their derivative term, inputs their own."""
+    from identify import output_units
+    p = load_profile("bo105_70kt")
+    units = output_units(p)
+    assert units["q"] == "rad/s" and units["theta"] == "rad" and units["u"] == "m/s"
+    assert units["a_x"] == "m/s^2" and units["a_z"] == "m/s^2"
+    p2 = parse_profile("""
+name = "t"
+states = { q = "rad/s", theta = "rad" }
+inputs = { eta = "rad" }
+outputs = ["q_dot", "theta", "eta", "mix"]
+[output_defs]
+mix = { eta = 2.0 }
+[free]
+M_q = -1.0
+M_eta = 1.0
+[fixed]
+theta_q = 1.0
+""")
+    assert output_units(p2) == {"q_dot": "rad/s^2", "theta": "rad", "eta": "rad", "mix": ""}

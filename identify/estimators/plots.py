@@ -12,6 +12,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..errors import EstimationError
+from ..model.profile import output_units
 from .result import IdentificationResult
 
 _PANEL_HEIGHT_IN = 1.3
@@ -31,9 +32,8 @@ def _figure(n_panels: int, title: str) -> tuple[Figure, list]:
 
 
 def _units(result: IdentificationResult) -> list[str]:
-    p = result.profile
-    units = {**p.states, **p.inputs, **{s + "_dot": f"{u}/s" for s, u in p.states.items()}}
-    return [units.get(y, "") for y in p.outputs]
+    units = output_units(result.profile)
+    return [units[y] for y in result.profile.outputs]
 
 
 def plot_time_histories(result: IdentificationResult, path: str | Path, run: int = 0) -> Path:

@@ -148,6 +148,32 @@ class Profile:
 
 
 # -- loading ----------------------------------------------------------------------------------
+def output_units(profile: Profile) -> dict[str, str]:
+    """Unit of every output, the one rule for plots, noise levels and reports: a state's or an
+    input's own unit; ``<unit>/s`` for a state derivative (``rad/s/s`` is written ``rad/s^2``); for
+    an output defined in ``[output_defs]`` the unit of its first state-derivative term, else of its
+    first state term (inputs do not set it); ``""`` when none is known."""
+    def unit(term: str) -> str:
+        if term in profile.states:
+            return profile.states[term]
+        if term in profile.inputs:
+            return profile.inputs[term]
+        if term.endswith(DOT) and term[:-len(DOT)] in profile.states:
+            base = profile.states[term[:-len(DOT)]]
+            return base[:-2] + "/s^2" if base.endswith("/s") else base + "/s"
+        return ""
+
+    units = {}
+    for y in profile.outputs:
+        if y not in profile.output_defs:
+            units[y] = unit(y)
+            continue
+        terms = [t for t, c in profile.output_terms(y).items() if c and t not in profile.inputs]
+        derivs = [t for t in terms if t.endswith(DOT) and t[:-len(DOT)] in profile.states]
+        units[y] = unit((derivs or terms or [y])[0])
+    return units
+
+
 def bundled_profiles_dir() -> Path:
     """Folder of the profiles shipped with pseudostep.
 
