@@ -305,8 +305,8 @@ def test_bad_runs_and_options_are_clear_errors(s61):
     assert "theta" in _one_line(exc)
     for options, needle in (({"segment": -1.0}, "segment"), ({"noise_cov": np.ones(3)}, "noise_cov"),
                             ({"noise_cov": "guess"}, "noise_cov"), ({"max_iter": 0}, "max_iter")):
-        with pytest.raises(EstimationError) as exc:
-            ML(s61.profile, **options)
+        with pytest.raises(EstimationError) as exc:  # options are checked by fit, as in scikit-learn
+            ML(s61.profile, **options).fit(run)
         assert needle in _one_line(exc)
     with pytest.raises(EstimationError) as exc:
         ML(s61.profile, segment=1.0, estimate_x0=False).fit(run)
@@ -400,3 +400,4 @@ def test_coloured_option_false_reports_cramer_rao_bounds(s61):
     np.testing.assert_allclose(a.info["std_white"], b.info["std_white"])
     assert b.info["std_coloured"] is None  # not computed: it costs about as much as the fit
     assert b.info["standard_errors"].startswith("white") and a.info["noise_autocorrelation"].shape[1] == 8
+

@@ -1,8 +1,12 @@
 """Common base of the estimators (LS, IV, ML): scikit-learn style objects.
 
 ``Estimator(profile, **options).fit(runs)`` returns the estimator itself; the result is the
-attribute ``result_`` (an :class:`~identify.result.IdentificationResult`), with ``theta_`` and
-``std_`` as shortcuts and ``summary()`` printing the parameter table.
+attribute ``result_`` (an :class:`~identify.estimators.result.IdentificationResult`), with ``theta_``
+and ``std_`` as shortcuts and ``summary()`` printing the parameter table.
+
+As in scikit-learn, ``__init__`` only stores its arguments (a profile may be a :class:`Profile`, a
+TOML path or a bundled name); ``fit`` validates them (:meth:`Estimator._validate`: the loaded
+profile is ``profile_``, converted options end in ``_``) and raises the one-line error there.
 """
 from __future__ import annotations
 
@@ -24,13 +28,18 @@ class Estimator:
     method = "base"
 
     def __init__(self, profile: Profile | str | Path):
-        self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
+        self.profile = profile
         self.result_: IdentificationResult | None = None
 
     def fit(self, runs: Run | list[Run]) -> "Estimator":
+        self._validate()
         runs = self.check_runs(runs)
         self.result_ = self._fit(runs)
         return self
+
+    def _validate(self) -> None:
+        """Load the profile (``profile_``) and check the options; subclasses add theirs."""
+        self.profile_ = self.profile if isinstance(self.profile, Profile) else load_profile(self.profile)
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -40,10 +49,10 @@ class Estimator:
         runs = [runs] if isinstance(runs, Run) else list(runs)
         if not runs:
             raise EstimationError("no runs given")
-        if not self.profile.free:
-            raise EstimationError(f"{self.profile.source}: the profile has no free parameters")
+        if not self.profile_.free:
+            raise EstimationError(f"{self.profile_.source}: the profile has no free parameters")
         for run in runs:
-            run.require(channels or self.profile.channels, f"profile '{self.profile.name}'")
+            run.require(channels or self.profile_.channels, f"profile '{self.profile_.name}'")
             if len(run) < MIN_SAMPLES:
                 raise EstimationError(f"{run.source}: only {len(run)} samples; at least {MIN_SAMPLES} needed")
         return runs

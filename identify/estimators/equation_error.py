@@ -256,25 +256,26 @@ class _EquationError(Estimator):
     def __init__(self, profile, *, bias: bool = True, diff_cutoff_hz: float | None = None,
                  coloured: bool = True, reinit="auto"):
         super().__init__(profile)
-        self.bias = bias
-        if diff_cutoff_hz is not None and not diff_cutoff_hz > 0:
-            raise EstimationError(f"differentiator cut-off must be positive, got {diff_cutoff_hz} Hz")
-        self.diff_cutoff_hz = diff_cutoff_hz
-        self.coloured = coloured
+        self.bias, self.diff_cutoff_hz, self.coloured, self.reinit = bias, diff_cutoff_hz, coloured, reinit
+
+    def _validate(self) -> None:
+        super()._validate()
+        if self.diff_cutoff_hz is not None and not self.diff_cutoff_hz > 0:
+            raise EstimationError(f"differentiator cut-off must be positive, got {self.diff_cutoff_hz} Hz")
+        reinit = self.reinit
         if not (reinit in (None, "auto") or (isinstance(reinit, (int, float)) and reinit > 0)):
             raise EstimationError(f"reinit must be 'auto', None or a positive time in s, got {reinit!r}")
-        self.reinit = reinit
-        self.model_ = LinearModel(self.profile)
+        self.model_ = LinearModel(self.profile_)
 
-    def fit(self, runs: Run | list[Run]) -> "_EquationError":
+    def check_runs(self, runs: Run | list[Run], channels: list[str] | None = None) -> list[Run]:
         runs = [runs] if isinstance(runs, Run) else list(runs)
         for run in runs:  # before the profile's channel check: say why the states are needed
-            run.require(self.profile.state_names, "equation error (every state must be measured)")
-        return super().fit(runs)
+            run.require(self.profile_.state_names, "equation error (every state must be measured)")
+        return super().check_runs(runs, channels)
 
     # data -----------------------------------------------------------------------------------
     def _prepare(self, runs: list[Run]) -> list[_Data]:
-        p = self.profile
+        p = self.profile_
         out = []
         for run in runs:
             for name in p.state_names + p.input_names:
@@ -331,7 +332,7 @@ class _EquationError(Estimator):
             ne = len(g.equations)
             for i, e in enumerate(g.equations):
                 v = np.concatenate([res[r * ne + i] for r in range(len(data))])
-                residual_std[self.profile.state_names[e]] = float(np.std(v))
+                residual_std[self.profile_.state_names[e]] = float(np.std(v))
         return theta, cov_col, cov_white, biases, residual_std
 
     # simulation ---------------------------------------------------------------------------------
@@ -342,7 +343,7 @@ class _EquationError(Estimator):
         """Output-error simulation of the identified model from each run's measured initial state;
         restarted as for the instruments only if a plain simulation diverges or drifts away."""
         C, D, Cd = model.C, model.D, model.Cd
-        measured = [d.run.matrix(list(self.profile.outputs)) for d in data]
+        measured = [d.run.matrix(list(self.profile_.outputs)) for d in data]
 
         def outputs(xs):
             return [x @ C.T + d.u @ D.T + b @ Cd.T for x, d, b in zip(xs, data, biases)]
@@ -365,7 +366,7 @@ class _EquationError(Estimator):
         model = self.model_.with_theta(theta)
         cov = cov_col if self.coloured else cov_white
         measured, modelled, how = self._modelled(model, data, biases)
-        p = self.profile
+        p = self.profile_
         info = dict(info)
         info.update({
             "std_white": np.sqrt(np.diag(cov_white)),
@@ -419,11 +420,14 @@ class IV(_EquationError):
     def __init__(self, profile, *, start: str = "ls", max_iter: int = 30, tol: float = 1e-9,
                  progress=None, **options):
         super().__init__(profile, **options)
-        if start not in ("ls", "apriori"):
-            raise EstimationError(f"IV start must be 'ls' or 'apriori', got {start!r}")
-        if not (isinstance(max_iter, int) and max_iter >= 1):
-            raise EstimationError(f"IV max_iter must be a positive integer, got {max_iter!r}")
-        self.start, self.max_iter, self.tol, self.progress = start, max_iter, float(tol), progress
+        self.start, self.max_iter, self.tol, self.progress = start, max_iter, tol, progress
+
+    def _validate(self) -> None:
+        super()._validate()
+        if self.start not in ("ls", "apriori"):
+            raise EstimationError(f"IV start must be 'ls' or 'apriori', got {self.start!r}")
+        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
+            raise EstimationError(f"IV max_iter must be a positive integer, got {self.max_iter!r}")
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         data = self._prepare(runs)

@@ -93,33 +93,36 @@ class ML(Estimator):
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
                  verbose: bool = False):
         super().__init__(profile)
-        self.segment = _check_segment(segment)
-        if not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
-            raise EstimationError(f"ML: max_iter must be a positive integer, got {max_iter!r}")
-        if not (np.isfinite(tol) and tol > 0):
-            raise EstimationError(f"ML: tol must be positive, got {tol!r}")
-        self.max_iter, self.tol = int(max_iter), float(tol)
-        self.estimate_x0, self.estimate_bias = bool(estimate_x0), bool(estimate_bias)
-        self.noise_cov = _check_noise_cov(noise_cov, len(self.profile.outputs))
-        self.coloured = bool(coloured)
+        self.segment, self.max_iter, self.tol = segment, max_iter, tol
+        self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
+        self.noise_cov, self.coloured = noise_cov, coloured
         self.progress, self.verbose = progress, verbose
         self.covariance_ = self.problem_ = self.beta_ = None
+
+    def _validate(self) -> None:
+        super()._validate()
+        self.segment_ = _check_segment(self.segment)
+        if not (isinstance(self.max_iter, (int, np.integer)) and self.max_iter >= 1):
+            raise EstimationError(f"ML: max_iter must be a positive integer, got {self.max_iter!r}")
+        if not (np.isfinite(self.tol) and self.tol > 0):
+            raise EstimationError(f"ML: tol must be positive, got {self.tol!r}")
+        self.noise_cov_ = _check_noise_cov(self.noise_cov, len(self.profile_.outputs))
 
     # -- fitting ---------------------------------------------------------------------------------
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         started = _time.perf_counter()
-        p = self.profile
+        p = self.profile_
         dt = _common_dt(runs)
         u = [_finite(run, p.input_names) for run in runs]
         z = [_finite(run, list(p.outputs)) for run in runs]
         model0 = LinearModel(p)
-        segment = self.segment
+        segment = self.segment_
         if segment is None:
             segment = auto_segment(model0, max(run.duration for run in runs))
         if not self.estimate_x0 and math.isfinite(segment) and any(r.duration > segment for r in runs):
             raise EstimationError("ML: multiple shooting needs the segment initial states: "
                                   "use estimate_x0=True or segment='plain'")
-        prob = OutputError(p, u, z, dt, segment, self.estimate_x0, self.estimate_bias)
+        prob = OutputError(p, u, z, dt, segment, bool(self.estimate_x0), bool(self.estimate_bias))
         beta = prob.initial_beta(model0.theta)
         form = "plain" if prob.layout.n_segments == len(runs) else "multiple shooting"
         try:
@@ -136,7 +139,7 @@ class ML(Estimator):
 
     def _result(self, runs, prob: OutputError, sv: "_Solver", form: str, segment: float,
                 wall: float) -> IdentificationResult:
-        p, P = self.profile, prob.p
+        p, P = self.profile_, prob.p
         cov_white, ill = _covariance(sv.M, sv.active)
         std_white, std_col, acf, passes = _std(cov_white, sv.active), None, None, 0
         cov, std = cov_white, std_white
@@ -175,7 +178,7 @@ class ML(Estimator):
             if self.estimate_bias else None,
             "noise_cov": R,
             "noise_std": dict(zip(p.outputs, map(float, np.sqrt(np.diag(R))))),
-            "noise_cov_estimated": self.noise_cov is None,
+            "noise_cov_estimated": self.noise_cov_ is None,
             "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
             "ill_conditioned": ill,
             "standard_errors": "coloured-residual correction (Morelli & Klein)" if self.coloured
@@ -197,9 +200,9 @@ class _Solver:
 
     def __init__(self, ml: ML, prob: OutputError, ev, z):
         self.ml, self.prob, self.ev, self.beta = ml, prob, ev, ev.beta.copy()
-        self.relax = ml.noise_cov is None
+        self.relax = ml.noise_cov_ is None
         self.ms = np.array([np.mean(zr ** 2, axis=0) for zr in z]).mean(axis=0)
-        self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov)
+        self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov_)
         self.history, self.wls_history, self.log_det_history = [], [], []
         self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
         M, _ = prob.normal_equations(ev, self.Wh)
