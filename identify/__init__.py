@@ -11,12 +11,12 @@ from .model.profile import Profile, load_profile, output_units, parse_profile
 from .estimators.result import IdentificationResult
 from .data.runs import Run, read_run, read_runs
 from .model.sensitivity import output_sensitivities
-from .model.simulate import discretize, simulate, simulate_run
+from .model.simulate import delay_inputs, discretize, perturbed_model, simulate, simulate_run
 
 __all__ = ["EstimationError", "ProfileError", "PseudostepError", "RunError", "SimulationError",
            "LinearModel", "Mode", "format_modes", "modes_of", "residualize", "Profile", "load_profile",
            "output_units", "parse_profile", "IdentificationResult", "Run", "read_run", "read_runs",
-           "output_sensitivities", "discretize", "simulate", "simulate_run"]
+           "output_sensitivities", "delay_inputs", "discretize", "perturbed_model", "simulate", "simulate_run"]
 
 # data processing and equation-error estimators (plots stay in identify.plots: matplotlib is slow to import)
 from .estimators.equation_error import IV, LS, state_derivatives  # noqa: E402

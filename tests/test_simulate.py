@@ -114,3 +114,26 @@ def test_simulated_run_without_derivative_sensors(s61):
     t = np.arange(201) * 0.02
     run = simulate_run(s61, t, np.zeros((201, 2)), derivatives=False)
     assert "q" in run.channels and not any(c.endswith("_dot") for c in run.channels)
+
+
+def test_input_delay_and_perturbed_truth(s61):
+    """A truth with a control-system delay: the run records the stick as given, the aircraft
+    responds to it later (zero before the record); a whole-sample delay is an exact shift, any other
+    interpolates."""
+    from identify import delay_inputs, perturbed_model
+    t = np.arange(801) * 0.02
+    u = np.column_stack([np.where((t > 1) & (t < 2), 0.01, 0.0), 0.005 * np.sin(2 * t)])
+    delayed = delay_inputs(t, u, 0.1, before=0.0)
+    np.testing.assert_array_equal(delayed, np.vstack([np.zeros((5, 2)), u[:-5]]))
+    np.testing.assert_allclose(delay_inputs(t, u[:, 1], 0.013), np.interp(t - 0.013, t, u[:, 1], left=u[0, 1]))
+    run = simulate_run(s61, t, u, input_delay=0.1, seed=3, noise_fraction=0.01)
+    ref = simulate_run(s61, t, delayed, seed=3, noise_fraction=0.01)
+    np.testing.assert_array_equal(run.matrix(s61.profile.input_names), u)
+    for y in s61.profile.outputs:
+        np.testing.assert_array_equal(run[y], ref[y])
+    assert "input_delay" in run.meta
+    with pytest.raises(SimulationError, match="no input"):
+        simulate_run(s61, t, u, input_delay={"pedal": 0.1})
+    truth = perturbed_model(s61, 0.15, np.random.default_rng(1))
+    ratio = truth.theta / s61.theta
+    assert np.all((ratio >= 0.85) & (ratio <= 1.15)) and np.ptp(ratio) > 0.1

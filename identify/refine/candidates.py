@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import ProfileError
 from ..model.profile import Profile
+from ..model.simulate import delay_inputs
 from ..data.runs import Run
 
 KINDS = ("derivative", "delay", "lag", "bias", "drift", "scale", "nonlinear", "periodic")
@@ -119,8 +120,7 @@ class Delay(Candidate):
 
 def delay_run(run: Run, input_name: str, tau: float) -> Run:
     """``run`` with ``input_name`` replaced by u(t - tau)."""
-    u = run[input_name]
-    return run.with_channels({input_name: np.interp(run.time - tau, run.time, u, left=u[0])})
+    return run.with_channels({input_name: delay_inputs(run.time, run[input_name], tau)})
 
 
 def apply_delays(profile: Profile, runs: list[Run]) -> list[Run]:
