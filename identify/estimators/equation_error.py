@@ -47,8 +47,8 @@ from ..data.preprocess import processing_steps, smooth_derivative
 from ..model.profile import DOT, Profile
 from .result import IdentificationResult, fit_metrics
 from ..data.runs import Run
-from .output_error import MIN_SEGMENT, auto_segment
-from ..model.simulate import discretize, propagate
+from .output_error import MIN_SEGMENT, auto_segment, restarts, simulate_segments
+from ..model.simulate import discretize
 
 DEFAULT_DIFF_CUTOFF_HZ = 6.25
 _RANK_RTOL = 1e-10
@@ -229,11 +229,9 @@ def simulate_states(model: LinearModel, u: np.ndarray, dt: float, x_meas: np.nda
     n, N = model.n_states, len(u)
     Phi, Gamma = discretize(model.A, np.hstack([model.B, np.eye(n)]), dt)
     forcing = np.hstack([u, np.broadcast_to(bias, (N, n))]) @ Gamma.T
-    step = N if segment is None or not np.isfinite(segment) else max(1, int(round(segment / dt)))
-    x = np.empty((N, n))
-    for k0 in range(0, N, step):
-        k1 = min(N, k0 + step + 1)
-        x[k0:k1] = propagate(Phi, forcing[k0:k1], x_meas[k0])
+    layout = restarts(N, dt, segment)
+    with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported below
+        x = simulate_segments(Phi, forcing, x_meas[layout.start], layout)
     if not np.all(np.isfinite(x)) or np.abs(x).max() > 1e6 * max(1.0, np.abs(x_meas).max()):
         raise SimulationError(f"simulation of '{model.profile.name}' diverged over a run")
     return x

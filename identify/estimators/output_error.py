@@ -1,4 +1,8 @@
-"""Output-error residuals and their exact Jacobian over run segments (plain or multiple shooting).
+"""The segmented output-error engine: runs cut into segments, all simulated at once.
+
+Used by ML (:class:`OutputError`: residuals and their exact Jacobian, plain or multiple
+shooting) and by IV (:func:`simulate_segments`: instrument states restarted from the measured
+ones every few seconds).
 
 Output error compares measured outputs ``z`` with the outputs ``y`` of the model simulated from
 the inputs. Each run is cut into *segments*; every segment is simulated from its own initial state
@@ -84,6 +88,30 @@ def cut(run_lengths: list[int], dt: float, segment: float) -> Layout:
     return Layout(np.array(run), np.array(start), np.array(length))
 
 
+def restarts(n_samples: int, dt: float, segment: float | None) -> Layout:
+    """One run cut every ``segment`` s (whole samples) from its first sample on, for a simulation
+    restarted from known states (``None`` or ``inf``: one segment)."""
+    step = n_samples if segment is None or not math.isfinite(segment) else max(1, int(round(segment / dt)))
+    start = np.arange(0, n_samples, step)
+    return Layout(np.zeros(len(start), int), start, np.minimum(step, n_samples - start))
+
+
+def pad(layout: Layout, series: list[np.ndarray]) -> np.ndarray:
+    """The segments of per-run series (N_r, k) side by side, zero-padded: (L, k, S)."""
+    out = np.zeros((layout.L, series[0].shape[1], layout.n_segments))
+    for s, (r, a, n_s) in enumerate(zip(layout.run, layout.start, layout.length)):
+        out[:n_s, :, s] = series[r][a:a + n_s]
+    return out
+
+
+def simulate_segments(Phi: np.ndarray, forcing: np.ndarray, x_start: np.ndarray, layout: Layout) -> np.ndarray:
+    """States (N, n) of one run simulated segment by segment, all segments in one recursion:
+    ``x[k+1] = Phi x[k] + forcing[k]`` (forcing (N, n)), segment s starting from ``x_start[s]``
+    ((S, n)) at its first sample."""
+    x = propagate(Phi, pad(layout, [forcing]), np.asarray(x_start, dtype=float).T)
+    return np.concatenate([x[:n_s, :, s] for s, n_s in enumerate(layout.length)])
+
+
 @dataclass
 class Response:
     """Model response at one ``beta``: ``e`` (L, ny, S) residual z - y (0 on padding), ``y`` (L, ny, S);
@@ -111,14 +139,9 @@ class OutputError:
         self.n, self.m, self.ny, self.p = (self.model0.n_states, self.model0.n_inputs,
                                            self.model0.n_outputs, len(self.model0.names))
         self.layout = lay = cut([len(zr) for zr in z], dt, segment)
-        S, L = lay.n_segments, lay.L
-        self.U = np.zeros((L, self.m, S))
-        self.Z = np.zeros((L, self.ny, S))
-        self.mask = np.zeros((L, S))
-        for s, (r, a, n_s) in enumerate(zip(lay.run, lay.start, lay.length)):
-            self.U[:n_s, :, s] = u[r][a:a + n_s]
-            self.Z[:n_s, :, s] = z[r][a:a + n_s]
-            self.mask[:n_s, s] = 1.0
+        S = lay.n_segments
+        self.U, self.Z = pad(lay, u), pad(lay, z)
+        self.mask = pad(lay, [np.ones((len(zr), 1)) for zr in z])[:, 0, :]
         self.n_runs = len(z)
         peak = np.max([np.abs(zr).max(axis=0) for zr in z], axis=0)
         self.y_limit = np.where(peak > 0, OUTPUT_LIMIT * peak, np.inf)
