@@ -238,6 +238,7 @@ def test_cli_refine_writes_json_report_and_profile(tmp_path):
     assert "M_u" in final.free
     report = (tmp_path / "out" / "report.md").read_text()
     assert "derivative on M_u" in report and "residuals.png" in report
+    assert "## Final identification" in report and "| `M_u` |" in report  # the result's Markdown summary
     assert (tmp_path / "out" / "residuals.png").stat().st_size > 1000
 
 
@@ -290,3 +291,27 @@ def test_evaluation_of_the_true_model_leaves_only_the_noise(s61):
     ev = evaluate(s61.profile, [run], zero_shifts=True, segment=3.0)
     rms = np.sqrt(np.mean(ev.residuals[0] ** 2, axis=0))
     np.testing.assert_allclose(rms, [noise[y] for y in s61.profile.outputs], rtol=0.25)
+
+
+def test_cli_refine_reads_mat_runs_through_the_same_door_as_estimate(tmp_path, capsys):
+    """``refine`` reads .mat runs (with a channel map) as ``estimate`` does; a bad one gives one line."""
+    import json
+
+    from scipy.io import savemat
+
+    from identify.cli import main
+    fit, val = make_runs()
+    files = []
+    for i, r in enumerate(fit + val):
+        files.append(tmp_path / f"run{i}.mat")
+        savemat(files[-1], {"t": r.time, "elev": r["eta"], "u_m": r["u"], "q_m": r["q"], "th": r["theta"]})
+    cmap = json.dumps({"eta": "elev", "u": "u_m", "q": "q_m", "theta": "th"})
+    prof = PROFILE.save(tmp_path / "pitch.toml")
+    assert main(["refine", "--profile", str(prof), str(files[0]), str(files[1]), "--validate", str(files[2]),
+                 "--channel-map", cmap, "--kinds", "drift", "--max-steps", "1", "--out", str(tmp_path / "out")]) == 0
+    data = json.loads((tmp_path / "out" / "refine.json").read_text())
+    assert data["error_before"]["validation"]["overall"] > 0
+    (tmp_path / "bad.mat").write_text("not a mat file")
+    assert main(["refine", "--profile", str(prof), str(tmp_path / "bad.mat"), "--out", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.mat" in err[0] and "MATLAB" in err[0]

@@ -102,6 +102,24 @@ class IdentificationResult:
         lines += ["", "modes of the identified model:", format_modes(self.model.modes())]
         return "\n".join(lines)
 
+    def markdown(self, truth: dict[str, float] | None = None) -> str:
+        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes."""
+        cols = ["parameter", "estimate", "std error", "rel. std %", "a priori"] + (["truth"] if truth else [])
+        lines = [f"{self.method.upper()} identification of `{self.profile.name}` from "
+                 f"{len(self.runs) or 1} run(s).", "", "| " + " | ".join(cols) + " |",
+                 "| --- |" + " ---: |" * (len(cols) - 1)]
+        for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
+            cells = [f"`{name}`", f"{v:.6g}", f"{s:.4g}", f"{r:.2f}", f"{a:.5g}"]
+            if truth:
+                cells.append(f"{truth.get(name, float('nan')):.5g}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", f"Standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}."]
+        if self.fit:
+            lines += ["", "| output | RMS error | Theil U |", "| --- | ---: | ---: |"]
+            lines += [f"| {k} | {v['rms']:.4g} | {v['theil']:.4f} |" for k, v in self.fit.items()]
+        lines += ["", "Modes of the identified model:", "", "```", format_modes(self.model.modes()), "```"]
+        return "\n".join(lines)
+
     def to_dict(self) -> dict:
         modes = [{"real": m.eigenvalue.real, "imag": m.eigenvalue.imag, "frequency": m.frequency,
                   "damping": m.damping} for m in self.model.modes()]

@@ -121,6 +121,7 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
                      f"{a[y]['peak_hz']:.3g} / {a[y]['peak_p']:.2g} |")
     if figures:
         lines += ["", "## Plots", ""] + [f"![{f}]({f})" for f in figures]
+    lines += ["", "## Final identification", "", r.result_.markdown()]
     lines += ["", "## Final model", "", "Written to `final_profile.toml`:", "", "```toml",
               r.profile_.to_toml().rstrip(), "```", ""]
     return "\n".join(lines)
