@@ -4,7 +4,7 @@ import pytest
 from identify import LinearModel, ProfileError, load_profile, parse_profile, residualize
 from identify.model.profile import bundled_profiles_dir
 
-from .helpers import one_error_line, run_cli
+from tests.helpers import one_error_line, run_cli
 
 GOOD = """
 name = "test"

@@ -3,7 +3,7 @@ import pytest
 
 from identify import Run, RunError, read_run, read_runs
 
-from .helpers import one_error_line, run_cli
+from tests.helpers import one_error_line, run_cli
 
 HEAD = "# aircraft: S 61\n# pilot: test\ntime,theta_s,q\n"
 

@@ -5,7 +5,7 @@ from identify import LinearModel, parse_profile, simulate, simulate_run
 from identify.refine.candidates import (Delay, Derivative, Lag, Nonlinear, Periodic, bias, catalogue, delay_run, drift,
                                  prepare_runs, scale)
 from identify.refine.diagnostics import dominant_frequency
-from tests.test_refine import PROFILE, excitation
+from tests.identify.refine.test_refine import PROFILE, excitation
 
 DT, N = 0.02, 1001
 

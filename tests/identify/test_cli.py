@@ -110,7 +110,7 @@ def test_bad_input_gives_one_line_and_status_2(runs, tmp_path, capsys, s61):
 
 def test_unwritable_outputs_and_bad_options_give_one_line(tmp_path):
     """Writing to a folder that does not exist, or nonsense options: one line, exit 2, no traceback."""
-    from .helpers import one_error_line, run_cli
+    from tests.helpers import one_error_line, run_cli
 
     one_error_line(run_cli("identify", "model", "s61_hover_8state", "--reduce", "theta_R",
                            "--save-reduced", tmp_path / "no" / "dir" / "r.toml"), "r.toml")
