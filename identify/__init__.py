@@ -18,7 +18,7 @@ __all__ = ["EstimationError", "ProfileError", "PseudostepError", "RunError", "Si
            "output_units", "parse_profile", "IdentificationResult", "Run", "read_run", "read_runs",
            "output_sensitivities", "delay_inputs", "discretize", "perturbed_model", "simulate", "simulate_run"]
 
-# data processing and equation-error estimators (plots stay in identify.plots: matplotlib is slow to import)
+# data processing and equation-error estimators (plots stay in identify.estimators.plots: matplotlib is slow to import)
 from .estimators.equation_error import IV, LS, state_derivatives  # noqa: E402
 from .data.matfile import read_mat  # noqa: E402
 from .data.preprocess import add_derivatives, cg_correction, processing_steps, replay, smooth, smooth_derivative  # noqa: E402

@@ -83,3 +83,12 @@ def test_the_scan_sees_lazy_and_dynamic_upward_imports():
     hits = upward_imports(source, "identify")
     assert [h.split()[-1] for h in hits] == ["cueing.session", "signaldesign.design", "signaldesign.band"]
     assert upward_imports(source, "signaldesign") == ["<source>:5 cueing.session"]
+
+
+def test_import_identify_leaves_out_the_slow_optional_libraries():
+    """python-control (only LinearModel.to_ss) and matplotlib (only plots) load when used."""
+    code = "import sys, identify; print(sorted(m for m in ('control', 'matplotlib') if m in sys.modules))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"

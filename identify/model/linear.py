@@ -13,12 +13,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
 from ..errors import ProfileError
 from .profile import DOT, Profile
+
+if TYPE_CHECKING:
+    import control
 
 
 @dataclass(frozen=True)
@@ -158,8 +161,10 @@ class LinearModel:
     def dD(self) -> np.ndarray:
         return self._structure["dD"]
 
-    def to_ss(self) -> control.StateSpace:
+    def to_ss(self) -> "control.StateSpace":
         """The model as a ``control.StateSpace`` with named states, inputs and outputs."""
+        import control  # slow to import (~1 s) and needed only here: not at ``import identify``
+
         p = self.profile
         return control.ss(self.A, self.B, self.C, self.D, states=p.state_names,
                           inputs=p.input_names, outputs=list(p.outputs), name=p.name)
