@@ -81,21 +81,25 @@ def cmd_estimate(args) -> int:
 
 def _add_estimate_parser(sub) -> None:
     p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
-    p.add_argument("runs", nargs="+", help="run files (.csv, or .mat with --channel-map)")
-    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=float, metavar="HZ",
                    help="cut-off of the smoothed differentiator for states without measured derivatives")
     p.add_argument("--t-start", type=float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=int, default=30, help="IV iterations at most (default 30)")
-    _add_channel_map_option(p)
     p.set_defaults(func=cmd_estimate)
 
 
-def _add_channel_map_option(p) -> None:
+def _add_common_options(p, runs_help: str, default_method: str) -> None:
+    """Options of every command that reads runs (through :mod:`identify.data.io`) and estimates."""
+    from .estimators.registry import METHODS
+
+    p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv, or .mat with --channel-map)")
+    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
+    p.add_argument("--method", choices=tuple(METHODS), default=default_method,
+                   help=f"estimator (default {default_method})")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--channel-map", metavar="JSON",
                    help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
                         '"matrix": ..., "dt": ...} as a file or inline JSON')
@@ -133,11 +137,8 @@ def cmd_refine(args) -> int:
 
 def _add_refine_parser(sub) -> None:
     p = sub.add_parser("refine", help="find unmodelled effects in the residuals, add them, re-identify")
-    p.add_argument("runs", nargs="+", help="run files to fit (.csv, or .mat with --channel-map)")
-    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ml", "ls", "iv"), default="ml", help="estimator (default ml)")
+    _add_common_options(p, "run files to fit", default_method="ml")
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
                    "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")
@@ -148,7 +149,6 @@ def _add_refine_parser(sub) -> None:
                    help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
     p.add_argument("--f-min", type=float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
     p.add_argument("--tau-max", type=float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
-    _add_channel_map_option(p)
     p.set_defaults(func=cmd_refine)
 
 
