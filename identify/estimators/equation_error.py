@@ -12,7 +12,7 @@ the derivatives.
 
 State derivatives come, per state, from a ``<state>_dot`` channel; else from an output in
 ``output_defs`` with exactly one state-derivative term (``a_x = u_dot + g theta`` gives ``u_dot``);
-else from smoothed differentiation of the measured state (:mod:`identify.preprocess`). Equation
+else from smoothed differentiation of the measured state (:mod:`identify.data.preprocess`). Equation
 error needs every state measured.
 
 Standard errors: ``(X^T X)^-1 X^T R X (X^T X)^-1`` with ``R`` the Toeplitz matrix of the residual

@@ -23,15 +23,15 @@ Morelli & Klein's correction for coloured residuals in output error::
 autocorrelation of output y's whitened noise, pooled over all runs and segments (segments and
 outputs taken as independent of each other), estimated from the residuals' autocorrelation with
 the part the fit itself removes added back (it matters for short segments with many unknowns;
-:meth:`identify.shooting.OutputError.coloured_information`). Computed once, after convergence, by
-FFT (:mod:`identify._colour`, as the equation-error estimators do); the iteration itself is the
+:meth:`identify.estimators.output_error.OutputError.coloured_information`). Computed once, after convergence, by
+FFT (:mod:`identify.estimators.colour`, as the equation-error estimators do); the iteration itself is the
 same. For white residuals ``T_y`` ~ I and both bounds agree (within the estimation scatter of the
 autocorrelation, a few %); both are reported (``info["std_white"]``, ``info["std_coloured"]``).
 ``coloured=False`` skips the correction (it costs about as much as the fit).
 
 Unstable models (most helicopters) diverge when simulated over a long run, and the cost of an
 unstable model over 20 s is far from quadratic in its parameters. ML then uses multiple shooting
-(:mod:`identify.shooting`): each run is cut into segments of a few seconds, each simulated from
+(:mod:`identify.estimators.output_error`): each run is cut into segments of a few seconds, each simulated from
 its own estimated initial state. This is chosen automatically from the a priori model's modes.
 """
 from __future__ import annotations
@@ -72,7 +72,7 @@ class ML(Estimator):
     After ``fit(runs)``: ``result_`` (an IdentificationResult with per-run ``time``,
     ``measured``, ``modelled``; with multiple shooting the modelled outputs restart at every
     segment's estimated initial state), ``covariance_`` (p, p) Cramér-Rao covariance of theta,
-    ``problem_`` (the :class:`~identify.shooting.OutputError` solved) and ``beta_`` (all unknowns).
+    ``problem_`` (the :class:`~identify.estimators.output_error.OutputError` solved) and ``beta_`` (all unknowns).
     ``result_.info`` holds the form used, segments with their initial states, per-run zero shifts,
     the noise covariance, iterations, convergence and the cost history. A parameter that no input
     excites (zero sensitivity, e.g. the derivatives of a cyclic not flown) stays at its a priori

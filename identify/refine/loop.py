@@ -7,7 +7,7 @@ repeats:
    segment's initial state and, by default, each run's output zero shifts fitted by linear least
    squares weighted by each output's noise, as ML weights them);
 2. a score (Lagrange-multiplier) test of every candidate of the catalogue
-   (:mod:`identify.candidates`) at its null value, from exact output sensitivities, against the
+   (:mod:`identify.refine.candidates`) at its null value, from exact output sensitivities, against the
    chi-square threshold at a Šidák-corrected family level ``alpha`` over all candidates tested;
 3. the most significant candidate is estimated (ML re-fit; a delay by a 1-D profile-likelihood
    search over tau with ML re-fits, and a lag fitted too — the better of the two is kept),
@@ -58,7 +58,7 @@ class Evaluation:
 
 
 def segments(n_samples: int, dt: float, segment: float) -> list[slice]:
-    """Sample ranges of one run cut as multiple-shooting ML cuts it (:func:`identify.shooting.cut`)."""
+    """Sample ranges of one run cut as multiple-shooting ML cuts it (:func:`identify.estimators.output_error.cut`)."""
     lay = cut([n_samples], dt, segment)
     return [slice(int(a), int(a + n)) for a, n in zip(lay.start, lay.length)]
 
