@@ -49,9 +49,9 @@ def cmd_estimate(args) -> int:
     import sys
 
     from .data.io import load_channel_map, read_run_file
+    from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
     from .estimators.registry import estimator_class
-    from .data.preprocess import slice_run, smooth
 
     profile = load_profile(args.profile)
     cmap = load_channel_map(args.channel_map) if args.channel_map else None
@@ -107,10 +107,10 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
 
 def cmd_refine(args) -> int:
     """Fit, find what the residuals say the model lacks, add it, re-identify; write the evidence."""
+    from .data.io import load_channel_map, read_run_files
     from .refine.candidates import KINDS
     from .refine.loop import Refine
     from .refine.report import write
-    from .data.io import load_channel_map, read_run_files
 
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.runs import Run
 from ..errors import EstimationError
 from ..model.profile import Profile, load_profile
 from .result import IdentificationResult
-from ..data.runs import Run
 
 MIN_SAMPLES = 10
 

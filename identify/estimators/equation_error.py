@@ -39,16 +39,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .colour import autocorr_apply as _autocorr_apply
-from ..errors import EstimationError, SimulationError
-from .base import Estimator
-from ..model.linear import LinearModel
 from ..data.preprocess import processing_steps, smooth_derivative
-from ..model.profile import DOT, Profile
-from .result import IdentificationResult, fit_metrics
 from ..data.runs import Run
-from .output_error import MIN_SEGMENT, auto_segment, restarts, simulate_segments
+from ..errors import EstimationError, SimulationError
+from ..model.linear import LinearModel
+from ..model.profile import DOT, Profile
 from ..model.simulate import discretize
+from .base import Estimator
+from .colour import autocorr_apply as _autocorr_apply
+from .output_error import MIN_SEGMENT, auto_segment, restarts, simulate_segments
+from .result import IdentificationResult, fit_metrics
 
 DEFAULT_DIFF_CUTOFF_HZ = 6.25
 _RANK_RTOL = 1e-10

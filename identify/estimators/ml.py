@@ -44,13 +44,13 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
+from ..data.runs import Run
 from ..errors import EstimationError, SimulationError
-from .base import Estimator
 from ..model.linear import LinearModel
 from ..model.profile import Profile
-from .result import IdentificationResult, fit_metrics
-from ..data.runs import Run
+from .base import Estimator
 from .output_error import OutputError, auto_segment
+from .result import IdentificationResult, fit_metrics
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
 MAX_DAMPING = 1e10

@@ -31,12 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from .colour import power
+from ..errors import SimulationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile
 from ..model.sensitivity import discretize_with_derivatives
-from ..errors import SimulationError
 from ..model.simulate import DIVERGENCE_LIMIT, discretize, propagate
+from .colour import power
 
 MIN_SEGMENT = 1.0  # s: shorter segments leave too little response to pin down their own x0
 MAX_SEGMENT = 5.0  # s: longer segments of an unstable model grow too nonlinear in theta

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
+from ..data.runs import Run
 from ..errors import SimulationError
 from .linear import LinearModel
 from .profile import DOT
-from ..data.runs import Run
 
 DIVERGENCE_LIMIT = 1e6
 

@@ -32,10 +32,10 @@ from itertools import combinations
 
 import numpy as np
 
+from ..data.runs import Run
 from ..errors import ProfileError
 from ..model.profile import Profile
 from ..model.simulate import delay_inputs
-from ..data.runs import Run
 
 KINDS = ("derivative", "delay", "lag", "bias", "drift", "scale", "nonlinear", "periodic")
 

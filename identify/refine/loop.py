@@ -31,16 +31,16 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from . import diagnostics as dg
-from .candidates import KINDS, Candidate, Delay, Lag, Periodic, catalogue, prepare_runs
-from ..errors import EstimationError, PseudostepError
-from ..model.linear import LinearModel
-from ..model.profile import Profile, load_profile
-from ..estimators.result import IdentificationResult
 from ..data.runs import Run
-from ..model.sensitivity import output_sensitivities
+from ..errors import EstimationError, PseudostepError
 from ..estimators.output_error import auto_segment, cut
 from ..estimators.registry import estimator_class
+from ..estimators.result import IdentificationResult
+from ..model.linear import LinearModel
+from ..model.profile import Profile, load_profile
+from ..model.sensitivity import output_sensitivities
+from . import diagnostics as dg
+from .candidates import KINDS, Candidate, Delay, Lag, Periodic, catalogue, prepare_runs
 
 MIN_SAMPLES = 50  # per run: fewer leave the residual tests without power
 

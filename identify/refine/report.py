@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..estimators.result import _jsonable
 from .diagnostics import spectral_peak
 from .loop import Refine
-from ..estimators.result import _jsonable
 
 
 def to_dict(r: Refine) -> dict:
