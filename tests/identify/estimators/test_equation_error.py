@@ -1,6 +1,4 @@
 """LS and IV on data simulated from a known truth (the S 61 hover model unless said otherwise)."""
-import math
-
 import numpy as np
 import pytest
 
@@ -262,18 +260,3 @@ def test_iv_shortens_the_restart_interval_when_an_estimate_diverges(s61, s61_run
     est = IV(profile, reinit=20.0, start="apriori").fit(s61_run_20s)
     assert est.result_.info["instrument_segment_s"] < 20.0
     assert relative_error(est.theta_, s61.theta).max() < 5e-7
-
-
-def test_estimators_store_in_init_and_validate_in_fit(s61, s61_run_20s):
-    """scikit-learn style: __init__ keeps the arguments as given (no file read, no conversion);
-    fit loads the profile (profile_) and raises the one-line error on a bad one."""
-    from identify import ML, ProfileError
-    for cls in (ML, LS, IV):
-        est = cls("no_such_profile", max_iter=7) if cls is not LS else cls("no_such_profile")
-        assert est.profile == "no_such_profile"
-        with pytest.raises(ProfileError, match="no_such_profile"):
-            est.fit(s61_run_20s)
-    est = ML(s61.profile, segment="plain", max_iter=3)
-    assert est.segment == "plain" and not hasattr(est, "segment_")
-    est.fit(s61_run_20s)
-    assert est.segment_ == math.inf and est.profile_ is s61.profile
