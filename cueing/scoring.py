@@ -109,22 +109,29 @@ def switch_timing(t: np.ndarray, flown: np.ndarray, signal, t_signal: np.ndarray
     after = signal(sw + 1e-6)
     half, direction = 0.5 * (before + after), np.sign(after - before)
     errors = np.full(sw.size, np.nan)
+    used = {}  # crossing (direction, halfway level) -> when an earlier switch's answer made it
     for i, s in enumerate(sw):
+        key = (direction[i], round(half[i] / (abs(signal.amplitude) or 1.0), 9))
         hold = s - sw[i - 1] if i else max_lag
         end = s + max_lag
-        # a later switch asking for the same crossing takes over: its crossing is not this one's
+        # a later switch asking for the same crossing takes over: its crossing is not this one's,
+        # nor is the one an earlier switch asking for the same crossing already had
         same = np.flatnonzero((direction[i + 1:] == direction[i]) & np.isclose(half[i + 1:], half[i]))
         if same.size:
             end = min(end, sw[i + 1 + same[0]])
-        sel = np.flatnonzero((ts >= s - 0.5 * min(hold, max_lag)) & (ts <= end))
+        sel = np.flatnonzero((ts >= s - 0.5 * min(hold, max_lag)) & (ts > used.get(key, -np.inf)) & (ts <= end))
         if sel.size == 0:
             continue
-        crossed = (flown[sel] - half[i]) * direction[i] > 0
+        side = np.sign((flown[sel] - half[i]) * direction[i])  # -1 old side, +1 new side
         # only a crossing from the old side counts: sitting on the new side all along (a pilot who
-        # never followed the previous level) is a miss, not a perfectly timed switch
-        cross = np.flatnonzero(crossed[1:] & ~crossed[:-1]) + 1
+        # never followed the previous level) is a miss, not a perfectly timed switch; nor does
+        # leaving the halfway line itself (an answer to an earlier switch towards it)
+        last = np.maximum.accumulate(np.where(side != 0, np.arange(side.size), 0))
+        last_side = np.where(side[last] != 0, side[last], 0)  # the last side left of the line so far
+        cross = np.flatnonzero((side[1:] > 0) & (last_side[:-1] < 0)) + 1
         if cross.size:
             errors[i] = ts[sel[cross[0]]] - s
+            used[key] = ts[sel[cross[0]]]
     return errors
 
 
@@ -219,7 +226,7 @@ def score_run(run: Run, signals, model=None, frame_stats: dict | None = None) ->
                      "spectral_fidelity": spectral_fidelity(designed, flown, run.dt, signal_band(s))})
     timing = np.concatenate([np.asarray(ax["timing"], float) for ax in axes])
     hit = timing[np.isfinite(timing)]
-    mean = lambda key: float(np.nanmean([ax[key] for ax in axes]))  # noqa: E731
+    mean = lambda key: _nanmean([ax[key] for ax in axes])  # noqa: E731
     return Score(rms=mean("rms"), timing_mean=float(np.mean(hit)) if hit.size else np.nan,
                  timing_std=float(np.std(hit)) if hit.size else np.nan,
                  timing_max=float(np.max(np.abs(hit))) if hit.size else np.nan,
@@ -228,6 +235,11 @@ def score_run(run: Run, signals, model=None, frame_stats: dict | None = None) ->
                  asymmetry=mean("asymmetry"), spectral_fidelity=mean("spectral_fidelity"), lag=mean("lag"),
                  d_efficiency=information_retained(model, run, signals) if model is not None else None,
                  per_axis=axes, **_frame_rates(frame_stats))
+
+
+def _nanmean(values) -> float:
+    values = np.asarray(values, float)
+    return float(np.mean(values[np.isfinite(values)])) if np.isfinite(values).any() else np.nan
 
 
 def _frame_rates(stats: dict | None) -> dict:
