@@ -139,8 +139,7 @@ class Display:
         if state.countdown is not None and state.countdown > 0:
             self._text(surface, f"{int(np.ceil(state.countdown))}", (w // 2, h // 5), 90, centre=True)
             if state.lead_in:
-                self._text(surface, "recording: hold still", (w // 2, h // 5 + int(50 * self.text_scale)), 24,
-                           centre=True)
+                self._text(surface, "recording: hold still", (10, int(8 + 26 * self.text_scale)), 22)
         if state.message:
             self._text(surface, state.message, (w // 2, 30), 28, WARN_COLOR, centre=True)
         if state.warning:

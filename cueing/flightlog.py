@@ -184,8 +184,8 @@ def frame_rate_warning(stats: dict) -> str | None:
     target = stats.get("rate_nominal")
     if target is None or min(stats["rate_achieved"], stats["rate_lowest_1s"]) >= LOW_RATE * target:
         return None
-    return (f"frame rate low: {stats['rate_achieved']:.1f} Hz achieved, {stats['rate_lowest_1s']:.1f} Hz over the "
-            f"worst second, of {target:g} Hz target")
+    return (f"frame rate low: {stats['rate_achieved']:.1f} Hz (worst second {stats['rate_lowest_1s']:.1f} Hz) "
+            f"of {target:g} Hz target")
 
 
 def read_frame_log(path: str | Path) -> FrameLog:

@@ -126,8 +126,7 @@ def switch_timing(t: np.ndarray, flown: np.ndarray, signal, t_signal: np.ndarray
         # only a crossing from the old side counts: sitting on the new side all along (a pilot who
         # never followed the previous level) is a miss, not a perfectly timed switch; nor does
         # leaving the halfway line itself (an answer to an earlier switch towards it)
-        last = np.maximum.accumulate(np.where(side != 0, np.arange(side.size), 0))
-        last_side = np.where(side[last] != 0, side[last], 0)  # the last side left of the line so far
+        last_side = side[np.maximum.accumulate(np.where(side != 0, np.arange(side.size), 0))]  # 0: none yet
         cross = np.flatnonzero((side[1:] > 0) & (last_side[:-1] < 0)) + 1
         if cross.size:
             errors[i] = ts[sel[cross[0]]] - s
