@@ -13,6 +13,8 @@ from .errors import CueingError
 
 ENV = "PSEUDOSTEP_HISTORY"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+SCORES = ("rms", "timing_mean", "timing_std", "lag", "level_error_pos", "level_error_neg", "spectral_fidelity",
+          "d_efficiency")
 OVER_100 = "info % over 100: flown with more energy than designed (overshoot), not better flying"
 
 
@@ -41,16 +43,33 @@ def load_history(pilot: str, directory=None) -> list[dict]:
     path = history_path(pilot, directory)
     if not path.is_file():
         raise CueingError(f"no practice history for pilot '{pilot}' ({path} does not exist)")
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CueingError(f"{path}: cannot read the practice history ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise CueingError(f"{path}: not a practice history (binary, not text)") from None
     records = []
-    for n, line in enumerate(path.read_text().splitlines(), start=1):
+    for n, line in enumerate(text.splitlines(), start=1):
         if line.strip():
             try:
-                records.append(json.loads(line))
+                records.append(_checked(json.loads(line), path, n))
             except json.JSONDecodeError:
                 raise CueingError(f"{path}: line {n}: not a JSON record") from None
     if not records:
         raise CueingError(f"{path}: holds no attempts")
     return records
+
+
+def _checked(record, path: Path, n: int) -> dict:
+    """A history record: a JSON object whose scores are numbers (null or NaN where undefined)."""
+    if not isinstance(record, dict) or "rms" not in record:
+        raise CueingError(f"{path}: line {n}: not a practice record (a JSON object with the scores)")
+    for key in SCORES:
+        value = record.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise CueingError(f"{path}: line {n}: '{key}' is not a number")
+    return record
 
 
 def format_history(records: list[dict]) -> str:
@@ -59,12 +78,12 @@ def format_history(records: list[dict]) -> str:
     rows = [f"{'#':>3}  {'when':19}  {'RMS %':>6}  {'timing ms':>9}  {'lag ms':>6}  {'level+ %':>8}  {'level- %':>8}  "
             f"{'fidelity':>8}  {'info %':>6}  signal"]
     for i, r in enumerate(records, start=1):
-        d, timing = r.get("d_efficiency"), _num(r.get("timing_mean"))
-        rows.append(f"{i:3d}  {r.get('when', ''):19}  {100 * r['rms']:6.1f}  "
+        d, timing = _num(r.get("d_efficiency")), _num(r.get("timing_mean"))
+        rows.append(f"{i:3d}  {str(r.get('when', '')):19}  {100 * _num(r['rms']):6.1f}  "
                     f"{f'{1000 * timing:+9.0f}' if np.isfinite(timing) else 'missed':>9}  "
-                    f"{_ms(r.get('lag')):>6}  {100 * _num(r['level_error_pos']):+8.1f}  "
-                    f"{100 * _num(r['level_error_neg']):+8.1f}  {_num(r['spectral_fidelity']):8.3f}  "
-                    f"{'' if d is None else f'{100 * d:6.1f}':>6}  {r.get('signal', '')}")
+                    f"{_ms(r.get('lag')):>6}  {100 * _num(r.get('level_error_pos')):+8.1f}  "
+                    f"{100 * _num(r.get('level_error_neg')):+8.1f}  {_num(r.get('spectral_fidelity')):8.3f}  "
+                    f"{f'{100 * d:6.1f}' if np.isfinite(d) else '':>6}  {r.get('signal', '')}")
     if any((r.get("d_efficiency") or 0) > 1 for r in records):
         rows.append(OVER_100)
     return "\n".join(rows)
@@ -78,7 +97,7 @@ def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
 
     n = np.arange(1, len(records) + 1)
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 7))
-    axes[0].plot(n, [100 * r["rms"] for r in records], "o-")
+    axes[0].plot(n, [100 * _num(r["rms"]) for r in records], "o-")
     axes[0].set_ylabel("RMS error [% amp.]")
     axes[1].plot(n, [1000 * abs(_num(r.get("timing_mean"))) for r in records], "o-", label="switch timing |mean|")
     axes[1].plot(n, [1000 * _num(r.get("timing_std")) for r in records], "s--", label="switch timing std")

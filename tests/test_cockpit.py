@@ -253,3 +253,15 @@ def test_score_lines_flag_warnings_for_the_end_screen():
                level_error_pos=0.0, level_error_neg=0.0, asymmetry=0.0, spectral_fidelity=0.99, lag=0.3,
                frame_rate=59.9, frame_rate_lowest=50.0, frame_rate_target=60.0)
     assert sc.frame_rate_low and sc.lines()[-1].startswith(disp.WARNING_MARK)
+
+
+@pytest.mark.parametrize("content, needle", [
+    (bytes(range(256)) * 4, "binary"),
+    (b'{"rms": "fast"}\n', "'rms' is not a number"),
+    (b"[1, 2]\n", "not a practice record"),
+])
+def test_history_of_a_malformed_file_is_one_line_status_2(content, needle, tmp_path, capsys):
+    (tmp_path / "Rix.jsonl").write_bytes(content)
+    assert main(["history", "Rix", "--history-dir", str(tmp_path), "--plot", str(tmp_path / "c.png")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(err) == 1 and needle in err[0], err
