@@ -7,7 +7,7 @@ from pathlib import Path
 
 from identify.cliutil import Parser, run
 
-from .errors import CueingError
+from .errors import CueingError, RunAborted
 
 DEFAULT_LEAD_IN = 2.0  # s of quiet logged before the signal: the trim the response starts from
 UNATTENDED = ("pilot", "replay", "external")  # sources that need no human: may run on a fake clock
@@ -76,7 +76,10 @@ def cmd_fly(args) -> int:
     signals = _signals(args.signal)
     options = _fly_options(args)
     source = _source(args, args.skill, args.seed)
-    flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
+    try:
+        flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
+    except RunAborted as exc:
+        return _aborted(exc)
     print("\n".join(flight.score.lines()[1:]))
     runner = flight.runner
     print(f"run written to {flight.path} ({flight.log.status}; {flight.run.duration:.2f} s: {runner.lead_in:g} s "
@@ -85,10 +88,14 @@ def cmd_fly(args) -> int:
 
 
 def _aborted(flight) -> int:
-    """Exit status of a flown run: 0, or EXIT_ABORTED with one line when the pilot ended it early."""
-    if not flight.log.aborted:
+    """Exit status of a flown run (a Flight, or the RunAborted of one that wrote nothing): 0, or
+    EXIT_ABORTED with one line when the pilot ended it early."""
+    if isinstance(flight, RunAborted):
+        print(f"cueing: {flight}", file=sys.stderr)
+    elif flight.log.aborted:
+        print(f"cueing: run {flight.log.status}: the data up to then is kept in {flight.path}", file=sys.stderr)
+    else:
         return 0
-    print(f"cueing: run {flight.log.status}: the data up to then is kept in {flight.path}", file=sys.stderr)
     return EXIT_ABORTED
 
 
@@ -106,7 +113,12 @@ def cmd_practice(args) -> int:
         skill = 1 - (1 - args.skill) * (1 - args.learn) ** i  # the simulated pilot learns towards 1
         source = _source(args, skill, None if args.seed is None else args.seed + i)
         opts = dict(options, seed=None if args.seed is None else args.seed + i)
-        flight = fly(signals, source, out_dir / f"{args.pilot}_attempt{i + 1:02d}.csv", pilot=args.pilot, **opts)
+        try:
+            flight = fly(signals, source, out_dir / f"{args.pilot}_attempt{i + 1:02d}.csv", pilot=args.pilot,
+                         **opts)
+        except RunAborted as exc:
+            flight = exc
+            break
         record = {k: v for k, v in flight.score.to_dict().items() if k != "per_axis"}
         record.update(signal=flight.run.meta.get("signal", ""), source=source.describe(), run=str(flight.path),
                       status=flight.log.status)
@@ -114,7 +126,8 @@ def cmd_practice(args) -> int:
         first = first if first is not None else len(load_history(args.pilot, args.history_dir)) - 1
         if flight.log.aborted:  # the pilot stopped: no more attempts
             break
-    print(format_history(load_history(args.pilot, args.history_dir)[first:]))
+    if first is not None:  # at least one attempt was recorded
+        print(format_history(load_history(args.pilot, args.history_dir)[first:]))
     return _aborted(flight)
 
 

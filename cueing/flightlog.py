@@ -64,6 +64,7 @@ class FrameLogWriter:
         self._lock = threading.Lock()
         self._thread = None
         self.fsyncs = 0
+        self.frames = 0
         self.closed_status: str | None = None
 
     def open(self, meta: dict) -> "FrameLogWriter":
@@ -89,6 +90,7 @@ class FrameLogWriter:
         with self._lock:
             self._file.write(",".join(cells) + "\n")
             self._file.flush()
+        self.frames += 1
 
     def event(self, t: float, text: str) -> None:
         with self._lock:

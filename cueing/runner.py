@@ -24,7 +24,7 @@ import numpy as np
 from .audio import Ticker
 from .clock import MonotonicClock
 from .display import BASE_SIZE, Display, FrameState
-from .errors import CueingError
+from .errors import CueingError, RunAborted
 from .flightlog import LOW_RATE, FrameLogWriter, read_frame_log
 from .sources import InputSource, MouseSource
 
@@ -151,10 +151,16 @@ class Runner:
             writer.close(f"aborted (error: {exc})")
             raise
         writer.close(status)
+        if writer.frames == 0:  # ended before its first frame: a log without frames is kept, nothing to read
+            self.source.close()
+            raise RunAborted(f"run {status} before the recording started: no run file written "
+                             f"(frame log {self.log_path})")
         self.log_ = read_frame_log(self.log_path)
-        if self.display is not None:
-            self._show_end(score_lines(self.log_) if score_lines else [f"run {status}"])
-        self.source.close()
+        try:
+            if self.display is not None:
+                self._show_end(score_lines(self.log_) if score_lines else [f"run {status}"])
+        finally:
+            self.source.close()
         return self.log_
 
     def _loop(self, writer: FrameLogWriter, t0: float) -> str:

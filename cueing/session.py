@@ -11,7 +11,7 @@ from identify.runs import Run
 
 from .clock import FakeClock
 from .display import signal_units
-from .errors import CueingError
+from .errors import CueingError, RunAborted
 from .flightlog import CMD, FrameLog, frame_log_path, log_to_run
 from .runner import Runner
 from .scoring import Score, score_run
@@ -87,6 +87,9 @@ def fly(signals, source, out, *, simulate=None, noise_fraction: float = 0.02, se
 
 
 def _finish(log, signals, out, sim_model, noise_fraction, seed, model) -> Flight:
+    if log.aborted and np.sum(log.time >= 0) < 2:
+        raise RunAborted(f"run {log.status} before the recording started: no run file written "
+                         f"(frame log {log.path})")
     run = log_to_run(log, signals=signals)
     if sim_model is not None:
         run = simulate_test_point(run, sim_model, noise_fraction, seed)

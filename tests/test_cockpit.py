@@ -265,3 +265,17 @@ def test_history_of_a_malformed_file_is_one_line_status_2(content, needle, tmp_p
     assert main(["history", "Rix", "--history-dir", str(tmp_path), "--plot", str(tmp_path / "c.png")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line]
     assert len(err) == 1 and needle in err[0], err
+
+
+def test_escape_in_the_countdown_exits_non_zero_with_one_line(tmp_path, capsys):
+    sig = save_signals(Signal("doublet", "theta_s", 1.0, [1, -1], AMP), tmp_path / "s.json")
+    pygame.display.init()
+    pygame.event.clear()
+    pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE))  # pressed before the start
+    code = main(["practice", "--signal", str(sig), "--source", "pilot", "--pilot", "Rix", "--headless", "--fast",
+                 "--countdown", "1", "--history-dir", str(tmp_path / "h"), "--out-dir", str(tmp_path / "p")])
+    assert code == EXIT_ABORTED
+    err = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(err) == 1 and "before the recording started" in err[0]
+    log = (tmp_path / "p" / "Rix_attempt01.frames.csv").read_text()
+    assert log.endswith("# end: aborted (pilot pressed Escape)\n")  # the log is kept, marked aborted
