@@ -279,3 +279,16 @@ def test_escape_in_the_countdown_exits_non_zero_with_one_line(tmp_path, capsys):
     assert len(err) == 1 and "before the recording started" in err[0]
     log = (tmp_path / "p" / "Rix_attempt01.frames.csv").read_text()
     assert log.endswith("# end: aborted (pilot pressed Escape)\n")  # the log is kept, marked aborted
+
+
+def test_record_comes_from_the_signal_or_the_option_and_never_cuts_the_sequence(tmp_path):
+    plain = Signal("doublet", "theta_s", 1.0, [1, -1], AMP, delay=0.5)
+    assert plain.record == plain.end_time == 2.5  # no design record: the signal itself
+    assert Signal("doublet", "theta_s", 1.0, [1, -1], AMP, params={"record": 1.0}).record == 2.0
+    assert Signal("doublet", "theta_s", 1.0, [1, -1], AMP, params={"record": "long"}).record == 2.0
+    sig = save_signals(plain, tmp_path / "s.json")
+    for extra, span in ((["--record", "6"], 6.0 + 1.5), ([], 2.5 + 1.0 + 1.5), (["--record", "1"], 2.5 + 1.0 + 1.5)):
+        out = tmp_path / "r.csv"
+        assert main(["fly", "--signal", str(sig), "--source", "pilot", "--headless", "--fast", "--countdown", "0",
+                     "--lead-in", "1.5", "--out", str(out)] + extra) == 0
+        assert read_run(out).time[-1] == pytest.approx(span, abs=1 / RATE), extra
