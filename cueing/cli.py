@@ -197,7 +197,9 @@ def build_parser() -> Parser:
     p.add_argument("--quick", action="store_true", help="reduced size (shorter runs, shorter search)")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("fly", help="fly one run on the two-needle display")
+    p = sub.add_parser("fly", help="fly one run on the two-needle display",
+                       description="Fly one run on the two-needle display. Escape or closing the window ends it "
+                                   f"early: the data so far is kept, marked aborted, exit status {EXIT_ABORTED}.")
     _add_fly_arguments(p)
     p.add_argument("--out", required=True, help="run file to write (the frame log grows beside it)")
     p.set_defaults(func=cmd_fly)
