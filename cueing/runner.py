@@ -29,6 +29,7 @@ from .flightlog import LOW_RATE, FrameLogWriter, read_frame_log
 from .sources import InputSource, MouseSource
 
 DEFAULT_RATE = 60.0  # Hz
+RECOVERY_MARGIN = 0.05  # a low frame rate counts as recovered at LOW_RATE + this fraction of the target
 WINDOW = "window"
 HEADLESS = "headless"
 
@@ -269,7 +270,8 @@ class FrameRateMonitor:
         if now - self.start < self.window or len(self.times) < 2:
             return None
         rate = (len(self.times) - 1) / (self.times[-1] - self.times[0])
-        low = rate < LOW_RATE * self.target
+        # a little hysteresis: a rate hovering at the limit does not flood the log with events
+        low = rate < (LOW_RATE if self.warning is None else LOW_RATE + RECOVERY_MARGIN) * self.target
         change = None
         if low and self.warning is None:
             change = f"frame rate low: {rate:.1f} Hz of {self.target:g} Hz target"
