@@ -292,3 +292,18 @@ def test_record_comes_from_the_signal_or_the_option_and_never_cuts_the_sequence(
         assert main(["fly", "--signal", str(sig), "--source", "pilot", "--headless", "--fast", "--countdown", "0",
                      "--lead-in", "1.5", "--out", str(out)] + extra) == 0
         assert read_run(out).time[-1] == pytest.approx(span, abs=1 / RATE), extra
+
+
+def test_frame_rate_monitor_flags_low_and_recovers_with_hysteresis():
+    from cueing.runner import FrameRateMonitor
+    m = FrameRateMonitor(60.0)
+    t, changes = 0.0, []
+    for rate, seconds in ((60, 2), (20, 2), (55, 2), (60, 2)):
+        for _ in range(int(rate * seconds)):
+            t += 1 / rate
+            change = m.add(t)
+            changes += [change] if change else []
+        if rate == 55:
+            assert m.warning is not None  # 92 % of the target: still shown until 95 %
+    assert len(changes) == 2 and changes[0].startswith("frame rate low: ") and "recovered" in changes[1]
+    assert m.warning is None
