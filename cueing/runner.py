@@ -152,12 +152,11 @@ class Runner:
             writer.close(f"aborted (error: {exc})")
             raise
         writer.close(status)
-        if writer.frames == 0:  # ended before its first frame: a log without frames is kept, nothing to read
-            self.source.close()
-            raise RunAborted(f"run {status} before the recording started: no run file written "
-                             f"(frame log {self.log_path})")
-        self.log_ = read_frame_log(self.log_path)
         try:
+            if writer.frames == 0:  # ended before its first frame: the log is kept, but holds nothing to read
+                raise RunAborted(f"run {status} before the recording started: no run file written "
+                                 f"(frame log {self.log_path})")
+            self.log_ = read_frame_log(self.log_path)
             if self.display is not None:
                 self._show_end(score_lines(self.log_) if score_lines else [f"run {status}"])
         finally:
