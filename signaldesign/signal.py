@@ -55,6 +55,16 @@ class Signal:
         return self.delay + self.duration
 
     @property
+    def record(self) -> float:
+        """Length (s) of the record the signal was designed for: ``params['record']`` where a design
+        set it, never shorter than the signal itself (``end_time``)."""
+        try:
+            designed = float(self.params.get("record", 0.0)) if isinstance(self.params, dict) else 0.0
+        except (TypeError, ValueError):
+            designed = 0.0
+        return max(designed, self.end_time) if np.isfinite(designed) else self.end_time
+
+    @property
     def is_step_sequence(self) -> bool:
         return bool(np.all(self.levels == np.round(self.levels)))
 

@@ -274,7 +274,7 @@ def test_keyboard_and_mouse_sources(s3211):
     assert kb.read(0.0)[0] == -AMP
     d = disp.Display([s3211])
     pos = {"x": d.x_of(-0.01)}
-    mouse = MouseSource(value_of_x=d.value_of_x, position=lambda: (pos["x"], 10), focused=lambda: True)
+    mouse = MouseSource(value_of=d.value_of_pointer, position=lambda: (pos["x"], 10), focused=lambda: True)
     mouse.start([s3211])
     assert mouse.read(0.0)[0] == pytest.approx(-0.01, abs=1.5 * AMP / 360)  # within one pixel
 
