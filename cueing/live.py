@@ -2,7 +2,7 @@
 
 Every frame, the aircraft's measured response (from a simulation of a profile, ``--simulate``, or
 an external function, ``--live-response``) and the flown stick go into a
-:class:`~identify.frequency_ee.RecursiveFDEE` (one complex multiply-add per frequency and channel);
+:class:`~identify.estimators.frequency_ee.RecursiveFDEE` (one complex multiply-add per frequency and channel);
 one equation group is re-solved per frame, so the whole estimate and its Cramér-Rao bounds are
 renewed about once a second without any frame carrying a whole solve. Beside the needles a panel
 shows each targeted parameter's Cramér-Rao bound in % of its estimate as a bar against its target,
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from identify import LinearModel, Profile, PseudostepError, discretize, load_profile
-from identify.frequency_ee import RecursiveFDEE
+from identify.estimators.frequency_ee import RecursiveFDEE
 
 from .errors import CueingError
 
@@ -436,8 +436,8 @@ def fly_live(signals, source, out, profile, *, simulate=None, response=None, tar
     return flight, live, ml_result
 
 
-def cmd_fly_live(args, signals, options: dict, source) -> int:
-    """``cueing fly --live PROFILE``: fly with the live estimate, then print it beside ML."""
+def cmd_fly_live(args, signals, options: dict, source):
+    """``cueing fly --live PROFILE``: fly with the live estimate, print it beside ML; the flight."""
     opts = dict(options)
     simulate, noise, seed = opts.pop("simulate"), opts.pop("noise_fraction"), opts.pop("seed")
     response = ExternalResponse(args.live_response) if args.live_response else None
@@ -451,4 +451,4 @@ def cmd_fly_live(args, signals, options: dict, source) -> int:
     if times.size:
         print(f"live work per frame: median {np.median(times):.2f} ms, 99th percentile {np.percentile(times, 99):.2f} ms")
     print(f"run written to {flight.path} ({flight.log.status}); frame log {flight.log.path}; live log {live.log_path}")
-    return 0
+    return flight

@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import detrend
 
+from .data.runs import Run
 from .errors import EstimationError
-from .model import LinearModel
-from .runs import Run
+from .model.linear import LinearModel
 
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
 OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
