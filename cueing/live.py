@@ -179,16 +179,17 @@ class LiveIdentification:
     """The cockpit side: fed by the runner every frame (:meth:`frame`), draws the panel (:meth:`draw`).
 
     ``profile``: the a priori model whose free parameters are estimated; ``response``: object with
-    ``read(t, flown) -> states``; ``targets`` {parameter: %}; ``log_path``: the ``.live.csv``.
+    ``read(t, flown) -> states``; ``targets`` {parameter: %} or a ``--targets`` text (None: the
+    primary derivatives); ``log_path``: the ``.live.csv``.
     After the flight: ``history_``, ``complete_at_`` (s, or None), ``times_`` (s of work per frame).
     """
 
-    def __init__(self, profile: Profile, signals, response, log_path, targets: dict[str, float] | None = None,
+    def __init__(self, profile: Profile, signals, response, log_path, targets: dict[str, float] | str | None = None,
                  band=DEFAULT_BAND, n_freq: int = 60):
         self.signals = list(signals)
         self.inputs = [s.input for s in self.signals]
         self.profile, self.fixed_unflown = flown_profile(profile, self.inputs)
-        self.targets = targets or parse_targets(None, self.profile)
+        self.targets = targets if isinstance(targets, dict) else parse_targets(targets, self.profile)
         missing = [n for n in self.targets if n not in self.profile.free]
         if missing:
             raise CueingError(f"targets {', '.join(missing)} belong to inputs not flown ("
@@ -197,6 +198,7 @@ class LiveIdentification:
         self.response = response
         self.log_path = Path(log_path)
         self.names = self.profile.free_names
+        self._input_cols = [self.profile.input_names.index(i) for i in self.inputs]
         self._target_idx = [self.names.index(n) for n in self.targets]
         self.history_ = LiveHistory(self.names)
         self.latest = None
@@ -252,7 +254,7 @@ class LiveIdentification:
             raise CueingError(f"{self.response.describe()}: gave {x.size} states at t = {t:.3f} s, "
                               f"the profile has {len(self.profile.states)} ({', '.join(self.profile.state_names)})")
         u = np.zeros(len(self.profile.inputs))
-        u[[self.profile.input_names.index(i) for i in self.inputs]] = flown
+        u[self._input_cols] = flown
         self.estimator.update(t, x, u)
         done = self._work(t)
         row = [str(k), f"{t:.9f}", f"{t_signal:.9f}"] + [f"{v:.9g}" for v in x] + [f"{v:.9g}" for v in flown]
@@ -365,8 +367,7 @@ def add_response(run, live: LiveIdentification):
     _, cols = read_live_log(live.log_path)
     t = cols["time"]
     channels = {s: np.interp(run.time, t, cols[s]) for s in live.profile.state_names}
-    outs = {y: channels[y] for y in live.profile.outputs if y in channels and y not in run.channels}
-    return run.with_channels({**channels, **outs}, source_of_response=live.response.describe())
+    return run.with_channels(channels, source_of_response=live.response.describe())
 
 
 def comparison(live: LiveIdentification, ml_result) -> str:
@@ -414,9 +415,7 @@ def fly_live(signals, source, out, profile, *, simulate=None, response=None, tar
                               "--live-response MODULE:FUNCTION")
         aircraft = simulate if isinstance(simulate, LinearModel) else LinearModel(load_profile(simulate))
         response = SimulatedAircraft(aircraft, signals, rate, noise_fraction, seed)
-    live = LiveIdentification(profile, signals, response, live_path(out),
-                              parse_targets(targets, flown_profile(profile, [s.input for s in signals])[0])
-                              if not isinstance(targets, dict) else targets, band=band, n_freq=n_freq)
+    live = LiveIdentification(profile, signals, response, live_path(out), targets, band=band, n_freq=n_freq)
     try:
         flight = fly(signals, source, out, live=live, rate=rate, seed=seed, **fly_options)
     except BaseException as exc:
