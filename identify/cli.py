@@ -48,15 +48,12 @@ def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     import sys
 
-    from .matfile import load_channel_map, read_run_file
     from .plots import save_plots
     from .preprocess import slice_run, smooth
 
     profile = load_profile(args.profile)
-    cmap = load_channel_map(args.channel_map) if args.channel_map else None
     runs = []
-    for path in args.runs:
-        r = read_run_file(path, cmap)
+    for r in _read_runs(args.runs, args.channel_map, profile):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
@@ -83,9 +80,21 @@ def cmd_estimate(args) -> int:
     return 0
 
 
+def _read_runs(paths, channel_map, profile):
+    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units."""
+    from .matfile import load_channel_map, read_run_files
+
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+
+
+_CHANNEL_MAP_HELP = ('{"channels": {channel: column, variable, matrix column or expression such as '
+                     '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} as a '
+                     'file or inline JSON (required for .mat data matrices)')
+
+
 def _add_estimate_parser(sub) -> None:
     p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
-    p.add_argument("runs", nargs="+", help="run files (.csv, or .mat with --channel-map)")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat)")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
     p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -95,9 +104,7 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-start", type=float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=int, default=30, help="IV iterations at most (default 30)")
-    p.add_argument("--channel-map", metavar="JSON",
-                   help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
-                        '"matrix": ..., "dt": ...} as a file or inline JSON')
+    p.add_argument("--channel-map", metavar="JSON", help=_CHANNEL_MAP_HELP)
     p.set_defaults(func=cmd_estimate)
 
 
@@ -106,15 +113,16 @@ def cmd_refine(args) -> int:
     from .candidates import KINDS
     from .refine import Refine
     from .refine_report import write
-    from .runs import read_run
 
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
-    refiner = Refine(args.profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
+    profile = load_profile(args.profile)
+    refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max)
-    refiner.fit([read_run(f) for f in args.runs], validate=[read_run(f) for f in args.validate or []])
+    refiner.fit(_read_runs(args.runs, args.channel_map, profile),
+                validate=_read_runs(args.validate or [], args.channel_map, profile))
     out = write(refiner, args.out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
@@ -132,7 +140,7 @@ def cmd_refine(args) -> int:
 
 def _add_refine_parser(sub) -> None:
     p = sub.add_parser("refine", help="find unmodelled effects in the residuals, add them, re-identify")
-    p.add_argument("runs", nargs="+", help="run files (.csv) to fit")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat) to fit")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
     p.add_argument("--method", choices=("ml", "ls", "iv"), default="ml", help="estimator (default ml)")
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
@@ -147,6 +155,7 @@ def _add_refine_parser(sub) -> None:
                    help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
     p.add_argument("--f-min", type=float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
     p.add_argument("--tau-max", type=float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
+    p.add_argument("--channel-map", metavar="JSON", help=_CHANNEL_MAP_HELP)
     p.set_defaults(func=cmd_refine)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from .errors import RunError
 from .runs import Run
+from .units import unit_info
 
 MATRIX_NAMES = ("data", "Z", "fdata")
 TIME_NAMES = ("t", "time")
@@ -49,27 +50,48 @@ def load_channel_map(spec: str | Path) -> dict:
         raise RunError(f"{source}: channel map must be a JSON object")
     if "channels" not in data:
         data = {"channels": data}
-    unknown = set(data) - {"channels", "time", "matrix", "dt"}
+    unknown = set(data) - {"channels", "time", "matrix", "dt", "units"}
     if unknown:
         raise RunError(f"{source}: channel map has unknown key(s) {', '.join(sorted(unknown))}")
     if not isinstance(data["channels"], dict) or not data["channels"]:
         raise RunError(f"{source}: channel map 'channels' must be a non-empty object")
+    if not isinstance(data.get("units", {}), dict) or not all(isinstance(u, str) for u in data.get("units", {}).values()):
+        raise RunError(f"{source}: channel map 'units' must be an object of {{name: unit}} strings")
+    for name, unit in data.get("units", {}).items():
+        unit_info(unit, f"{source}: channel map: units of '{name}'")
     return data
 
 
 def read_mat(path: str | Path, channels: dict[str, str | int] | None = None, *, time: str | int | None = None,
-             matrix: str | None = None, dt: float | None = None, meta: dict | None = None) -> Run:
-    """Read a run from a ``.mat`` file.
+             matrix: str | None = None, dt: float | None = None, units: dict[str, str] | None = None,
+             meta: dict | None = None, profile=None) -> Run:
+    """Read a run from a ``.mat`` file (MATLAB v5 through scipy, v7.3 through h5py).
 
-    ``channels`` maps run channel names to variable names (str) or data-matrix columns (int). If
-    ``None``, every numeric vector variable as long as the time vector becomes a channel of its own
-    name. ``time`` names the time variable or column; ``matrix`` the data-matrix variable (default:
-    the first of ``data``, ``Z``, ``fdata`` present); ``dt`` the sample interval in s when the file
-    holds no time.
+    ``channels`` maps run channel names to variable names (str; ``s.q`` for a struct field),
+    data-matrix columns (int) or arithmetic expressions of them (``"(dar - dal)/2"``). If ``None``,
+    every numeric vector variable as long as the time vector becomes a channel of its own name.
+    ``time`` names the time variable or column; ``matrix`` the data-matrix variable (default: the
+    first of ``data``, ``Z``, ``fdata`` present); ``dt`` the sample interval in s when the file
+    holds no time; ``units`` declared units by channel or variable name (converted to SI).
+    A file that time gaps split into several runs is an error here: use :func:`read_mat_runs`.
     """
+    return _mat(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta,
+                profile=profile).one("read_mat_runs")
+
+
+def read_mat_runs(path: str | Path, channels: dict[str, str | int] | None = None, *,
+                  time: str | int | None = None, matrix: str | None = None, dt: float | None = None,
+                  units: dict[str, str] | None = None, meta: dict | None = None, profile=None) -> list[Run]:
+    """Every run of a ``.mat`` file (several when time gaps split it); arguments as :func:`read_mat`."""
+    return _mat(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta, profile=profile).all()
+
+
+def _mat(path, channels, *, time, matrix, dt, units, meta, profile):
+    from .ingest import Raw, build_runs
+
     path = Path(path)
     source = str(path)
-    variables = _load(path)
+    variables, version = _load(path)
     channels = dict(channels) if channels is not None else None
     uses_columns = any(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
                        for v in (channels or {}).values()) or isinstance(time, int)
@@ -82,30 +104,58 @@ def read_mat(path: str | Path, channels: dict[str, str | int] | None = None, *, 
                     if k not in TIME_NAMES and k != time and _is_vector(v) and np.asarray(v).size == n}
         if not channels:
             raise RunError(f"{source}: no vector variables of {n} samples to read as channels")
-    out = {}
-    for name, where in channels.items():
+
+    def column(where, name):
         values = _column(variables, data, where, source, f"channel '{name}'")
         if values.size != n:
             raise RunError(f"{source}: channel '{name}' ({_describe(where)}) has {values.size} samples, "
                            f"time has {n}")
-        _finite(values, source, f"channel '{name}' ({_describe(where)})")
-        out[name] = values
-    info = {"source_format": "MATLAB .mat", "channel_map": json.dumps(channels, separators=(",", ":"))}
+        return values
+
+    info = {"source_format": f"MATLAB .mat {version}", "channel_map": json.dumps(channels, separators=(",", ":"))}
     info.update(meta or {})
-    return Run(t, out, {k: str(v) for k, v in info.items()}, source=source)
+    time_name = time if isinstance(time, str) else next((k for k in TIME_NAMES if k in variables), "time")
+    raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
+              time_name=time_name)
+    return build_runs(raw, channels, profile)
 
 
-def _load(path: Path) -> dict:
+def _load(path: Path) -> tuple[dict, str]:
+    """The file's variables (struct fields flattened to ``struct.field``) and its format version."""
     from scipy.io import loadmat
     from scipy.io.matlab import MatReadError
 
     if not path.is_file():
         raise RunError(f"{path}: no such file")
+    if _is_hdf5(path):
+        from .ingest import load_mat73
+        return load_mat73(path), "v7.3"
     try:
-        raw = loadmat(path, squeeze_me=False)
+        raw = loadmat(path, simplify_cells=True)
+    except NotImplementedError as exc:  # a v7.3 file whose HDF5 signature was not found
+        raise RunError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
     except (MatReadError, ValueError, OSError, TypeError) as exc:
         raise RunError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
-    return {k: v for k, v in raw.items() if not k.startswith("__")}
+    return _flatten({k: v for k, v in raw.items() if not k.startswith("__")}), "v5"
+
+
+def _is_hdf5(path: Path) -> bool:
+    import h5py
+
+    try:
+        return bool(h5py.is_hdf5(path))
+    except OSError:
+        return False
+
+
+def _flatten(variables: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in variables.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 def _is_vector(v) -> bool:
@@ -175,14 +225,29 @@ def _describe(where) -> str:
     return f"column {where}" if isinstance(where, (int, np.integer)) else f"variable '{where}'"
 
 
-def read_run_file(path: str | Path, channel_map: dict | None = None) -> Run:
-    """A run from a CSV run file or, with ``.mat`` suffix, a MATLAB file read through
-    ``channel_map`` (see :func:`load_channel_map`; without one every vector variable is read)."""
-    from .runs import read_run
+def read_run_file(path: str | Path, channel_map: dict | None = None, profile=None) -> Run:
+    """The run of a CSV run file or, with ``.mat`` suffix, a MATLAB file read through ``channel_map``
+    (see :func:`load_channel_map`; without one every vector variable is read). A file that time
+    gaps split is an error here: use :func:`read_run_files`."""
+    return _file(path, channel_map, profile).one("read_run_files")
+
+
+def read_file_runs(path: str | Path, channel_map: dict | None = None, profile=None) -> list[Run]:
+    """Every run of one CSV or ``.mat`` file (several when time gaps split it)."""
+    return _file(path, channel_map, profile).all()
+
+
+def _file(path, channel_map, profile):
+    from .runs import _read
 
     path = Path(path)
     if path.suffix.lower() != ".mat":
-        return read_run(path)
+        return _read(path, channel_map, profile)
     cmap = channel_map or {}
-    return read_mat(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
-                    dt=cmap.get("dt"))
+    return _mat(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
+                dt=cmap.get("dt"), units=cmap.get("units"), meta=None, profile=profile)
+
+
+def read_run_files(paths, channel_map: dict | None = None, profile=None) -> list[Run]:
+    """Runs from several files (CSV or ``.mat``), in order, each file's segments in turn."""
+    return [r for p in paths for r in read_file_runs(p, channel_map, profile)]

@@ -7,9 +7,7 @@ profile. Reading rejects bad data with one line naming the file, row and channel
 """
 from __future__ import annotations
 
-import csv
 import io
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,72 +103,57 @@ class Run:
         return out.getvalue()
 
 
-def read_run(path: str | Path, require: list[str] | None = None) -> Run:
-    """Read a run CSV; ``require`` lists channels that must be present (e.g. ``profile.channels``)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise RunError(f"{path}: not a text (CSV) file") from None
-    run = parse_run(text, source=str(path))
+def read_run(path: str | Path, require: list[str] | None = None, *, channel_map: dict | None = None,
+             profile=None) -> Run:
+    """Read a run CSV; ``require`` lists channels that must be present (e.g. ``profile.channels``).
+    A file that time gaps split into several runs is an error here: read it with :func:`read_runs`.
+    ``channel_map`` and ``profile`` as in :func:`read_run_segments`."""
+    run = _read(path, channel_map, profile).one("read_runs")
     if require:
         run.require(require)
     return run
 
 
-def read_runs(paths, require: list[str] | None = None) -> list[Run]:
-    """Several runs for multi-run evaluation."""
-    return [read_run(p, require) for p in paths]
+def read_run_segments(path: str | Path, channel_map: dict | None = None, profile=None) -> list[Run]:
+    """Every run of a CSV file: one, or several when time gaps split it (:mod:`identify.ingest`).
+
+    ``channel_map`` (``{"channels": {channel: column or expression}, "units": {name: unit},
+    "time": column}``) adds derived or renamed channels; ``profile`` lets undeclared channels be
+    checked against the profile's units (radian channels holding degrees)."""
+    return _read(path, channel_map, profile).all()
+
+
+def _read(path, channel_map, profile):
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise RunError(f"{path}: not a text (CSV) file") from None
+    return _parse(text, str(path), channel_map, profile)
+
+
+def read_runs(paths, require: list[str] | None = None, *, channel_map: dict | None = None,
+              profile=None) -> list[Run]:
+    """Runs of several files, for multi-run evaluation; a file split by time gaps gives several."""
+    runs = [r for p in paths for r in read_run_segments(p, channel_map, profile)]
+    for run in runs:
+        if require:
+            run.require(require)
+    return runs
 
 
 def parse_run(text: str, source: str = "<run>") -> Run:
-    meta, rows, first_data_line = {}, [], None
-    lines = text.splitlines()
-    header, header_line = None, 0
-    for lineno, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        if line.startswith("#"):
-            if header is None and ":" in line:
-                key, _, value = line[1:].partition(":")
-                meta[key.strip()] = value.strip()
-            continue
-        header, header_line = next(csv.reader([line])), lineno
-        first_data_line = lineno + 1
-        break
-    if header is None:
-        raise RunError(f"{source}: no header row of channel names")
-    header = [h.strip() for h in header]
-    if TIME not in header:
-        raise RunError(f"{source}: line {header_line}: no '{TIME}' column in header")
-    dup = sorted({h for h in header if header.count(h) > 1})
-    if dup:
-        raise RunError(f"{source}: line {header_line}: duplicate column(s) {', '.join(dup)}")
-    data_lines = [(n, l) for n, l in enumerate(lines[first_data_line - 1:], start=first_data_line)
-                  if l.strip() and not l.startswith("#")]
-    if len(data_lines) < 2:
-        raise RunError(f"{source}: fewer than two data rows")
-    values = np.empty((len(data_lines), len(header)))
-    for r, (lineno, line) in enumerate(data_lines):
-        cells = line.split(",")
-        if len(cells) != len(header):
-            raise RunError(f"{source}: line {lineno}: {len(cells)} values for {len(header)} columns")
-        for c, cell in enumerate(cells):
-            try:
-                v = float(cell)
-            except ValueError:
-                raise RunError(f"{source}: line {lineno}, channel '{header[c]}': "
-                               f"not a number ({cell.strip()!r})") from None
-            if not math.isfinite(v):
-                raise RunError(f"{source}: line {lineno}, channel '{header[c]}': {cell.strip()} value")
-            values[r, c] = v
-    line_of = [n for n, _ in data_lines]
-    t = values[:, header.index(TIME)]
-    _check_time(t, source, line_numbers=line_of)
-    channels = {h: values[:, c] for c, h in enumerate(header) if h != TIME}
-    return Run(t, channels, meta, source)
+    """A run from CSV text (see :func:`read_run`)."""
+    return _parse(text, source, None, None).one("read_runs")
+
+
+def _parse(text: str, source: str, channel_map, profile):
+    from .ingest import build_runs, csv_channels, csv_raw
+
+    raw = csv_raw(text, source, channel_map)
+    return build_runs(raw, csv_channels(raw, channel_map), profile)
 
 
 def _check_time(t: np.ndarray, source: str, first_row: int = 1, line_numbers=None) -> None:
