@@ -57,8 +57,13 @@ def cmd_estimate(args) -> int:
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
+            if "segment" in r.meta and not _overlaps(r, args.t_start, args.t_end):
+                print(f"note: {r.source} lies outside --t-start/--t-end: not used", file=sys.stderr)
+                continue
             r = slice_run(r, args.t_start, args.t_end)
         runs.append(r)
+    if not runs:
+        raise EstimationError("no run has samples between --t-start and --t-end")
 
     def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
         print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
@@ -85,6 +90,13 @@ def _read_runs(paths, channel_map, profile):
     from .matfile import load_channel_map, read_run_files
 
     return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+
+
+def _overlaps(run, t_start, t_end) -> bool:
+    """Whether a run has two or more samples in the window (a gap's segment may have none)."""
+    lo = -float("inf") if t_start is None else t_start
+    hi = float("inf") if t_end is None else t_end
+    return int(((run.time >= lo) & (run.time <= hi)).sum()) >= 2
 
 
 _CHANNEL_MAP_HELP = ('{"channels": {channel: column, variable, matrix column or expression such as '

@@ -143,7 +143,9 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None) -> Raw:
     _merge_units(units, U.parse_units_spec(meta["units"], f"{source}: metadata 'units'") if "units" in meta else {},
                  source)
     _merge_units(units, (channel_map or {}).get("units", {}), source)
-    time_name = (channel_map or {}).get("time") or next((n for n in names if n.lower() == TIME), None)
+    time_name = (channel_map or {}).get("time")
+    if time_name is None:  # 'time' in any case, else a column 't'
+        time_name = next((n for n in names if n.lower() == TIME), next((n for n in names if n.lower() == "t"), None))
     if isinstance(time_name, int):
         time_name = names[time_name] if -len(names) <= time_name < len(names) else None
     if time_name not in names:

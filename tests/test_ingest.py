@@ -19,6 +19,16 @@ from identify.units import canonical, looks_like_degrees, parse_units_spec, to_s
 
 from .helpers import one_error_line, run_cli
 
+
+def identify_cli(capsys, *args):
+    """``identify`` run in-process (its main function): exit status, stdout, stderr lines."""
+    from identify.cli import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, [line for line in out.err.splitlines() if line.strip()]
+
 TOML = """
 name = "pitch (ingest test)"
 states = { u = "m/s", q = "rad/s", theta = "rad" }
@@ -311,12 +321,15 @@ def save_mat73(path, variables):
 @pytest.mark.parametrize("version", ["v5", "v7.3"])
 def test_mat_data_matrix_in_flight_test_units(truth_run, rad_estimates, tmp_path, version):
     cols = foreign_columns(truth_run)
-    Z = np.column_stack([truth_run.time] + [cols[n] for n in CHANNELS])
+    # the elevator as two surface columns (right, left), the rest one column each, time first
+    Z = np.column_stack([truth_run.time, cols["eta"], -cols["eta"]] + [cols[n] for n in CHANNELS[1:]])
     path = tmp_path / f"flight_{version}.mat"
     savemat(path, {"Z": Z}) if version == "v5" else save_mat73(path, {"Z": Z})
-    cmap = {"channels": {n: j + 1 for j, n in enumerate(CHANNELS)}, "time": 0,
-            "units": {n: FOREIGN[n][0] for n in CHANNELS}}
+    channels = {"er": 1, "el": 2, "eta": "(er - el)/2", **{n: j + 3 for j, n in enumerate(CHANNELS[1:])}}
+    units = {n: FOREIGN[n][0] for n in CHANNELS[1:]} | {"er": "deg", "el": "deg"}
+    cmap = load_channel_map(json.dumps({"channels": channels, "time": 0, "units": units}))
     run = read_run_file(path, cmap, profile=PROFILE)
+    np.testing.assert_allclose(run["eta"], truth_run["eta"], rtol=1e-12, atol=1e-15)
     assert run.meta["source_format"] == f"MATLAB .mat {version}"
     assert_same_estimates(LS(PROFILE).fit([run]).result_, rad_estimates)
 
@@ -365,36 +378,61 @@ def test_channel_map_units_are_validated():
 
 
 # -- the command lines -----------------------------------------------------------------------------
-def test_cli_estimate_same_result_from_degree_csv_and_v73_with_gap(truth_run, tmp_path):
+def test_cli_estimate_same_result_from_degree_csv_and_v73_with_gap(truth_run, tmp_path, capsys):
     prof = PROFILE.save(tmp_path / "pitch.toml")
     rad = truth_run.to_csv(tmp_path / "rad.csv", CHANNELS)
     deg = write_csv(tmp_path / "deg.csv", truth_run.time, foreign_columns(truth_run),
                     header_units={n: FOREIGN[n][0] for n in CHANNELS})
     out = {}
     for name, path in (("rad", rad), ("deg", deg)):
-        proc = run_cli("identify", "estimate", "--profile", prof, "--method", "ls", path, "--out", tmp_path / name)
-        assert proc.returncode == 0, proc.stderr
+        code, _, err = identify_cli(capsys, "estimate", "--profile", prof, "--method", "ls", path, "--out",
+                                    tmp_path / name)
+        assert code == 0 and not err, err
         out[name] = json.loads((tmp_path / name / "result.json").read_text())
     for name, p in out["rad"]["parameters"].items():
         assert out["deg"]["parameters"][name]["value"] == pytest.approx(p["value"], rel=1e-9)
-    # a v7.3 file with a gap: two runs, exit 0
+    # a v7.3 file with a gap: two runs, exit 0, the split said
     keep = np.ones(N, bool)
     keep[400:430] = False
     path = save_mat73(tmp_path / "gap73.mat", {"t": truth_run.time[keep],
                                                 **{n: truth_run[n][keep] for n in CHANNELS}})
-    proc = run_cli("identify", "estimate", "--profile", prof, "--method", "ls", path, "--out", tmp_path / "m")
-    assert proc.returncode == 0, proc.stderr
-    assert "split the file into 2 runs" in proc.stderr
+    code, _, err = identify_cli(capsys, "estimate", "--profile", prof, "--method", "ls", path, "--out",
+                                tmp_path / "m", "--t-start", "0", "--t-end", "30")
+    assert code == 0, err
+    assert "split the file into 2 runs" in err[0]
     assert len(json.loads((tmp_path / "m" / "result.json").read_text())["runs"]) == 2
+    # a window holding only the first segment: the second is left out, and said
+    code, _, err = identify_cli(capsys, "estimate", "--profile", prof, "--method", "ls", path, "--out",
+                                tmp_path / "m1", "--t-end", "7.5")
+    assert code == 0 and "[segment 2/2] lies outside --t-start/--t-end: not used" in err[-1], err
 
 
-def test_cli_refine_reads_v73_mat(truth_run, tmp_path):
+def test_cli_refine_reads_v73_mat(truth_run, tmp_path, capsys):
     prof = PROFILE.save(tmp_path / "pitch.toml")
     path = save_mat73(tmp_path / "fit73.mat", {"t": truth_run.time, **{n: truth_run[n] for n in CHANNELS}})
-    proc = run_cli("identify", "refine", "--profile", prof, path, "--kinds", "bias", "--max-steps", "1",
-                   "--no-zero-shifts", "--out", tmp_path / "out")
-    assert proc.returncode == 0, proc.stderr
+    code, _, err = identify_cli(capsys, "refine", "--profile", prof, path, "--kinds", "bias", "--max-steps", "1",
+                                "--no-zero-shifts", "--out", tmp_path / "out")
+    assert code == 0, err
     assert "fit73.mat" in (tmp_path / "out" / "refine.json").read_text()
+
+
+def bad_input(truth_run, tmp_path, case):
+    """A bad file (and extra options) for ``case``."""
+    cols = {n: truth_run[n][:40] for n in ("eta", "u", "q", "theta")}
+    t = truth_run.time[:40].copy()
+    path = tmp_path / "bad.csv"
+    if case == "unknown unit":
+        write_csv(path, t, cols, header_units={"q": "furlong"})
+    elif case == "irregular":
+        t[10] += 0.3 * DT
+        write_csv(path, t, cols)
+    elif case == "bad expression":
+        write_csv(path, t, cols)
+        return path, ["--channel-map", '{"channels": {"eta": "q ** 2"}}']
+    else:
+        path = save_mat73(tmp_path / "bad.mat", {"t": t, **cols})
+        path.write_bytes(path.read_bytes()[:700])
+    return path, []
 
 
 @pytest.mark.parametrize("command", ["estimate", "refine"])
@@ -404,22 +442,16 @@ def test_cli_refine_reads_v73_mat(truth_run, tmp_path):
     ("bad expression", ["channel map", "'eta' = 'q ** 2'", "not allowed"]),
     ("broken v7.3", ["bad.mat", "not a readable MATLAB"]),
 ])
-def test_cli_bad_input_is_one_line_and_status_2(truth_run, tmp_path, command, case, needles):
+def test_cli_bad_input_is_one_line_and_status_2(truth_run, tmp_path, capsys, command, case, needles):
     prof = PROFILE.save(tmp_path / "pitch.toml")
-    cols = {n: truth_run[n][:40] for n in ("eta", "u", "q", "theta")}
-    t = truth_run.time[:40].copy()
-    extra = []
-    path = tmp_path / "bad.csv"
-    if case == "unknown unit":
-        write_csv(path, t, cols, header_units={"q": "furlong"})
-    elif case == "irregular":
-        t[10] += 0.3 * DT
-        write_csv(path, t, cols)
-    elif case == "bad expression":
-        write_csv(path, t, cols)
-        extra = ["--channel-map", '{"channels": {"eta": "q ** 2"}}']
-    else:
-        path = save_mat73(tmp_path / "bad.mat", {"t": t, **cols})
-        path.write_bytes(path.read_bytes()[:700])
-    proc = run_cli("identify", command, "--profile", prof, path, "--out", tmp_path / "o", *extra)
-    one_error_line(proc, *needles)
+    path, extra = bad_input(truth_run, tmp_path, case)
+    code, _, err = identify_cli(capsys, command, "--profile", prof, path, "--out", tmp_path / "o", *extra)
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith("identify: error: ") and all(n in err[0] for n in needles), err
+
+
+def test_cli_broken_v73_in_a_subprocess_has_no_traceback(truth_run, tmp_path):
+    prof = PROFILE.save(tmp_path / "pitch.toml")
+    path, _ = bad_input(truth_run, tmp_path, "broken v7.3")
+    proc = run_cli("identify", "refine", "--profile", prof, path, "--out", tmp_path / "o")
+    one_error_line(proc, "bad.mat", "not a readable MATLAB v7.3 (HDF5) file")
