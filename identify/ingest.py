@@ -466,6 +466,7 @@ def _unit_checks(source: str, values: dict, described: dict, profile) -> list[st
     """Warnings: radian channels holding degree-like values; declared units of another quantity
     than the profile's."""
     expected = profile_quantities(profile) if profile is not None else {}
+    controls = set(profile.inputs) if profile is not None else set()
     out = []
     for name, v in values.items():
         how, unit = described[name]
@@ -473,14 +474,16 @@ def _unit_checks(source: str, values: dict, described: dict, profile) -> list[st
             kind = U.quantity(unit)
             if name in expected and kind != expected[name]:
                 out.append(f"{source}: channel '{name}' is declared in {unit} ({kind}) but the profile "
-                           f"expects a {expected[name]}")
-            if U.canonical(unit) in ("rad", "rad/s", "rad/s^2"):
-                peak = U.looks_like_degrees(v, kind)
-                if peak is not None:
-                    out.append(U.degree_warning(source, name, peak, kind, f"declared {unit}"))
+                           f"expects {expected[name]}")
+            if U.canonical(unit) not in ("rad", "rad/s", "rad/s^2"):
+                continue
+            how = f"declared {unit}"
         elif how == "undeclared" and name in expected:
-            peak = U.looks_like_degrees(v, expected[name])
-            if peak is not None:
-                out.append(U.degree_warning(source, name, peak, expected[name],
-                                            "no unit declared; the profile's unit is SI"))
+            kind, how = expected[name], "no unit declared; the profile's unit is SI"
+        else:
+            continue
+        kind = "control angle" if kind == "angle" and name in controls else kind
+        peak = U.looks_like_degrees(v, kind)
+        if peak is not None:
+            out.append(U.degree_warning(source, name, peak, kind, how))
     return out

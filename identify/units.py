@@ -55,15 +55,18 @@ _ALIASES = {
 
 # The largest magnitude a channel truly in SI can reach in a flight-test run, per angular quantity.
 # Above it the values look like degrees. Reasons (documented in the README):
-#   angle: |x| > pi rad (180 deg): no pitch, roll, flow angle or control deflection in a run a linear
-#          model describes reaches half a turn (a heading wrapped to 0..360 deg would; declare it);
+#   angle: |x| > pi rad (180 deg): no pitch, roll or flow angle in a run a linear model describes
+#          reaches half a turn (a heading wrapped to 0..360 deg would; declare it);
+#   control angle (a profile input in rad): |x| > pi/2 rad (90 deg): no control surface or blade
+#          pitch deflects a quarter turn (elevators and cyclic pitch stay within about 30 deg);
 #   rate: |x| > 2 pi rad/s (360 deg/s): a full turn per second exceeds the body rates of any piloted
 #          aircraft (fighter roll rates peak near 300 deg/s);
 #   acceleration: |x| > 6 pi rad/s^2 (1080 deg/s^2): well above the largest angular accelerations
 #          control inputs produce (helicopters reach a few rad/s^2, fighters about 10).
-DEGREE_LIMITS = {"angle": math.pi, "angular rate": 2 * math.pi, "angular acceleration": 6 * math.pi}
-_LIMIT_TEXT = {"angle": "pi rad (180 deg)", "angular rate": "2 pi rad/s (360 deg/s)",
-               "angular acceleration": "6 pi rad/s^2 (1080 deg/s^2)"}
+DEGREE_LIMITS = {"angle": math.pi, "control angle": math.pi / 2, "angular rate": 2 * math.pi,
+                 "angular acceleration": 6 * math.pi}
+_LIMIT_TEXT = {"angle": "pi rad (180 deg)", "control angle": "pi/2 rad (90 deg) for a control deflection",
+               "angular rate": "2 pi rad/s (360 deg/s)", "angular acceleration": "6 pi rad/s^2 (1080 deg/s^2)"}
 
 
 def canonical(unit: str) -> str | None:

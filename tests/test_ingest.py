@@ -117,6 +117,9 @@ def test_degree_limits_are_the_physical_ones():
     assert looks_like_degrees(np.array([30.0]), "angular rate") == 30.0
     assert looks_like_degrees(np.array([3.0]), "angular rate") is None
     assert looks_like_degrees(np.array([100.0]), "speed") is None
+    # a control deflection of 2 deg read as radians is 115 deg: no surface or blade pitch goes there
+    assert looks_like_degrees(np.array([2.0]), "control angle") == 2.0
+    assert looks_like_degrees(np.array([2.0]), "angle") is None
 
 
 # -- units in the file: same estimates as SI -------------------------------------------------------
@@ -164,6 +167,10 @@ def test_undeclared_degrees_warn_on_stderr_and_in_metadata(truth_run, tmp_path, 
     path2 = write_csv(tmp_path / "declared_rad.csv", truth_run.time, {"theta": cols["theta"]},
                       header_units={"theta": "rad"})
     assert "declared rad" in read_run(path2).meta["warnings"]
+    # an elevator of at most 2 deg read as radians: beyond any control deflection
+    small = {"eta": cols["eta"] * 2 / np.max(np.abs(cols["eta"]))}
+    run3 = read_run(write_csv(tmp_path / "small_eta.csv", truth_run.time, small), profile=PROFILE)
+    assert "beyond pi/2 rad (90 deg) for a control deflection" in run3.meta["warnings"]
     capsys.readouterr()
     # SI data: no warning
     read_run(truth_run.to_csv(tmp_path / "si.csv", CHANNELS), profile=PROFILE)
@@ -172,7 +179,7 @@ def test_undeclared_degrees_warn_on_stderr_and_in_metadata(truth_run, tmp_path, 
 
 def test_unit_of_another_quantity_than_the_profile_warns(truth_run, tmp_path):
     path = write_csv(tmp_path / "odd.csv", truth_run.time, {"q": truth_run["q"]}, header_units={"q": "ft/s"})
-    assert "declared in ft/s (speed) but the profile expects a angular rate" in \
+    assert "declared in ft/s (speed) but the profile expects angular rate" in \
         read_run(path, profile=PROFILE).meta["warnings"]
 
 
