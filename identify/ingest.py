@@ -31,7 +31,7 @@ import numpy as np
 
 from . import units as U
 from .errors import RunError
-from .runs import TIME, _UNIFORM_RTOL, Run
+from .runs import TIME, Run, _check_time, uneven_steps
 
 GAP_FACTOR = 1.5
 JITTER_MAX = 0.05
@@ -261,17 +261,7 @@ def _si_time(raw: Raw) -> np.ndarray:
         if kind != "time":
             raise RunError(f"{raw.source}: channel '{raw.time_name}': unit '{unit}' is not a time unit")
         t = t * factor
-    if t.size < 2:
-        raise RunError(f"{raw.source}: need at least two time samples")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise RunError(f"{raw.source}: {raw.row(bad[0])}, channel '{TIME}': not finite")
-    steps = np.diff(t)
-    nonpos = np.flatnonzero(steps <= 0)
-    if nonpos.size:
-        i = nonpos[0] + 1
-        kind = "repeated" if steps[i - 1] == 0 else "decreasing"
-        raise RunError(f"{raw.source}: {raw.row(i)}, channel '{TIME}': {kind} time stamp {t[i]:g} s")
+    _check_time(t, raw.source, raw.row, uniform=False)
     return t
 
 
@@ -299,8 +289,7 @@ def _split_gaps(t: np.ndarray, raw: Raw, meta: dict, notes: list) -> list[tuple[
 
 def _regularise(t: np.ndarray, channels: dict, raw: Raw, offset: int, meta: dict, notes: list):
     """Accept jitter up to JITTER_MAX of a step (resampling onto the uniform grid); refuse more."""
-    steps = np.diff(t)
-    if t.size < 3 or np.all(np.abs(steps - np.median(steps)) <= _UNIFORM_RTOL * np.median(steps) + 1e-9):
+    if t.size < 3 or not uneven_steps(np.diff(t)).size:
         return t, channels
     n = t.size
     dt = (t[-1] - t[0]) / (n - 1)

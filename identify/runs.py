@@ -3,7 +3,9 @@
 A run file is CSV: optional metadata comment lines ``# key: value`` on top, one header row of
 channel names, then one row per sample. The ``time`` column is in seconds, strictly increasing and
 uniformly sampled; every other column is a channel in SI units and radians, named as in the
-profile. Reading rejects bad data with one line naming the file, row and channel.
+profile. Measured files may declare other units, derived channels, jittered or gapped time: see
+:mod:`identify.ingest`, which turns them into runs. Reading rejects bad data with one line naming
+the file, row and channel.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ class Run:
     def __post_init__(self):
         self.time = np.asarray(self.time, dtype=float)
         self.channels = {k: np.asarray(v, dtype=float) for k, v in self.channels.items()}
-        _check_time(self.time, self.source, first_row=1)
+        _check_time(self.time, self.source)
         for name, values in self.channels.items():
             if values.shape != self.time.shape:
                 raise RunError(f"{self.source}: channel '{name}' has {values.size} samples, "
@@ -156,27 +158,31 @@ def _parse(text: str, source: str, channel_map, profile):
     return build_runs(raw, csv_channels(raw, channel_map), profile)
 
 
-def _check_time(t: np.ndarray, source: str, first_row: int = 1, line_numbers=None) -> None:
-    where = (lambda i: f"line {line_numbers[i]}") if line_numbers else (lambda i: f"row {first_row + i}")
+def _check_time(t: np.ndarray, source: str, where=lambda i: f"row {i + 1}", uniform: bool = True) -> None:
+    """Time finite and strictly increasing (and, with ``uniform``, evenly sampled); ``where(i)``
+    names sample i in the error."""
     if t.ndim != 1 or t.size < 2:
         raise RunError(f"{source}: need at least two time samples")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
         raise RunError(f"{source}: {where(bad[0])}, channel '{TIME}': not finite")
     steps = np.diff(t)
-    dt = float(np.median(steps))  # the nominal step: the first odd step is the one to name
-    if not t[-1] > t[0]:
-        raise RunError(f"{source}: time does not increase")
     nonpos = np.flatnonzero(steps <= 0)
     if nonpos.size:
         i = nonpos[0] + 1
         kind = "repeated" if steps[i - 1] == 0 else "decreasing"
         raise RunError(f"{source}: {where(i)}, channel '{TIME}': {kind} time stamp {t[i]:g} s")
-    uneven = np.flatnonzero(np.abs(steps - dt) > _UNIFORM_RTOL * max(dt, 1e-12) + 1e-9)
-    if uneven.size:
+    uneven = uneven_steps(steps) if uniform else []
+    if len(uneven):
         i = uneven[0] + 1
         raise RunError(f"{source}: {where(i)}, channel '{TIME}': time step {steps[i - 1]:.6g} s "
-                       f"differs from the nominal {dt:.6g} s (non-uniform sampling)")
+                       f"differs from the nominal {np.median(steps):.6g} s (non-uniform sampling)")
+
+
+def uneven_steps(steps: np.ndarray) -> np.ndarray:
+    """Indices of time steps off the median (the nominal step) by more than rounding."""
+    dt = float(np.median(steps))
+    return np.flatnonzero(np.abs(steps - dt) > _UNIFORM_RTOL * max(dt, 1e-12) + 1e-9)
 
 
 def _one_line(value) -> str:

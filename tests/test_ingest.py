@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from identify import LS, ML, LinearModel, RunError, parse_profile, read_run, read_runs, simulate_run
+from identify import LS, ML, LinearModel, RunError, read_run, read_runs, simulate_run
 from identify.ingest import evaluate
 from identify.matfile import load_channel_map, read_mat, read_mat_runs, read_run_file, read_run_files
 from identify.units import canonical, looks_like_degrees, parse_units_spec, to_si
 
 from .helpers import one_error_line, run_cli
+from .test_refine import PROFILE as PITCH
 
 
 def identify_cli(capsys, *args):
@@ -29,21 +30,7 @@ def identify_cli(capsys, *args):
     out = capsys.readouterr()
     return code, out.out, [line for line in out.err.splitlines() if line.strip()]
 
-TOML = """
-name = "pitch (ingest test)"
-states = { u = "m/s", q = "rad/s", theta = "rad" }
-inputs = { eta = "rad" }
-outputs = ["u", "q", "theta"]
-[free]
-X_u = -0.5
-M_q = -2.0
-M_theta = -4.0
-M_eta = 5.0
-[fixed]
-X_theta = -9.81
-theta_q = 1.0
-"""
-PROFILE = parse_profile(TOML)
+PROFILE = PITCH  # u, q, theta driven by an elevator eta
 DT, N = 0.02, 801
 CHANNELS = ["eta", "u", "q", "theta", "u_dot", "q_dot", "theta_dot"]
 # the units a flight-test file uses, with their SI factors written out independently of identify.units
