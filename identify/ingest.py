@@ -69,13 +69,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested
         values[name], described[name] = resolver.get(name)
         _finite(values[name], raw, name)
     warnings += _unit_checks(raw.source, values, described, profile)
-    meta = {k: v for k, v in raw.meta.items() if k != "units"}
-    converted = {n: u for n, (how, u) in described.items() if how == "declared" and u != "SI"
-                 and U.UNITS[U.canonical(u)][0] != 1.0}
-    if converted:
-        meta["converted_to_si"] = ", ".join(f"{n} from {u}" for n, u in converted.items())
-    if resolver.derived:
-        meta["derived"] = ", ".join(f"{n} = {e}" for n, e in resolver.derived.items())
+    meta = _meta(raw, described, resolver.derived)
     segments = _split_gaps(t, raw, meta, notes)
     runs = []
     for k, (lo, hi) in enumerate(segments):
@@ -93,6 +87,19 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested
             seg_meta["warnings"] = "; ".join(warnings)
         runs.append(Run(seg_t, seg, seg_meta, source))
     return Ingested(runs, [f"note: {n}" for n in notes] + [f"warning: {w}" for w in warnings])
+
+
+def _meta(raw: Raw, described: dict, derived: dict) -> dict[str, str]:
+    """The file's metadata, ``units`` replaced by what was converted (the run is SI now: written
+    again, it must not be converted twice) and the derived channels' expressions."""
+    meta = {k: v for k, v in raw.meta.items() if k != "units"}
+    converted = [f"{n} from {u}" for n, (how, u) in described.items()
+                 if how == "declared" and u != "SI" and U.UNITS[U.canonical(u)][0] != 1.0]
+    if converted:
+        meta["converted_to_si"] = ", ".join(converted)
+    if derived:
+        meta["derived"] = ", ".join(f"{n} = {e}" for n, e in derived.items())
+    return meta
 
 
 @dataclass
