@@ -99,9 +99,10 @@ def _mat(path, channels, *, time, matrix, dt, units, meta, profile):
 
     t = _time(variables, data, time, dt, source)
     n = len(t)
+    time_name = time if isinstance(time, str) else (_time_name(variables) or "time")
     if channels is None:
         channels = {k: k for k, v in variables.items()
-                    if k not in TIME_NAMES and k != time and _is_vector(v) and np.asarray(v).size == n}
+                    if k not in (*TIME_NAMES, time_name) and _is_vector(v) and np.asarray(v).size == n}
         if not channels:
             raise RunError(f"{source}: no vector variables of {n} samples to read as channels")
 
@@ -114,7 +115,6 @@ def _mat(path, channels, *, time, matrix, dt, units, meta, profile):
 
     info = {"source_format": f"MATLAB .mat {version}", "channel_map": json.dumps(channels, separators=(",", ":"))}
     info.update(meta or {})
-    time_name = time if isinstance(time, str) else next((k for k in TIME_NAMES if k in variables), "time")
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
               time_name=time_name)
     return build_runs(raw, channels, profile)
@@ -153,7 +153,7 @@ def _flatten(variables: dict, prefix: str = "") -> dict:
     for key, value in variables.items():
         if isinstance(value, dict):
             out.update(_flatten(value, f"{prefix}{key}."))
-        else:
+        elif isinstance(value, (np.ndarray, int, float)):  # cells and struct arrays are no channels
             out[f"{prefix}{key}"] = value
     return out
 
@@ -193,9 +193,16 @@ def _column(variables: dict, data, where, source: str, what: str) -> np.ndarray:
     return np.asarray(v, dtype=float).ravel()
 
 
+def _time_name(variables: dict) -> str | None:
+    """``t`` or ``time``, else the one struct field so named (``flight.t``)."""
+    top = next((k for k in TIME_NAMES if k in variables), None)
+    fields = [k for k in variables if k.rpartition(".")[2] in TIME_NAMES]
+    return top or (fields[0] if len(fields) == 1 else None)
+
+
 def _time(variables: dict, data, time, dt, source: str) -> np.ndarray:
     if time is None:
-        time = next((k for k in TIME_NAMES if k in variables), None)
+        time = _time_name(variables)
     if time is not None:
         t = _column(variables, data, time, source, "time")
         _finite(t, source, f"time ({_describe(time)})")

@@ -348,10 +348,13 @@ def test_mat_file_with_gap_and_v5_struct(truth_run, tmp_path):
     keep = np.ones(N, bool)
     keep[500:520] = False
     s = {"time": truth_run.time[keep], "q": truth_run["q"][keep], "theta": truth_run["theta"][keep]}
-    savemat(tmp_path / "gap5.mat", {"rec": s})
+    ragged = np.empty(2, dtype=object)
+    ragged[:] = [np.ones(3), np.ones(5)]  # a cell array: no channel, and no crash
+    savemat(tmp_path / "gap5.mat", {"rec": s, "cells": ragged})
     runs = read_run_files([tmp_path / "gap5.mat"], {"channels": {"q": "rec.q", "theta": "rec.theta"},
                                                    "time": "rec.time"})
     assert [len(r) for r in runs] == [500, N - 520]
+    assert len(read_mat_runs(tmp_path / "gap5.mat")) == 2  # no map: every vector (struct fields too)
     with pytest.raises(RunError, match="read it with read_mat_runs"):
         read_mat(tmp_path / "gap5.mat", {"q": "rec.q"}, time="rec.time")
 
