@@ -28,8 +28,8 @@ from typing import Callable
 
 import numpy as np
 
-from . import units as U
 from ..errors import RunError
+from . import units as U
 from .runs import TIME, Run, _check_time, uneven_steps
 
 GAP_FACTOR = 1.5
@@ -42,9 +42,10 @@ _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration
 class Raw:
     """A file's content before units, mapping and time checks.
 
-    ``column(name_or_index, channel)`` returns raw values (N,) or raises RunError naming ``channel``; ``names`` are the file's
-    column/variable names; ``units`` declared units keyed by column, variable or channel name;
-    ``row(i)`` names sample i in errors (``line 12`` for CSV, ``sample 13`` for .mat).
+    ``column(name_or_index, channel)`` returns raw values (N,) or raises RunError naming
+    ``channel``; ``names`` are the file's column/variable names; ``units`` declared units keyed by
+    column, variable or channel name; ``row(i)`` names sample i in errors (``line 12`` for CSV,
+    ``sample 13`` for .mat).
     """
 
     source: str

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import units as U
 from ..errors import RunError
+from . import units as U
 
 TIME = "time"
 _UNIFORM_RTOL = 1e-6
