@@ -65,9 +65,16 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested
     t = _si_time(raw)
     values, described = {}, {}
     resolver = _Resolver(raw, channels)
+    used = profile_channels(profile) if profile is not None else set(channels)
     for name in channels:
-        values[name], described[name] = resolver.get(name)
-        _finite(values[name], raw, name)
+        v, how = resolver.get(name)
+        bad = int(np.sum(~np.isfinite(v)))
+        if bad and name not in used:  # e.g. an empty spare column of a data logger
+            notes.append(f"{raw.source}: channel '{name}' has {bad} missing or non-finite value(s): left out "
+                         "(the profile does not use it)")
+            continue
+        _finite(v, raw, name)
+        values[name], described[name] = v, how
     warnings += _unit_checks(raw.source, values, described, profile)
     meta = _meta(raw, described, resolver.derived)
     segments = _split_gaps(t, raw, meta, notes)
@@ -304,10 +311,15 @@ def _finite(values: np.ndarray, raw: Raw, name: str) -> None:
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
         raise RunError(f"{raw.source}: {raw.row(bad[0])}, channel '{name}': {values[bad[0]]} value "
-                       f"({bad.size} non-finite value(s))")
+                       f"({bad.size} missing or non-finite value(s))")
 
 
 # -- plausibility ----------------------------------------------------------------------------------
+def profile_channels(profile) -> set[str]:
+    """Every channel a profile can use: inputs, states, their derivatives and outputs."""
+    return {*profile.inputs, *profile.states, *(f"{s}_dot" for s in profile.states), *profile.outputs}
+
+
 def profile_quantities(profile) -> dict[str, str]:
     """The quantity (angle, angular rate, speed ...) of each channel a profile's units imply: its
     states, inputs and state derivatives ``<state>_dot``."""

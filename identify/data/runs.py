@@ -163,13 +163,14 @@ def _parse(text: str, source: str, channel_map, profile):
 
 
 # -- a CSV file's raw content (identify.data.ingest makes runs of it) ---------------------------
+_BLANKS = re.compile(r"\s+(?![\[(])(?![^\[(]*[\])])")  # blanks not before or inside "[deg/s]" / "(deg/s)"
 _HEADER_UNIT = re.compile(r"^(?P<name>.*?)\s*(?:\[(?P<u1>[^\]]*)\]|\((?P<u2>[^)]*)\))\s*$")
 
 
 def csv_raw(text: str, source: str, channel_map: dict | None = None):
     """A CSV run file's content: ``# key: value`` metadata lines on top (``# units: q=deg/s, ...``
     declares units), a header of column names (``q [deg/s]`` / ``q (deg/s)`` declares a unit),
-    one row per sample, delimited by commas (or tabs / semicolons, taken from the header)."""
+    one row per sample, delimited by commas (or tabs, semicolons or blanks, as the header is)."""
     from .ingest import Raw
 
     lines = text.lstrip("\ufeff").splitlines()
@@ -186,8 +187,10 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         break
     if header is None:
         raise RunError(f"{source}: no header row of channel names")
-    delim = next((d for d in (",", "\t", ";") if d in header), ",")
-    names, units = _header(next(csv.reader([header], delimiter=delim)), source, header_line)
+    delim = next((d for d in (",", "\t", ";") if d in header), None)  # None: blanks (units in brackets kept)
+    cells = next(csv.reader([header], delimiter=delim)) if delim else _BLANKS.split(header.strip())
+    trailing = len(cells) > 1 and not cells[-1].strip()  # "time,q," as spreadsheets write it
+    names, units = _header(cells[:-1] if trailing else cells, source, header_line)
     _merge_units(units, U.parse_units_spec(meta["units"], f"{source}: metadata 'units'") if "units" in meta else {},
                  source)
     _merge_units(units, (channel_map or {}).get("units", {}), source)
@@ -198,7 +201,7 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         time_name = names[time_name] if -len(names) <= time_name < len(names) else None
     if time_name not in names:
         raise RunError(f"{source}: line {header_line}: no '{TIME}' column in header")
-    values, line_of = _csv_values(lines, header_line, names, delim, source)
+    values, line_of = _csv_values(lines, header_line, names, delim, trailing, source)
 
     def column(where, channel):
         if isinstance(where, int) and not isinstance(where, bool):
@@ -244,31 +247,39 @@ def _merge_units(units: dict, more: dict, source: str) -> None:
         units[name] = unit
 
 
-def _csv_values(lines, header_line, names, delim, source):
+def _csv_values(lines, header_line, names, delim, trailing, source):
+    """The data rows as an (N, columns) array; an empty cell is a missing value (NaN)."""
     rows = [(n, l) for n, l in enumerate(lines[header_line:], start=header_line + 1)
             if l.strip() and not l.startswith("#")]
     if len(rows) < 2:
         raise RunError(f"{source}: fewer than two data rows")
     values = np.empty((len(rows), len(names)))
     for r, (lineno, line) in enumerate(rows):
-        cells = line.split(delim)
+        cells = _cells(line, delim)
+        if trailing and len(cells) == len(names) + 1 and not cells[-1].strip():
+            cells.pop()
         if len(cells) != len(names):
             raise RunError(f"{source}: line {lineno}: {len(cells)} values for {len(names)} columns")
         try:
             values[r] = [float(cell) for cell in cells]
         except ValueError:
-            c = next(c for c, cell in enumerate(cells) if not _is_number(cell))
-            raise RunError(f"{source}: line {lineno}, channel '{names[c]}': "
-                           f"not a number ({cells[c].strip()!r})") from None
+            values[r] = [_cell(cell, f"{source}: line {lineno}, channel '{name}'") for cell, name in zip(cells, names)]
     return values, [n for n, _ in rows]
 
 
-def _is_number(cell: str) -> bool:
+def _cells(line: str, delim: str | None) -> list[str]:
+    if delim is None:
+        return line.split()
+    return next(csv.reader([line], delimiter=delim)) if '"' in line else line.split(delim)
+
+
+def _cell(cell: str, where: str) -> float:
+    if not cell.strip():
+        return float("nan")
     try:
-        float(cell)
+        return float(cell)
     except ValueError:
-        return False
-    return True
+        raise RunError(f"{where}: not a number ({cell.strip()!r})") from None
 
 
 def _check_time(t: np.ndarray, source: str, where=lambda i: f"row {i + 1}", uniform: bool = True) -> None:

@@ -165,6 +165,40 @@ def test_undeclared_degrees_warn_on_stderr_and_in_metadata(truth_run, tmp_path, 
     assert "warning" not in capsys.readouterr().err
 
 
+def test_spreadsheet_and_logger_layouts(truth_run, tmp_path):
+    q, theta = truth_run["q"][:50], truth_run["theta"][:50]
+    t = truth_run.time[:50]
+    blank = "\n".join(" ".join(f"{v:.15g}" for v in row) for row in zip(t, np.degrees(q), theta))
+    # blank-delimited, a unit in brackets with a blank inside it
+    (tmp_path / "blank.txt").write_text("Time   q [deg/s]  theta\n" + blank + "\n")
+    run = read_run(tmp_path / "blank.txt")
+    np.testing.assert_allclose(run["q"], q, rtol=1e-12, atol=1e-15)
+    # quoted cells, a trailing delimiter, semicolons
+    text = '"time";"q";"theta";\n' + "\n".join(f'"{a:.15g}";{b:.15g};{c:.15g};' for a, b, c in zip(t, q, theta))
+    (tmp_path / "sheet.csv").write_text(text + "\n")
+    run = read_run(tmp_path / "sheet.csv")
+    assert set(run.channels) == {"q", "theta"}
+    np.testing.assert_allclose(run["theta"], theta, rtol=1e-12, atol=1e-15)
+
+
+def test_missing_values_in_an_unused_column_are_left_out_and_said(truth_run, tmp_path, capsys):
+    cols = {n: truth_run[n] for n in ("eta", "u", "q", "theta")}
+    cols["spare"] = np.full(N, np.nan)
+    path = write_csv(tmp_path / "spare.csv", truth_run.time, cols)
+    path.write_text(path.read_text().replace(",nan\n", ",\n"))  # empty cells, as loggers write them
+    run = read_run(path, profile=PROFILE)
+    assert "spare" not in run.channels
+    assert f"{path}: channel 'spare' has {N} missing or non-finite value(s): left out" in capsys.readouterr().err
+    # without a profile, or in a channel the profile uses: one clear line
+    with pytest.raises(RunError, match=r"spare.csv: line 2, channel 'spare': nan value"):
+        read_run(path)
+    text = path.read_text().splitlines()
+    text[5] = ",".join(text[5].split(",")[:3] + ["", text[5].split(",")[4], ""])
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(RunError, match=r"spare.csv: line 6, channel 'q': nan value \(1 missing or non-finite"):
+        read_run(path, profile=PROFILE)
+
+
 def test_unit_of_another_quantity_than_the_profile_warns(truth_run, tmp_path):
     path = write_csv(tmp_path / "odd.csv", truth_run.time, {"q": truth_run["q"]}, header_units={"q": "ft/s"})
     assert "declared in ft/s (speed) but the profile expects angular rate" in \
