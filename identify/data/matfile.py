@@ -162,6 +162,7 @@ def _matrix(variables: dict, name: str | None, source: str) -> np.ndarray:
         wanted = name or " / ".join(MATRIX_NAMES)
         raise RunError(f"{source}: no data-matrix variable '{wanted}' (variables: {', '.join(sorted(variables))})")
     m = np.asarray(variables[names[0]])
+    m = m[:, None] if m.ndim == 1 else m  # one column, squeezed on loading
     if m.dtype.kind not in "fiu" or m.ndim != 2:
         raise RunError(f"{source}: variable '{names[0]}' is not a numeric 2-D data matrix")
     return m.astype(float)
