@@ -8,7 +8,8 @@ steps every format shares happen here, in this order:
 2. **Channels.** The channel map names each run channel's source: a file column or variable, a
    data-matrix column (int), or an expression of them (``"da": "(dar - dal)/2"``), evaluated by a
    safe arithmetic evaluator (``+ - * /``, unary minus, parentheses, numbers, names; nothing else).
-3. **Checks.** Non-finite values name the channel and row; an angular channel taken as radians
+3. **Checks.** Missing or non-finite values name the channel and row (a column the profile does
+   not use is left out instead, and said); an angular channel taken as radians
    (declared ``rad`` or, undeclared, ``rad`` in the profile) whose values exceed what radians can
    physically reach gives a warning (:data:`identify.data.units.DEGREE_LIMITS`).
 4. **Time.** A step longer than :data:`GAP_FACTOR` times the median step is a gap: the file splits
