@@ -49,21 +49,23 @@ def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     import sys
 
-    from .data.io import load_channel_map, read_run_file
     from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
     from .estimators.registry import estimator_class
 
     profile = load_profile(args.profile)
-    cmap = load_channel_map(args.channel_map) if args.channel_map else None
     runs = []
-    for path in args.runs:
-        r = read_run_file(path, cmap)
+    for r in _read_runs(args.runs, args.channel_map, profile):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
+            if "segment" in r.meta and not _overlaps(r, args.t_start, args.t_end):
+                print(f"note: {r.source} lies outside --t-start/--t-end: not used", file=sys.stderr)
+                continue
             r = slice_run(r, args.t_start, args.t_end)
         runs.append(r)
+    if not runs:
+        raise EstimationError("no run has samples between --t-start and --t-end")
 
     def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
         print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
@@ -96,23 +98,37 @@ def _add_estimate_parser(sub) -> None:
     p.set_defaults(func=cmd_estimate)
 
 
+def _read_runs(paths, channel_map, profile):
+    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units."""
+    from .data.io import load_channel_map, read_run_files
+
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+
+
+def _overlaps(run, t_start, t_end) -> bool:
+    """Whether a run has two or more samples in the window (a gap's segment may have none)."""
+    lo = -float("inf") if t_start is None else t_start
+    hi = float("inf") if t_end is None else t_end
+    return int(((run.time >= lo) & (run.time <= hi)).sum()) >= 2
+
+
 def _add_common_options(p, runs_help: str, default_method: str) -> None:
     """Options of every command that reads runs (through :mod:`identify.data.io`) and estimates."""
     from .estimators.registry import METHODS
 
-    p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv, or .mat with --channel-map)")
+    p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv or .mat)")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
     p.add_argument("--method", choices=tuple(METHODS), default=default_method,
                    help=f"estimator (default {default_method})")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--channel-map", metavar="JSON",
-                   help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
-                        '"matrix": ..., "dt": ...} as a file or inline JSON')
+                   help='{"channels": {channel: column, variable, matrix column or expression such as '
+                        '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
+                        'as a file or inline JSON (required for .mat data matrices)')
 
 
 def cmd_refine(args) -> int:
     """Fit, find what the residuals say the model lacks, add it, re-identify; write the evidence."""
-    from .data.io import load_channel_map, read_run_files
     from .refine.candidates import KINDS
     from .refine.loop import Refine
     from .refine.report import write
@@ -120,11 +136,12 @@ def cmd_refine(args) -> int:
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
-    refiner = Refine(args.profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
+    profile = load_profile(args.profile)
+    refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max)
-    cmap = load_channel_map(args.channel_map) if args.channel_map else None
-    refiner.fit(read_run_files(args.runs, cmap), validate=read_run_files(args.validate or [], cmap))
+    refiner.fit(_read_runs(args.runs, args.channel_map, profile),
+                validate=_read_runs(args.validate or [], args.channel_map, profile))
     out = write(refiner, args.out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")

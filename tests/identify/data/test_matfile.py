@@ -70,7 +70,7 @@ def test_channel_map_json_and_dispatch_by_suffix(tmp_path, signals):
 @pytest.mark.parametrize("case, needles", [
     ("missing variable", ["bad.mat", "no variable 'r_meas'", "channel 'r'"]),
     ("wrong length", ["bad.mat", "channel 'theta'", "199 samples", "time has 200"]),
-    ("nan", ["bad.mat", "channel 'q'", "nan value at sample 17"]),
+    ("nan", ["bad.mat", "sample 17, channel 'q': nan value"]),
     ("column out of range", ["bad.mat", "column 7 out of range"]),
     ("no time", ["bad.mat", "no time variable"]),
     ("not a mat file", ["bad.mat", "not a readable MATLAB"]),

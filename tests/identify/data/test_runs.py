@@ -32,7 +32,8 @@ def test_round_trip_keeps_data_and_metadata(tmp_path, rng):
     ("0,0,0\n0.01,0\n0.02,0,0\n", "line 5: 2 values for 3 columns"),
     ("0,0,0\n0.01,0,0\n0.01,0,0\n0.02,0,0\n", "line 6, channel 'time': repeated time stamp"),
     ("0,0,0\n0.02,0,0\n0.01,0,0\n", "line 6, channel 'time': decreasing time stamp"),
-    ("0,0,0\n0.01,0,0\n0.03,0,0\n0.04,0,0\n", "line 6, channel 'time'"),
+    ("0,0,0\n0.01,0,0\n0.03,0,0\n0.04,0,0\n", "time gap(s) longer than 1.5 x the 0.01 s step at line 6"),
+    ("0,0,0\n0.01,0,0\n0.0212,0,0\n0.03,0,0\n0.04,0,0\n", "line 6, channel 'time'"),
     ("0,0,0\n", "fewer than two data rows"),
 ])
 def test_bad_rows_give_file_line_and_channel(tmp_path, body, needle):
@@ -43,9 +44,9 @@ def test_bad_rows_give_file_line_and_channel(tmp_path, body, needle):
     assert "\n" not in str(err.value)
 
 
-def test_non_uniform_sampling_is_named(tmp_path):
-    with pytest.raises(RunError, match="non-uniform sampling"):
-        read_run(write(tmp_path, "0,0,0\n0.01,0,0\n0.03,0,0\n0.04,0,0\n"))
+def test_irregular_sampling_is_named(tmp_path):
+    with pytest.raises(RunError, match=r"12% of a step off the uniform 0.01 s grid \(irregular sampling"):
+        read_run(write(tmp_path, "0,0,0\n0.01,0,0\n0.0212,0,0\n0.03,0,0\n0.04,0,0\n"))
 
 
 def test_missing_channels_are_all_listed(tmp_path):
