@@ -26,9 +26,9 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import parse_profile  # noqa: E402
-from identify.candidates import Lag  # noqa: E402
+from identify.refine.candidates import Lag  # noqa: E402
 from identify.refine import Refine  # noqa: E402
-from tests.test_refine import PROFILE, TOML, TURBULENCE, make_runs, nonlinear_runs  # noqa: E402
+from tests.identify.refine.test_refine import PROFILE, TOML, TURBULENCE, make_runs, nonlinear_runs  # noqa: E402
 
 
 def false_alarms(n: int) -> None:

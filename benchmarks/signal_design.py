@@ -85,7 +85,7 @@ def without_unexcited(profile, model, inputs):
 
 def monte_carlo(model, signal_sets: dict, trials: int, seed: int = 7):
     """ML from each signal set on the same noise realisations; truth = a priori x U(0.8, 1.2)."""
-    from identify.ml import ML
+    from identify import ML
 
     ev = Evaluator(model, "theta_s", RECORD, DT)
     profile = without_unexcited(model.profile, model, ["theta_s"])

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identify.model import LinearModel
+from identify import LinearModel
 
 from .band import input_index
 from .evaluate import DesignError, Evaluator
@@ -691,7 +691,7 @@ class SequenceDesign:
         self.width_ = self.basis_.width
         self.evaluator_ = ev
         params = {"criterion": self.criterion, "method": self.result_.method, "duration": self.duration,
-                  "record": self.record}
+                  "record": self.record, "units": {i: model.profile.inputs[i] for i in self.inputs}}
         self.signals_ = self.basis_.signals(self.result_.levels, params=params)
         self.seconds_ = time.perf_counter() - t0
         self.cpu_seconds_ = time.process_time() - c0  # this process only: the machine may be shared
