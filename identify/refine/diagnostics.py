@@ -105,6 +105,18 @@ def spectral_peak(residuals, dt: float, f_min: float = 0.0) -> dict:
             "freqs": freqs, "psd": psd}
 
 
+def summary(residuals, times, dt: float, f_min: float, outputs) -> dict:
+    """Per output: Ljung-Box p-value, mean, trend (per s) and its t-value, the largest spectral
+    line above ``f_min`` Hz and its Fisher p-value, as refine reports them before and after."""
+    white = whiteness(residuals)
+    mt = mean_trend(residuals, times)
+    sp = spectral_peak(residuals, dt, f_min)
+    return {y: {"ljung_box_p": float(white["p_value"][j]), "mean": float(mt["mean"][j]),
+                "trend_per_s": float(mt["trend"][j]), "t_trend": float(mt["t_trend"][j]),
+                "peak_hz": float(sp["frequency"][j]), "peak_p": float(sp["p_value"][j])}
+            for j, y in enumerate(outputs)}
+
+
 def dominant_frequency(residual_1d: list[np.ndarray], dt: float, f_min: float, pad: int = 16) -> float:
     """Frequency (Hz) of the largest spectral line of one output over runs, located to a fraction
     of a bin by zero-padding (``pad`` times) the averaged periodogram."""
