@@ -165,7 +165,7 @@ def line_frequency(series: list[np.ndarray], dt: float, f_min: float = 0.0, pad:
     band = (freqs > f_min) & (freqs < 0.5 / dt)
     if not band.any():
         return float("nan")
-    background = ndimage.median_filter(power, size=2 * LINE_WIDTH + 1, mode="nearest")
+    background = ndimage.median_filter(power, size=2 * LINE_WIDTH + 1, mode="mirror")
     floor = max(float(power.max()), 1e-300) * 1e-12
     ratio = np.where(band, power / np.maximum(background, floor), -np.inf)
     f0 = freqs[int(np.argmax(ratio))]
