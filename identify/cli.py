@@ -99,10 +99,12 @@ def _add_estimate_parser(sub) -> None:
 
 
 def _read_runs(paths, channel_map, profile):
-    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units."""
+    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
+    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
     from .data.io import load_channel_map, read_run_files
+    from .model.pseudo_inputs import prepare
 
-    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
 
 
 def _overlaps(run, t_start, t_end) -> bool:

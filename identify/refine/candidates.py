@@ -242,7 +242,9 @@ class Delay(Candidate):
                 tau = float(np.clip(tau, 0.0, loop.tau_max))
                 key = round(tau, 9)
                 if key not in fits:
-                    prof, res = loop.refit(self.profile(p, {self.params[0]: tau}), p, bounds=False)
+                    # warm start from the nearest delay fitted so far: a few iterations, not twenty
+                    start = fits[min(fits, key=lambda k: abs(k - key))][1] if fits else p
+                    prof, res = loop.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
                     fits[key] = (0.5 * noise.cost(loop.residuals(prof)), prof, res)
                 return fits[key]
 
@@ -271,7 +273,7 @@ def _search_delay(cost, tau0: float, dt: float, tau_max: float) -> float:
     """Minimise ``cost(tau)`` over [0, tau_max]: a coarse grid first (the score test's linearised
     estimate ``tau0`` is only good for small delays, and the profile likelihood of a large one is
     not quadratic from 0), then successive parabolas through three re-fits around the best point."""
-    grid = np.unique(np.clip(np.r_[np.linspace(0.0, tau_max, 11), tau0], 0.0, tau_max))
+    grid = np.unique(np.clip(np.r_[np.linspace(0.0, tau_max, 6), tau0], 0.0, tau_max))
     tau = float(min(grid, key=cost))
     h = max(dt, 0.5 * tau_max / 10)
     for _ in range(6):
