@@ -301,15 +301,12 @@ class Refine:
         sigma = np.sqrt(np.mean(np.vstack(ev.residuals) ** 2, axis=0))
         sigma = np.where(sigma > 0, sigma, 1.0)
         design = (ev.residuals, dy, evj.nuisance, nb)
-        white = NoiseModel.white(sigma)
-        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min) if self.coloured else white
+        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min) if self.coloured else NoiseModel.white(sigma)
         self.noise_orders_.append(null.order)
         self._say(f"  {len(cands)} candidates, residual noise model order {null.order}")
         tested = self._tests(null, design, groups, "residual")
         if self.coloured:
-            plain = sorted(self._tests(white, design, groups, "white"), key=lambda t: t["log_p"])
-            for t in plain[:TOP_ALTERNATIVE]:
-                c, cols = next(g for g in groups if g[0] is t["candidate"])
+            for c, cols in self._largest(ev.residuals, dy, nb, groups, sigma)[:TOP_ALTERNATIVE]:
                 keep = list(range(nb)) + [nb + k for k in cols]
                 alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
                                      self.dt, self.f_min)
@@ -328,18 +325,28 @@ class Refine:
                 best[name] = t
         return list(best.values())
 
+    @staticmethod
+    def _largest(residuals, dy, nb: int, groups: list[tuple], sigma: np.ndarray) -> list[tuple]:
+        """Candidate groups by the residual energy along their columns (weighted 1/sigma), largest
+        first: the residual is orthogonal to the model's columns, so this is the white-noise score
+        statistic without its projection, which is all a ranking needs."""
+        e = np.concatenate([(r / sigma).ravel() for r in residuals])
+        J = np.concatenate([(d[:, :, nb:] / sigma[None, :, None]).reshape(len(d) * d.shape[1], -1) for d in dy])
+        g, norm2 = J.T @ e, np.einsum("ij,ij->j", J, J)
+        energy = [float(np.sum(g[cols] ** 2 / np.maximum(norm2[cols], 1e-300))) for _, cols in groups]
+        return [groups[i] for i in np.argsort(energy)[::-1]]
+
     def _tests(self, noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -> list[dict]:
         """Score tests of candidate column ``groups`` in the metric of ``noise``; ``design`` =
         (residuals, per-run columns [model | candidates], per-run nuisance columns, model count)."""
         residuals, dy, nuisance, nb = design
-        dyw = [noise.whiten(d) for d in dy]
+        used = sorted({k for _, cols in groups for k in cols})  # whiten only the columns tested
+        where = {k: i for i, k in enumerate(used)}
+        dyw = [noise.whiten(d[:, :, list(range(nb)) + [nb + k for k in used]]) for d in dy]
         sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals],
                                 dg.block_design([d[:, :, :nb] for d in dyw], [noise.whiten(nu) for nu in nuisance]),
                                 sigma=np.ones(len(noise.sigma)))
         J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
-        used = sorted({k for _, cols in groups for k in cols})
-        where = {k: i for i, k in enumerate(used)}
-        J = J[:, used]
         out = []
         for (c, cols), (stat, q) in zip(groups, sb.statistics(J, [[where[k] for k in cols] for _, cols in groups])):
             if q == 0:

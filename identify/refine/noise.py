@@ -77,19 +77,18 @@ class NoiseModel:
         X = np.vstack([np.hstack([e[p_max - k:len(e) - k] for k in range(1, p_max + 1)]) if p_max
                        else np.zeros((len(e), 0)) for e in clean])  # (n, ny p_max), lag-major
         n = len(Y)
-        # nested orders from one QR: the residual covariance of order p uses the first ny p columns
-        Q, _ = np.linalg.qr(X) if p_max else (np.zeros((n, 0)), None)
-        G = Q.T @ Y
-        YY = Y.T @ Y
+        # nested orders from one Gram matrix: the order-p fit uses its leading ny p block
+        G, H, YY = X.T @ X, X.T @ Y, Y.T @ Y
+        G += 1e-12 * max(np.trace(G) / max(len(G), 1), 1e-300) * np.eye(len(G))
         best, best_aic = 0, np.inf
         for p in (range(p_max + 1) if order is None else [p_max]):
             c = ny * p
-            S = (YY - G[:c].T @ G[:c]) / max(n - c, 1)
+            S = (YY - H[:c].T @ np.linalg.solve(G[:c, :c], H[:c])) / max(n - c, 1) if c else YY / n
             aic = n * _logdet(S) + 2.0 * c * ny
             if aic < best_aic:
                 best, best_aic = p, aic
         c = ny * best
-        coef = np.linalg.lstsq(X[:, :c], Y, rcond=None)[0] if c else np.zeros((0, ny))
+        coef = np.linalg.solve(G[:c, :c], H[:c]) if c else np.zeros((0, ny))
         A = coef.T.reshape(ny, best, ny).transpose(1, 0, 2) if best else np.zeros((0, ny, ny))
         innov = Y - X[:, :c] @ coef
         Sigma = innov.T @ innov / max(n - c, 1)
