@@ -410,9 +410,7 @@ class Refine:
             reason = self._refusal(step, stats.chi2.isf(best["level"], len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
-                if "validation" in held and held["validation"][1] >= held["validation"][0]:
-                    reason = ("did not lower the prediction error on the judging data (noise-model cost "
-                              f"{held['validation'][0]:.6g} -> {held['validation'][1]:.6g})")
+                reason = _held_out_refusal(held, "validation", "judging", len(params))
                 step.accepted, step.reason = not reason, reason
                 return step, new_p, result
             step.accepted, step.reason = False, reason
@@ -428,10 +426,22 @@ class Refine:
         if step.wald < wald_threshold:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
-        if "choosing" in step.held_out and step.held_out["choosing"][1] >= step.held_out["choosing"][0]:
-            b, a = step.held_out["choosing"]
-            return f"prediction error on the choosing data not reduced (noise-model cost {b:.6g} -> {a:.6g})"
+        return _held_out_refusal(step.held_out, "choosing", "choosing", len(step.parameters))
+
+
+def _held_out_refusal(held: dict, data: str, label: str, dof: int) -> str:
+    """Refusal unless the model with the effect predicts held-out ``data`` better by more than the
+    95 % chi-square quantile of its parameter count (in cost = twice the negative log-likelihood):
+    a null effect, its parameters estimated elsewhere, makes held-out predictions worse on average
+    and better by that much in fewer than 5 % of cases; a plain decrease passed half of them."""
+    if data not in held:
         return ""
+    before, after = held[data]
+    need = float(stats.chi2.isf(0.05, max(dof, 1)))
+    if before - after > need:
+        return ""
+    return (f"did not lower the prediction error on the {label} data by more than {need:.3g} "
+            f"(noise-model cost {before:.6g} -> {after:.6g})")
 
 
 def _rank(t: dict) -> tuple:

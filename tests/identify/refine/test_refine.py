@@ -230,7 +230,7 @@ def test_effect_not_reducing_validation_error_is_rejected():
     r = refine(*make_runs(transform=drifting), kinds=("drift", "scale"))
     assert r.nothing_found
     assert [(s.effect, s.target) for s in r.rejected_][:1] == [("drift", "theta")]
-    assert "on the choosing data not reduced" in r.rejected_[0].reason, r.rejected_[0].reason
+    assert "prediction error on the choosing data" in r.rejected_[0].reason, r.rejected_[0].reason
 
 
 def test_cli_refine_writes_json_report_and_profile(tmp_path):
