@@ -16,8 +16,9 @@ repeats:
    estimated (ML re-fit; a delay by a 1-D profile-likelihood search over tau, and a lag fitted
    too), and kept only if (a) the likelihood ratio of the re-fit in the same noise metric, (b) the
    Wald statistic of its estimate with ML's coloured-residual (Morelli-Klein) standard errors both
-   exceed the threshold, (c) it lowers the error on the *choosing* part of the validation data and
-   (d) it lowers the error on the *judging* part, which takes no other part in the loop;
+   exceed the threshold, (c) it lowers the prediction error on the *choosing* part of the
+   validation data and (d) on the *judging* part, which takes no other part in the loop, each by
+   more than the 95 % chi-square quantile of its parameter count;
 
 until no candidate is significant, ``max_steps`` effects were added or ``3 max_steps`` candidates
 were tried. Every try keeps its evidence (:class:`Step`).
@@ -51,8 +52,8 @@ from .evaluation import (MIN_SAMPLES, ModelFit, check_identifiable, errors, eval
                          split_validation, unexplained)
 from .noise import NoiseModel
 
-SIMPLER_FIRST = math.log(100.0)
-TOP_ALTERNATIVE = 3  # candidates also tested in the metric of their own alternative noise model  # a nonlinear term ranks as if its p-value were 100 times larger
+SIMPLER_FIRST = math.log(100.0)  # a nonlinear term ranks as if its p-value were 100 times larger
+TOP_ALTERNATIVE = 3  # candidates also tested in the metric of their own alternative noise model
 
 
 # -- steps ----------------------------------------------------------------------------------------
@@ -273,8 +274,7 @@ class Refine:
         model (fitted to the residuals, lines and trends removed) tests every candidate; it is
         valid under the null, but where one effect dominates the residual the model learns the
         effect as colour (a 0.1 s delay in white noise: score 5477 in the white metric, 4 in this
-        one). So the ``TOP_ALTERNATIVE`` candidates that explain most of the residual in the white
-        metric are tested once more in the metric of an *alternative* model, fitted to the
+        one). So the ``TOP_ALTERNATIVE`` candidates that explain most of the residual's energy are tested once more in the metric of an *alternative* model, fitted to the
         residuals with that candidate's own least-squares fit removed (one or two columns, which
         leave the noise estimate nearly unbiased under the null; removing every candidate's columns
         at once biased it so that smooth terms scored up to 75 for a threshold of 22)."""
