@@ -191,6 +191,17 @@ class ScoreBase:
         return float(perp @ self.e / max(perp @ perp, 1e-300))
 
 
+def residual_energy(residuals, columns, groups, sigma) -> np.ndarray:
+    """Residual energy along each group of candidate columns, weighted 1/sigma (G,): ``residuals``
+    (N_r, ny) and ``columns`` (N_r, ny, K) per run, ``groups`` column indices. For residuals of a
+    fitted model (orthogonal to its columns) this is the white-noise score statistic without its
+    projection, which is all a ranking of candidates needs."""
+    e = np.concatenate([(r / sigma).ravel() for r in residuals])
+    J = np.concatenate([(c / sigma[None, :, None]).reshape(len(c) * c.shape[1], -1) for c in columns])
+    g, norm2 = J.T @ e, np.einsum("ij,ij->j", J, J)
+    return np.array([float(np.sum(g[cols] ** 2 / np.maximum(norm2[cols], 1e-300))) for cols in groups])
+
+
 def orthonormal_basis(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     """Orthonormal basis (M, k) of the span of the columns of ``J`` (M, n), directions whose
     singular value is below ``rtol`` times the largest (of unit-norm columns) left out.

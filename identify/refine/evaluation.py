@@ -74,7 +74,7 @@ def evaluate(profile: Profile, runs: list[Run], zero_shifts: bool = True, segmen
     beta = np.concatenate([theta, np.zeros(prob.n_beta - prob.p)])
     forced = prob.per_run(prob.evaluate(beta, jacobian=False).y)
     nuis = _nuisance_columns(prob, theta)
-    res, mod, x0s, biases, coefs = [], [], [], [], []
+    res, mod, x0s, biases = [], [], [], []
     n, ny = prob.n, prob.ny
     for run, y, nu in zip(runs, forced, nuis):
         z = run.matrix(list(profile.outputs))
@@ -92,7 +92,6 @@ def evaluate(profile: Profile, runs: list[Run], zero_shifts: bool = True, segmen
         n_seg = (nu.shape[2] - (ny if zero_shifts else 0)) // n
         x0s.append(coef[:n * n_seg].reshape(n_seg, n))
         biases.append(coef[n * n_seg:] if zero_shifts else np.zeros(ny))
-        coefs.append(coef)
     ev = ModelFit(res, mod, x0s, biases)
     if jacobian:
         full = np.concatenate([theta, np.concatenate([x.ravel() for x in x0s])]

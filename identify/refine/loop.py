@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -82,10 +82,7 @@ class Step:
     held_out: dict = field(default_factory=dict)  # data -> (cost before, cost after), noise-model metric
 
     def to_dict(self) -> dict:
-        return {k: getattr(self, k) for k in ("effect", "target", "parameters", "statistic", "threshold", "dof",
-                                              "p_value", "lr_statistic", "wald", "error_before", "error_after",
-                                              "held_out", "accepted", "reason", "tested", "runner_up", "why",
-                                              "noise_order", "metric")}
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 class Refine:
@@ -306,7 +303,8 @@ class Refine:
         self._say(f"  {len(cands)} candidates, residual noise model order {null.order}")
         tested = self._tests(null, design, groups, "residual")
         if self.coloured:
-            for c, cols in self._largest(ev.residuals, dy, nb, groups, sigma)[:TOP_ALTERNATIVE]:
+            energy = dg.residual_energy(ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in groups], sigma)
+            for c, cols in [groups[i] for i in np.argsort(energy)[::-1][:TOP_ALTERNATIVE]]:
                 keep = list(range(nb)) + [nb + k for k in cols]
                 alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
                                      self.dt, self.f_min)
@@ -324,17 +322,6 @@ class Refine:
             if name not in best or t["log_p"] < best[name]["log_p"]:
                 best[name] = t
         return list(best.values())
-
-    @staticmethod
-    def _largest(residuals, dy, nb: int, groups: list[tuple], sigma: np.ndarray) -> list[tuple]:
-        """Candidate groups by the residual energy along their columns (weighted 1/sigma), largest
-        first: the residual is orthogonal to the model's columns, so this is the white-noise score
-        statistic without its projection, which is all a ranking needs."""
-        e = np.concatenate([(r / sigma).ravel() for r in residuals])
-        J = np.concatenate([(d[:, :, nb:] / sigma[None, :, None]).reshape(len(d) * d.shape[1], -1) for d in dy])
-        g, norm2 = J.T @ e, np.einsum("ij,ij->j", J, J)
-        energy = [float(np.sum(g[cols] ** 2 / np.maximum(norm2[cols], 1e-300))) for _, cols in groups]
-        return [groups[i] for i in np.argsort(energy)[::-1]]
 
     def _tests(self, noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -> list[dict]:
         """Score tests of candidate column ``groups`` in the metric of ``noise``; ``design`` =
