@@ -214,7 +214,7 @@ class Delay(Candidate):
     @classmethod
     def propose(cls, p, context):
         delays = dict(p.meta.get("delays", {}))
-        kinds = set(context.kinds)
+        kinds = set(context.kinds or ("delay", "lag"))
         return [cls(u, lag="lag" in kinds, search="delay" in kinds) for u in _controls(p) if u not in delays]
 
     def profile(self, p, values=None):
