@@ -23,7 +23,7 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..errors import ProfileError
+from ..errors import ProfileError, read_text
 
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
@@ -198,11 +198,7 @@ def resolve_profile_path(spec: str | Path) -> Path:
 def load_profile(spec: str | Path) -> Profile:
     """Read a profile from a path or a bundled profile's name (``s61_hover_8state``)."""
     path = resolve_profile_path(spec)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ProfileError(f"{path}: cannot read ({exc.strerror})") from None
-    return parse_profile(text, source=str(path))
+    return parse_profile(read_text(path, ProfileError, "profile"), source=str(path))
 
 
 def parse_profile(text: str, source: str = "<profile>") -> Profile:

@@ -87,6 +87,12 @@ def test_bad_profile_on_command_line(tmp_path):
     bad.write_text(GOOD.replace("M_q = -0.6", "M_zz = -0.6"))
     one_error_line(run_cli("identify", "model", bad), "bad.toml", "M_zz")
     one_error_line(run_cli("identify", "model", tmp_path / "none.toml"), "none.toml")
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\x00\xff\xfe\x81 not text")
+    one_error_line(run_cli("identify", "model", binary), "binary.toml", "not a profile")
+    bom = tmp_path / "bom.toml"
+    bom.write_text("\ufeff" + GOOD, encoding="utf-8")
+    assert load_profile(bom).free == parse_profile(GOOD).free
 
 
 @pytest.mark.parametrize("path", sorted(bundled_profiles_dir().glob("*.toml")), ids=lambda p: p.stem)
