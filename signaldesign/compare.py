@@ -34,18 +34,18 @@ def _on_axes(factory, inputs, amplitude):
     return build
 
 
-def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400):
+def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400, model=None):
     """Best widths: one per axis tuned jointly on a coarsened grid when there are several axes
     (identical signals on two axes cannot tell their control derivatives apart), else the grid."""
     build = _on_axes(factory, inputs, amplitude)
     if len(inputs) == 1:
-        sigs, w = tune_width(build, widths, ev)
-        return sigs, f"{w:g}"
+        sigs, w, ld = tune_width(build, widths, ev, model)
+        return sigs, f"{w:g}", ld
     step = max(1, int(np.ceil(widths.size / max_pairs ** (1 / len(inputs)))))
     coarse = widths[::step]
     combos = [tuple(c) for c in itertools.product(coarse, repeat=len(inputs))]
-    sigs, w = tune_width(build, combos, ev)
-    return sigs, "/".join(f"{x:g}" for x in w)
+    sigs, w, ld = tune_width(build, combos, ev, model)
+    return sigs, "/".join(f"{x:g}" for x in w), ld
 
 
 def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float | None = None,
@@ -55,11 +55,11 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
     out = []
     widths = _grid(min(0.1, duration / 2), duration / 2, dt)
     if widths.size:
-        sigs, w = _tune(doublet, widths, ev, inputs, amplitude)
+        sigs, w, _ = _tune(doublet, widths, ev, inputs, amplitude)
         out.append((f"doublet, best width {w} s", sigs))
     widths = _grid(min(0.1, duration / 7), duration / 7, dt)
     if widths.size:
-        sigs, w = _tune(m3211, widths, ev, inputs, amplitude)
+        sigs, w, _ = _tune(m3211, widths, ev, inputs, amplitude)
         out.append((f"3211, best width {w} s", sigs))
     w0 = 2 * np.pi / duration
     top = max(3.05 * w0, 2 * band_high if band_high else 0.0)
@@ -81,11 +81,31 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
             for k, s in enumerate(sigs[1:], start=1):
                 s.levels = np.roll(s.levels, k * (period // 3))
             return sigs
-        sigs, w = tune_width(on_axes, widths, ev)
+        sigs, w, _ = tune_width(on_axes, widths, ev)
         out.append((f"PRTS {period} steps, best width {w:g} s", sigs))
     if not any(label.startswith("3211") for label, _ in out):
         raise DesignError(f"duration {duration:g} s is too short for a 3211 on a {dt:g} s grid")
     return out
+
+
+def default_limits(ev: Evaluator, duration: float, amplitude) -> Evaluator:
+    """Without response limits, the peaks of the best-width 3211 (tuned on the a priori by log
+    det at ``amplitude``) become the limits: every comparison is then at the 3211's response."""
+    if ev.has_limits:
+        return ev
+    sigs, w, _ = _tune(m3211, _grid(min(0.1, duration / 7), duration / 7, ev.dt), ev, ev.inputs, amplitude)
+    peaks = ev.peaks(sigs)
+    limits = {y: float(v) for y, v in zip(ev.model.profile.outputs, peaks) if v > 0}
+    amps = "/".join(f"{a:g}" for a in np.broadcast_to(np.asarray(amplitude, float), (len(ev.inputs),)))
+    return ev.set_limits(limits, f"peak response of the best-width 3211 ({w} s) at amplitude {amps}")
+
+
+def yardsticks(ev: Evaluator, duration: float) -> Evaluator:
+    """For every model of the evaluator's set, the equal-peak log det of the best-width 3211 tuned
+    on that model (the correctly tuned 3211: what a signal loses against it is a priori error)."""
+    widths = _grid(min(0.1, duration / 7), duration / 7, ev.dt)
+    lds = [_tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=m)[2] for m in ev.models]
+    return ev.set_yardsticks(lds)
 
 
 def reference_of(baselines) -> list:
