@@ -19,6 +19,9 @@ from .baselines import doublet, m3211, multisine, orthogonal_multisines, prts
 from .evaluate import DesignError, Evaluator, tune_width
 
 
+MIN_WIDTH = 0.3  # s: the shortest pulse a pilot flies accurately (the designer's default min pulse)
+
+
 def _grid(lo: float, hi: float, dt: float) -> np.ndarray:
     i0, i1 = max(int(np.ceil(lo / dt - 1e-9)), 1), int(np.floor(hi / dt + 1e-9))
     return np.round(np.arange(i0, i1 + 1) * dt, 10)
@@ -49,15 +52,17 @@ def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 40
 
 
 def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float | None = None,
-                    prts_order: int = 3) -> list[tuple[str, list]]:
-    """[(label, signals)] for the best doublet, best 3211, the multisine and the best PRTS."""
+                    prts_order: int | None = None, min_width: float = MIN_WIDTH) -> list[tuple[str, list]]:
+    """[(label, signals)] for the best doublet, best 3211, the multisine and the best PRTS; no
+    pulse shorter than ``min_width`` s (the pilot's shortest pulse, as for the optimised sequence).
+    The PRTS has 26 steps (order 3) when they fit in the duration at that width, else 8."""
     dt, inputs = ev.dt, ev.inputs
     out = []
-    widths = _grid(min(0.1, duration / 2), duration / 2, dt)
+    widths = _grid(min_width, duration / 2, dt)
     if widths.size:
         sigs, w, _ = _tune(doublet, widths, ev, inputs, amplitude)
         out.append((f"doublet, best width {w} s", sigs))
-    widths = _grid(min(0.1, duration / 7), duration / 7, dt)
+    widths = _grid(min_width, duration / 7, dt)
     if widths.size:
         sigs, w, _ = _tune(m3211, widths, ev, inputs, amplitude)
         out.append((f"3211, best width {w} s", sigs))
@@ -68,8 +73,10 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
     else:
         ms = orthogonal_multisines(inputs, duration, (0.0, max(top, (len(inputs) * 3 + 0.05) * w0)), amplitude, dt)
     out.append((f"multisine {len(ms[0].params['harmonics'])} harmonics", ms))
+    if prts_order is None:
+        prts_order = 3 if 26 * min_width <= duration + 1e-9 else 2
     period = 3 ** prts_order - 1
-    widths = _grid(dt, duration / period, dt)
+    widths = _grid(min_width, duration / period, dt)
     if widths.size:
         def factory(w, a, name):
             return prts(period * w, prts_order, a, name)
@@ -84,26 +91,26 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
         sigs, w, _ = tune_width(on_axes, widths, ev)
         out.append((f"PRTS {period} steps, best width {w:g} s", sigs))
     if not any(label.startswith("3211") for label, _ in out):
-        raise DesignError(f"duration {duration:g} s is too short for a 3211 on a {dt:g} s grid")
+        raise DesignError(f"duration {duration:g} s is too short for a 3211 of {min_width:g} s pulses")
     return out
 
 
-def default_limits(ev: Evaluator, duration: float, amplitude) -> Evaluator:
+def default_limits(ev: Evaluator, duration: float, amplitude, min_width: float = MIN_WIDTH) -> Evaluator:
     """Without response limits, the peaks of the best-width 3211 (tuned on the a priori by log
     det at ``amplitude``) become the limits: every comparison is then at the 3211's response."""
     if ev.has_limits:
         return ev
-    sigs, w, _ = _tune(m3211, _grid(min(0.1, duration / 7), duration / 7, ev.dt), ev, ev.inputs, amplitude)
+    sigs, w, _ = _tune(m3211, _grid(min_width, duration / 7, ev.dt), ev, ev.inputs, amplitude)
     peaks = ev.peaks(sigs)
     limits = {y: float(v) for y, v in zip(ev.model.profile.outputs, peaks) if v > 0}
     amps = "/".join(f"{a:g}" for a in np.broadcast_to(np.asarray(amplitude, float), (len(ev.inputs),)))
     return ev.set_limits(limits, f"peak response of the best-width 3211 ({w} s) at amplitude {amps}")
 
 
-def yardsticks(ev: Evaluator, duration: float) -> Evaluator:
+def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH) -> Evaluator:
     """For every model of the evaluator's set, the equal-peak log det of the best-width 3211 tuned
     on that model (the correctly tuned 3211: what a signal loses against it is a priori error)."""
-    widths = _grid(min(0.1, duration / 7), duration / 7, ev.dt)
+    widths = _grid(min_width, duration / 7, ev.dt)
     lds = [_tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=m)[2] for m in ev.models]
     return ev.set_yardsticks(lds)
 

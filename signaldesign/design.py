@@ -19,8 +19,8 @@ import numpy as np
 
 from identify.model import LinearModel
 
-from .compare import _grid, _tune, default_limits, yardsticks
 from .baselines import doublet, m3211
+from .compare import _grid, _tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
 from .quadform import Objective, StepBasis
@@ -51,7 +51,7 @@ class SequenceDesign:
 
     def __init__(self, inputs="theta_s", duration: float = 7.0, record: float = 20.0, amplitude=None,
                  dt: float = 0.05, grid: float = 0.1, min_pulse: float = 0.3, max_changes: int | None = 12,
-                 allow_double_jumps: bool = False, criterion: str = "mean", models=None, model_labels=None,
+                 allow_double_jumps: bool = True, criterion: str = "mean", models=None, model_labels=None,
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 3000, restarts: int = 4, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None):
@@ -101,14 +101,15 @@ class SequenceDesign:
         K = self.n_steps()
         fly = self.flyability()
         ev = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, limits=self.limits)
-        default_limits(ev, self.duration, self.amplitude if self.amplitude is not None else self.reference_amplitude)
+        default_limits(ev, self.duration, self.amplitude if self.amplitude is not None else self.reference_amplitude,
+                       self.min_pulse)
         models, labels = self._model_set(model)
         basis = StepBasis(ev, self.grid, K, self.delay, models)
         offsets = None
         if self.criterion == "worst":
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
-            offsets = yardsticks(yard, self.duration)._yardsticks
+            offsets = yardsticks(yard, self.duration, self.min_pulse)._yardsticks
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
@@ -153,7 +154,7 @@ class SequenceDesign:
         onto the grid: the search starts from the classic inputs, so it cannot end below them."""
         out = []
         for factory, pulses, parts in ((m3211, 7, (3, 2, 1, 1)), (doublet, 2, (1, 1))):
-            widths = _grid(min(0.1, self.duration / pulses), self.duration / pulses, self.dt)
+            widths = _grid(self.min_pulse, self.duration / pulses, self.dt)
             if not widths.size:
                 continue
             _, w, _ = _tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)

@@ -69,6 +69,7 @@ class Score:
     band_covered: float  # fraction of the required band inside the signal's half-power band
     binding: str  # output whose limit binds at equal peak response
     scale: float  # factor on the signal's amplitude that brings it to equal peak response
+    amplitude: float  # largest control amplitude at equal peak response (control units)
     worst_d_eff: float
     mean_d_eff: float
     worst_model: str
@@ -224,6 +225,7 @@ class Evaluator:
         return Score(label or " + ".join(f"{s.kind} on {s.input}" for s in signals), ld,
                      float(np.exp((ld - self._ref) / self.p)), float(np.mean(crb)), float(np.max(crb)),
                      float(np.mean(covered)) if covered else float("nan"), binding, 1.0 / r,
+                     max(abs(s.amplitude) * float(np.abs(s.levels).max()) for s in signals) / r,
                      worst, mean, worst_model)
 
 
@@ -277,15 +279,15 @@ def format_scores(scores: list[Score], reference_label: str = "reference") -> st
     """Plain-text comparison table, every signal at equal peak response."""
     w = max([34] + [len(s.label) for s in scores])
     head = (f"{'signal (each at equal peak response)':<{w}} {'log det M':>10} {'D-eff':>6} {'mean CRB':>9} "
-            f"{'worst CRB':>9} {'band':>5} {'binds':>7} {'worst D-eff':>11} {'mean D-eff':>10}  worst model")
+            f"{'worst CRB':>9} {'band':>5} {'binds':>7} {'amplitude':>9} {'worst D-eff':>11} {'mean D-eff':>10}  worst model")
     rows = [head, "-" * len(head)]
     for s in scores:
         rows.append(f"{s.label:<{w}} {s.log_det:10.2f} {s.d_eff:6.3f} {100 * s.mean_rel_crb:8.2f}% "
-                    f"{100 * s.worst_rel_crb:8.2f}% {100 * s.band_covered:4.0f}% {s.binding:>7} "
+                    f"{100 * s.worst_rel_crb:8.2f}% {100 * s.band_covered:4.0f}% {s.binding:>7} {s.amplitude:9.4f} "
                     f"{s.worst_d_eff:11.3f} {s.mean_d_eff:10.3f}  {s.worst_model}")
     rows.append(f"each signal scaled so that its largest peak/limit is 1; D-eff = (det M / det M_ref)^(1/p) "
                 f"relative to {reference_label} on the a priori; CRB = Cramér-Rao std / |theta|; band = "
                 f"fraction of the required band inside the half-power band; binds = the output at its "
-                f"limit; worst/mean D-eff over the model set, each model relative to the best-width "
+                f"limit; amplitude = control amplitude at equal peak; worst/mean D-eff over the model set, each model relative to the best-width "
                 f"3211 tuned on that model")
     return "\n".join(rows)

@@ -135,6 +135,9 @@ class Objective:
         self.n_models = 1 if criterion == "nominal" else len(basis.models)
         self.G = basis.G[:self.n_models]
         self.Y = basis.Y[:self.n_models]
+        # per step, contiguous, every other sample: a proposal reads the few rows it changes; the
+        # responses are smooth at 2 dt and the designer checks the final peaks on every sample
+        self.Yk = np.ascontiguousarray(np.moveaxis(self.Y[:, ::2], 3, 1))  # (m, K, N/2, ny)
         inv = basis.evaluator.limits if inv_limits is None else None
         self.inv_limits = (1.0 / inv) if inv is not None else np.asarray(inv_limits, float)
         self.offsets = np.zeros(self.n_models) if offsets is None else np.asarray(offsets, float)[:self.n_models]
@@ -147,7 +150,7 @@ class Objective:
         """(levels, V (m, K, p, p), M (m, p, p), y (m, N, ny)) from scratch."""
         V = np.einsum("mkjab,j->mkab", self.G, levels)
         M = np.einsum("k,mkab->mab", levels, V)
-        y = self.Y @ levels
+        y = np.tensordot(levels, self.Yk, axes=([0], [1]))
         return levels.copy(), V, M, y
 
     def reset(self, levels=None) -> None:
@@ -159,8 +162,14 @@ class Objective:
         if self._last is None:
             return
         levels, idx, d, M, y, V = self._last
-        if idx is not None:
-            V = self._base[1] + np.einsum("mkrab,r->mkab", self.G[:, :, idx], d)
+        if idx is not None and idx.size:
+            # V_k += sum_j G_kj d_j = (sum_j d_j G_jk)^T: rows of G are contiguous views
+            dV = d[0] * self.G[:, idx[0]]
+            for j, dj in zip(idx[1:], d[1:]):
+                dV += dj * self.G[:, j]
+            V = self._base[1] + dV.transpose(0, 1, 3, 2)
+        elif idx is not None:
+            V = self._base[1]
         self._base = (levels, V, M, y)
 
     def _candidate(self, levels):
@@ -168,11 +177,17 @@ class Objective:
         if self._base is not None:
             l0, V, M0, y0 = self._base
             idx = np.flatnonzero(levels != l0)
+            if idx.size == 0:
+                self._last = (levels.copy(), idx, idx.astype(float), M0, y0, None)
+                return M0, y0
             if idx.size <= max(2, levels.size // 3):
                 d = (levels - l0)[idx]
-                Vi = np.einsum("mrab,r->mab", V[:, idx], d)
-                M = M0 + Vi + Vi.transpose(0, 2, 1) + np.einsum("r,s,mrsab->mab", d, d, self.G[:, idx][:, :, idx])
-                y = y0 + self.Y[:, :, :, idx] @ d
+                # proposals change one contiguous run of steps: slices are views, not copies
+                sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
+                Gii = self.G[:, sl, sl] if isinstance(sl, slice) else self.G[:, idx[:, None], idx[None, :]]
+                Vi = np.einsum("r,mrab->mab", d, V[:, sl])
+                M = M0 + Vi + Vi.transpose(0, 2, 1) + np.einsum("rs,mrsab->mab", np.outer(d, d), Gii)
+                y = y0 + np.einsum("r,mrty->mty", d, self.Yk[:, sl])
                 self._last = (levels.copy(), idx, d, M, y, None)
                 return M, y
         _, V, M, y = self._state(levels)
@@ -211,12 +226,12 @@ class Objective:
         for i in range(0, len(L), chunk):
             Li = L[i:i + chunk]
             M = np.einsum("ck,cj,mkjab->cmab", Li, Li, self.G, optimize=True)
-            y = np.einsum("mtyk,ck->cmty", self.Y, Li, optimize=True)
+            y = np.einsum("mkty,ck->cmty", self.Yk, Li, optimize=True)
             for c in range(len(Li)):
                 out[i + c] = self._value(M[c], self.ratios(y[c]))
         return out
 
     def feasible_amplitude(self, levels) -> tuple[float, float]:
         """(amplitude flown, r_0 at unit amplitude) for a final sequence."""
-        r0 = float(self.ratios(self.Y[:1] @ np.asarray(levels, float))[0])
+        r0 = float(((np.abs(self.Y[0] @ np.asarray(levels, float)).max(axis=0)) * self.inv_limits).max())
         return (self.amplitude if self.amplitude is not None else 1.0 / r0), r0

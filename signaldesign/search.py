@@ -146,8 +146,11 @@ def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: 
         r_best = (f_cur, list(cur))
         for i in range(n_iter):
             T = T0 * (T_end / T0) ** (i / max(n_iter - 1, 1))
-            cand = _propose(cur, K, axes, fly, rng)
-            if cand == cur or not feasible(cand):
+            for _ in range(50):  # every iteration scores a flyable neighbour (rejecting is cheap)
+                cand = _propose(cur, K, axes, fly, rng)
+                if cand != cur and feasible(cand):
+                    break
+            else:
                 continue
             f = objective(np.array(cand))
             if f >= f_cur or (np.isfinite(f) and (not np.isfinite(f_cur) or rng.random() < np.exp((f - f_cur) / T))):
