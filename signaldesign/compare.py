@@ -118,3 +118,22 @@ def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH) -> 
 def reference_of(baselines) -> list:
     """The best 3211: the reference every D-efficiency and peak ratio is relative to."""
     return next(s for label, s in baselines if label.startswith("3211"))
+
+
+def equal_peak_information(ev: Evaluator, signals) -> np.ndarray:
+    """Fisher information (p, p) of one run flown at equal peak response (largest peak/limit = 1)."""
+    r, _ = ev.response(signals)
+    return ev.information(signals) / r ** 2
+
+
+def information_per_second(ev: Evaluator, joint, separate, record: float) -> tuple[float, float]:
+    """D-optimal information per second of flight, det(M)^(1/p) / time: the ``joint`` signals
+    flown in one run of ``record`` s, against each of ``separate`` (one signal list per run) flown
+    in its own run (their informations add; the time is one record per run). Every run is at
+    equal peak response, so the limits are shared within a run."""
+    from .information import log_det
+
+    p = ev.p
+    joint_rate = np.exp(log_det(equal_peak_information(ev, joint)) / p) / record
+    M = sum(equal_peak_information(ev, s) for s in separate)
+    return float(joint_rate), float(np.exp(log_det(M) / p) / (record * len(separate)))

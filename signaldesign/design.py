@@ -54,7 +54,7 @@ class SequenceDesign:
                  allow_double_jumps: bool = True, criterion: str = "mean", models=None, model_labels=None,
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 3000, restarts: int = 4, seed: int = 0, noise_std=None, delay: float = 0.0,
-                 progress=None):
+                 progress=None, apriori_weight: float = 0.5):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -63,6 +63,7 @@ class SequenceDesign:
         self.reference_amplitude = reference_amplitude
         self.exhaustive_limit, self.n_iter, self.restarts, self.seed = exhaustive_limit, n_iter, restarts, seed
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
+        self.apriori_weight = apriori_weight
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -113,7 +114,8 @@ class SequenceDesign:
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
-        objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets)
+        objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets,
+                              weights=prior_weights(len(models), self.apriori_weight))
         result, gap = self._search(objective, fly, self._starts(ev, basis))
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
@@ -195,6 +197,16 @@ class SequenceDesign:
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         return "\n".join(lines)
+
+
+def prior_weights(n_models: int, apriori_weight: float) -> np.ndarray:
+    """Weights of the expected log det: ``apriori_weight`` on the a priori (model 0, the best single
+    guess), the rest spread evenly over the other models of the set."""
+    if n_models == 1:
+        return np.ones(1)
+    if not 0 <= apriori_weight < 1:
+        raise DesignError(f"a priori weight must be in [0, 1), got {apriori_weight:g}")
+    return np.concatenate([[apriori_weight], np.full(n_models - 1, (1 - apriori_weight) / (n_models - 1))])
 
 
 def _on_grid(pulses, width: float, grid: float, n_steps: int) -> np.ndarray:

@@ -120,7 +120,7 @@ class Objective:
     response; the amplitude is an outcome, 1 / r_0). Fixed amplitude A: ``log det M_m(l) + 2 p log A``
     while ``A r_0(l) <= 1``, and a steep penalty beyond (the search may cross infeasible ground; the
     designer rejects an infeasible result). Criterion ``nominal`` scores model 0 (the a priori),
-    ``mean`` the mean over models (the expected log det), ``worst`` the minimum over models of the
+    ``mean`` the mean over models with ``weights`` (the expected log det under that prior), ``worst`` the minimum over models of the
     score minus ``offsets`` (n_models,) (a relative D-efficiency, e.g. against each model's
     correctly tuned 3211).
     """
@@ -128,7 +128,7 @@ class Objective:
     PENALTY = 10.0  # per unit of 2 p log(A r_0) beyond the limit
 
     def __init__(self, basis: StepBasis, criterion: str = "mean", inv_limits=None, amplitude: float | None = None,
-                 offsets=None):
+                 offsets=None, weights=None):
         if criterion not in ("nominal", "worst", "mean"):
             raise DesignError(f"unknown criterion '{criterion}' (nominal, worst, mean)")
         self.basis, self.criterion, self.amplitude = basis, criterion, amplitude
@@ -141,6 +141,8 @@ class Objective:
         inv = basis.evaluator.limits if inv_limits is None else None
         self.inv_limits = (1.0 / inv) if inv is not None else np.asarray(inv_limits, float)
         self.offsets = np.zeros(self.n_models) if offsets is None else np.asarray(offsets, float)[:self.n_models]
+        w = np.ones(self.n_models) if weights is None else np.asarray(weights, float)[:self.n_models]
+        self.weights = w / w.sum()
         self.p = basis.evaluator.p
         self.evaluations = 0
         self._base = self._last = None
@@ -211,7 +213,9 @@ class Objective:
         per_model = np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
         if self.criterion == "nominal":
             return float(per_model[0])
-        return float(per_model.min() if self.criterion == "worst" else per_model.mean())
+        if self.criterion == "worst":
+            return float(per_model.min())
+        return float(per_model @ self.weights) if np.all(np.isfinite(per_model)) else -np.inf
 
     def __call__(self, levels) -> float:
         levels = np.asarray(levels, dtype=float)
