@@ -53,7 +53,7 @@ class SequenceDesign:
                  dt: float = 0.05, grid: float = 0.1, min_pulse: float = 0.3, max_changes: int | None = 12,
                  allow_double_jumps: bool = True, criterion: str = "mean", models=None, model_labels=None,
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
-                 n_iter: int = 3000, restarts: int = 4, seed: int = 0, noise_std=None, delay: float = 0.0,
+                 n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt

@@ -141,7 +141,10 @@ def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: 
                 f = objective(np.array(cand))
                 if np.isfinite(f) and np.isfinite(f_cur):
                     deltas.append(abs(f - f_cur))
-        T0 = max(float(np.median(deltas)) if deltas else 1.0, 1e-3)
+        # hot enough that a typical worsening is accepted 80 % of the time at first: with peak
+        # responses in the criterion the landscape is rugged (an optimum can sit among neighbours
+        # far below it), and a walk at the median change never leaves its basin
+        T0 = max(float(np.mean(deltas)) / -np.log(0.8) if deltas else 1.0, 1e-3)
         T_end = T0 * 1e-3
         r_best = (f_cur, list(cur))
         for i in range(n_iter):
