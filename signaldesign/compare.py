@@ -95,12 +95,21 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
     return out
 
 
+def widths_3211(duration: float, min_width: float, dt: float) -> np.ndarray:
+    """Pulse widths of a 3211 that fits in ``duration`` s, none under ``min_width`` s."""
+    widths = _grid(min_width, duration / 7, dt)
+    if not widths.size:
+        raise DesignError(f"duration {duration:g} s is too short for a 3211 of {min_width:g} s pulses "
+                          f"(at least {7 * min_width:g} s)")
+    return widths
+
+
 def default_limits(ev: Evaluator, duration: float, amplitude, min_width: float = MIN_WIDTH) -> Evaluator:
     """Without response limits, the peaks of the best-width 3211 (tuned on the a priori by log
     det at ``amplitude``) become the limits: every comparison is then at the 3211's response."""
     if ev.has_limits:
         return ev
-    sigs, w, _ = _tune(m3211, _grid(min_width, duration / 7, ev.dt), ev, ev.inputs, amplitude)
+    sigs, w, _ = _tune(m3211, widths_3211(duration, min_width, ev.dt), ev, ev.inputs, amplitude)
     peaks = ev.peaks(sigs)
     limits = {y: float(v) for y, v in zip(ev.model.profile.outputs, peaks) if v > 0}
     amps = "/".join(f"{a:g}" for a in np.broadcast_to(np.asarray(amplitude, float), (len(ev.inputs),)))
@@ -110,7 +119,7 @@ def default_limits(ev: Evaluator, duration: float, amplitude, min_width: float =
 def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH) -> Evaluator:
     """For every model of the evaluator's set, the equal-peak log det of the best-width 3211 tuned
     on that model (the correctly tuned 3211: what a signal loses against it is a priori error)."""
-    widths = _grid(min_width, duration / 7, ev.dt)
+    widths = widths_3211(duration, min_width, ev.dt)
     lds = [_tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=m)[2] for m in ev.models]
     return ev.set_yardsticks(lds)
 

@@ -222,8 +222,9 @@ class Evaluator:
                 rel = (self.robust_log_dets(signals) - self._yardsticks) / self.p
             i = int(np.argmin(rel))
             worst, mean, worst_model = float(np.exp(rel[i])), float(np.exp(rel.mean())), self.model_labels[i]
-        return Score(label or " + ".join(f"{s.kind} on {s.input}" for s in signals), ld,
-                     float(np.exp((ld - self._ref) / self.p)), float(np.mean(crb)), float(np.max(crb)),
+        with np.errstate(invalid="ignore"):  # a singular reference gives nan, shown as such
+            d_eff = float(np.exp((ld - self._ref) / self.p))
+        return Score(label or " + ".join(f"{s.kind} on {s.input}" for s in signals), ld, d_eff, float(np.mean(crb)), float(np.max(crb)),
                      float(np.mean(covered)) if covered else float("nan"), binding, 1.0 / r,
                      max(abs(s.amplitude) * float(np.abs(s.levels).max()) for s in signals) / r,
                      worst, mean, worst_model)

