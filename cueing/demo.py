@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, simulate_run
-from identify.plots import plot_residuals, plot_time_histories
+from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, perturbed_model, simulate_run
+from identify.estimators.plots import plot_residuals, plot_time_histories
 from identify.refine import Refine
-from identify.refine_report import write as write_refine
+from identify.refine.report import write as write_refine
 from signaldesign import save_signals
 from signaldesign.baselines import m3211
 from signaldesign.design import SequenceDesign
@@ -105,8 +105,7 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
 # -- the truth ------------------------------------------------------------------------------------
 def _real_aircraft(apriori: LinearModel, seed: int) -> LinearModel:
     """The aircraft flown: every free derivative off its a priori value by up to PERTURBATION."""
-    rng = np.random.default_rng(seed)
-    return apriori.with_theta(apriori.theta * rng.uniform(1 - PERTURBATION, 1 + PERTURBATION, apriori.theta.size))
+    return perturbed_model(apriori, PERTURBATION, np.random.default_rng(seed))
 
 
 def _response(truth: LinearModel, flown: Run, seed: int) -> Run:
@@ -115,13 +114,8 @@ def _response(truth: LinearModel, flown: Run, seed: int) -> Run:
     State derivatives are not measured (no such sensors): LS and IV differentiate the rates.
     """
     p = truth.profile
-    dt = flown.dt
     stick = np.column_stack([flown.channels.get(name, np.zeros(len(flown))) for name in p.input_names])
-    shift = int(round(DELAY / dt))
-    if abs(shift * dt - DELAY) > 1e-6 * DELAY:  # the truth's delay must be what the report says
-        raise ValueError(f"the {DELAY} s delay is not a whole number of {dt:g} s samples")
-    delayed = np.vstack([np.zeros((shift, stick.shape[1])), stick[:-shift]])
-    sim = simulate_run(truth, flown.time, delayed, noise_fraction=NOISE, seed=seed)
+    sim = simulate_run(truth, flown.time, stick, input_delay=DELAY, noise_fraction=NOISE, seed=seed)
     channels = {name: stick[:, j] for j, name in enumerate(p.input_names)}
     channels.update({y: sim[y] for y in p.outputs})
     channels.update({k: v for k, v in flown.channels.items() if k.endswith("_cmd")})

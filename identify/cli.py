@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from .cliutil import Parser, run
 from .errors import EstimationError
-from .model import LinearModel, format_modes, residualize
-from .profile import load_profile
+from .model.linear import LinearModel, format_modes, residualize
+from .model.profile import load_profile
 
 
 def cmd_model(args) -> int:
@@ -48,9 +48,10 @@ def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     import sys
 
-    from .matfile import load_channel_map, read_run_file
-    from .plots import save_plots
-    from .preprocess import slice_run, smooth
+    from .data.io import load_channel_map, read_run_file
+    from .data.preprocess import slice_run, smooth
+    from .estimators.plots import save_plots
+    from .estimators.registry import estimator_class
 
     profile = load_profile(args.profile)
     cmap = load_channel_map(args.channel_map) if args.channel_map else None
@@ -66,15 +67,10 @@ def cmd_estimate(args) -> int:
     def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
         print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
 
-    if args.method == "ml":
-        from .ml import ML
-        est = ML(profile, progress=show)
-    elif args.method == "iv":
-        from .equation_error import IV
-        est = IV(profile, progress=show, diff_cutoff_hz=args.diff_cutoff, max_iter=args.max_iter)
-    else:
-        from .equation_error import LS
-        est = LS(profile, diff_cutoff_hz=args.diff_cutoff)
+    options = {"ml": dict(progress=show),
+               "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, max_iter=args.max_iter),
+               "ls": dict(diff_cutoff_hz=args.diff_cutoff)}[args.method]
+    est = estimator_class(args.method)(profile, **options)
     result = est.fit(runs).result_
     print(result.summary())
     out = result.save(args.out)
@@ -85,28 +81,36 @@ def cmd_estimate(args) -> int:
 
 def _add_estimate_parser(sub) -> None:
     p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
-    p.add_argument("runs", nargs="+", help="run files (.csv, or .mat with --channel-map)")
-    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=float, metavar="HZ",
                    help="cut-off of the smoothed differentiator for states without measured derivatives")
     p.add_argument("--t-start", type=float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=int, default=30, help="IV iterations at most (default 30)")
+    p.set_defaults(func=cmd_estimate)
+
+
+def _add_common_options(p, runs_help: str, default_method: str) -> None:
+    """Options of every command that reads runs (through :mod:`identify.data.io`) and estimates."""
+    from .estimators.registry import METHODS
+
+    p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv, or .mat with --channel-map)")
+    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
+    p.add_argument("--method", choices=tuple(METHODS), default=default_method,
+                   help=f"estimator (default {default_method})")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--channel-map", metavar="JSON",
                    help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
                         '"matrix": ..., "dt": ...} as a file or inline JSON')
-    p.set_defaults(func=cmd_estimate)
 
 
 def cmd_refine(args) -> int:
     """Fit, find what the residuals say the model lacks, add it, re-identify; write the evidence."""
-    from .candidates import KINDS
-    from .refine import Refine
-    from .refine_report import write
-    from .runs import read_run
+    from .data.io import load_channel_map, read_run_files
+    from .refine.candidates import KINDS
+    from .refine.loop import Refine
+    from .refine.report import write
 
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:
@@ -114,7 +118,8 @@ def cmd_refine(args) -> int:
     refiner = Refine(args.profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max)
-    refiner.fit([read_run(f) for f in args.runs], validate=[read_run(f) for f in args.validate or []])
+    cmap = load_channel_map(args.channel_map) if args.channel_map else None
+    refiner.fit(read_run_files(args.runs, cmap), validate=read_run_files(args.validate or [], cmap))
     out = write(refiner, args.out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
@@ -132,11 +137,8 @@ def cmd_refine(args) -> int:
 
 def _add_refine_parser(sub) -> None:
     p = sub.add_parser("refine", help="find unmodelled effects in the residuals, add them, re-identify")
-    p.add_argument("runs", nargs="+", help="run files (.csv) to fit")
-    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ml", "ls", "iv"), default="ml", help="estimator (default ml)")
+    _add_common_options(p, "run files to fit", default_method="ml")
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
                    "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")

@@ -2,8 +2,7 @@
 from __future__ import annotations
 
 from identify.cliutil import Parser, progress_bar, run
-from identify.model import LinearModel
-from identify.profile import load_profile
+from identify import LinearModel, load_profile
 
 from .band import plot_band, required_band
 from .baselines import make_signal

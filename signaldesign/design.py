@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from identify.model import LinearModel
+from identify import LinearModel
 
 from .baselines import doublet, m3211
 from .compare import _grid, _tune, default_limits, yardsticks
@@ -137,7 +137,8 @@ class SequenceDesign:
         self.width_ = self.grid
         params = {"criterion": self.criterion, "method": result.method, "duration": self.duration,
                   "record": self.record, "grid": self.grid, "min_pulse": self.min_pulse,
-                  "max_changes": self.max_changes, "binding_limit": self.binding_}
+                  "max_changes": self.max_changes, "binding_limit": self.binding_,
+                  "units": {i: model.profile.inputs[i] for i in self.inputs}}
         self.signals_ = basis.signals(result.levels, amplitude, params=params)
         self.seconds_ = time.perf_counter() - t0
         self.cpu_seconds_ = time.process_time() - c0  # this process only: the machine may be shared

@@ -12,9 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import fftconvolve
 
-from identify.errors import PseudostepError
-from identify.model import LinearModel
-from identify.sensitivity import output_sensitivities
+from identify import LinearModel, output_sensitivities, perturbed_model
+from identify.errors import DesignError
 
 from .band import excited_parameters, input_index
 from .information import default_noise, log_det, relative_cramer_rao
@@ -24,20 +23,15 @@ from .spectrum import half_power_band
 PERTURBATION = 0.3  # the issue's "every derivative scaled by 0.7..1.3"
 
 
-class DesignError(PseudostepError):
-    """A design or evaluation is impossible as asked (constraints, durations, inputs)."""
-
-
 def perturbed_models(model: LinearModel, n: int = 24, spread: float = PERTURBATION,
                      seed: int = 0) -> list[LinearModel]:
     """Models with every free derivative scaled by a factor in 1 -/+ ``spread``: the two uniform
     corners (all x(1-spread), all x(1+spread)) and ``n - 2`` random draws, uniform per derivative."""
     if not 0 <= spread < 1:
         raise DesignError(f"perturbation spread must be in [0, 1), got {spread:g}")
+    corners = [model.with_theta(model.theta * f) for f in (1 - spread, 1 + spread)]
     rng = np.random.default_rng(seed)
-    factors = [np.full(len(model.theta), 1 - spread), np.full(len(model.theta), 1 + spread)]
-    factors += list(rng.uniform(1 - spread, 1 + spread, (max(n - 2, 0), len(model.theta))))
-    return [model.with_theta(model.theta * f) for f in factors[:max(n, 2)]]
+    return (corners + [perturbed_model(model, spread, rng) for _ in range(n - 2)])[:max(n, 2)]
 
 
 def record_inputs(model: LinearModel, signals: list[Signal], record: float, dt: float) -> np.ndarray:

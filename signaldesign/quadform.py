@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.model import LinearModel
+from identify import LinearModel
 
 from .evaluate import DesignError, Evaluator
 from .signal import Signal

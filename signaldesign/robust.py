@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.model import LinearModel
+from identify import LinearModel
 
 from .evaluate import PERTURBATION, DesignError
 

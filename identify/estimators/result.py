@@ -1,0 +1,157 @@
+"""Identification results: parameter table with standard errors, fit metrics, export.
+
+Every estimator returns an :class:`IdentificationResult`, in the spirit of a statsmodels results
+object: ``summary()`` prints a table an engineer can paste into a report; ``to_dict()`` /
+``save()`` give ``result.json`` and the identified model as a profile TOML, which can be the next a
+priori model.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..model.linear import LinearModel, format_modes
+from ..model.profile import Profile
+
+
+def theil(measured: np.ndarray, modelled: np.ndarray) -> float:
+    """Theil inequality coefficient: 0 is a perfect fit, 1 the worst possible."""
+    num = np.sqrt(np.mean((measured - modelled) ** 2))
+    den = np.sqrt(np.mean(measured ** 2)) + np.sqrt(np.mean(modelled ** 2))
+    return float(num / den) if den > 0 else 0.0
+
+
+def fit_metrics(outputs: list[str], measured: list[np.ndarray], modelled: list[np.ndarray]) -> dict:
+    """RMS error and Theil coefficient per output over all runs (arrays (N_r, ny) per run)."""
+    z, y = np.vstack(measured), np.vstack(modelled)
+    return {name: {"rms": float(np.sqrt(np.mean((z[:, j] - y[:, j]) ** 2))), "theil": theil(z[:, j], y[:, j])}
+            for j, name in enumerate(outputs)}
+
+
+@dataclass
+class IdentificationResult:
+    """Estimates of a profile's free parameters.
+
+    ``theta`` (p,) estimates; ``std`` (p,) standard errors (Cramér-Rao bounds, by default
+    corrected for coloured residuals: ``info["standard_errors"]`` says which); ``profile`` the a priori
+    profile (structure and a priori values); ``fit`` {output: {"rms", "theil"}}; ``info`` method
+    details (iterations, cost history, per-run initial states and zero shifts, ...); ``runs`` the
+    runs' sources.
+    """
+
+    method: str
+    profile: Profile
+    theta: np.ndarray
+    std: np.ndarray
+    fit: dict[str, dict[str, float]] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    runs: list[str] = field(default_factory=list)
+    # per run, for plots and residual analysis (not written to JSON): time (N,), measured and
+    # modelled outputs (N, ny) in the order of profile.outputs
+    time: list[np.ndarray] = field(default_factory=list, repr=False)
+    measured: list[np.ndarray] = field(default_factory=list, repr=False)
+    modelled: list[np.ndarray] = field(default_factory=list, repr=False)
+
+    def residuals(self) -> list[np.ndarray]:
+        """Measured minus modelled outputs, (N, ny) per run."""
+        return [z - y for z, y in zip(self.measured, self.modelled)]
+
+    @property
+    def names(self) -> list[str]:
+        return self.profile.free_names
+
+    @property
+    def apriori(self) -> np.ndarray:
+        return np.array(list(self.profile.free.values()))
+
+    @property
+    def relative_std(self) -> np.ndarray:
+        """Standard error in % of |estimate| (inf where the estimate is 0)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 100 * self.std / np.abs(self.theta)
+
+    @property
+    def model(self) -> LinearModel:
+        return LinearModel(self.profile, self.theta)
+
+    def parameters(self) -> dict[str, float]:
+        return dict(zip(self.names, map(float, self.theta)))
+
+    def identified_profile(self, name: str | None = None) -> Profile:
+        return self.model.to_profile(name or f"{self.profile.name} - identified ({self.method.upper()})")
+
+    def summary(self, truth: dict[str, float] | None = None) -> str:
+        """Parameter table (estimate, standard error, rel. std %, a priori [, truth]), fit and modes."""
+        head = f"{'parameter':<18}{'estimate':>13}{'std error':>12}{'rel. std %':>11}{'a priori':>12}"
+        if truth:
+            head += f"{'truth':>12}"
+        lines = [f"{self.method.upper()} identification of '{self.profile.name}' from "
+                 f"{len(self.runs) or 1} run(s)", head, "-" * len(head)]
+        for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
+            row = f"{name:<18}{v:13.6g}{s:12.4g}{r:11.2f}{a:12.5g}"
+            if truth:
+                row += f"{truth.get(name, float('nan')):12.5g}"
+            lines.append(row)
+        lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
+        if self.fit:
+            lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
+            lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
+        lines += ["", "modes of the identified model:", format_modes(self.model.modes())]
+        return "\n".join(lines)
+
+    def markdown(self, truth: dict[str, float] | None = None) -> str:
+        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes."""
+        cols = ["parameter", "estimate", "std error", "rel. std %", "a priori"] + (["truth"] if truth else [])
+        lines = [f"{self.method.upper()} identification of `{self.profile.name}` from "
+                 f"{len(self.runs) or 1} run(s).", "", "| " + " | ".join(cols) + " |",
+                 "| --- |" + " ---: |" * (len(cols) - 1)]
+        for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
+            cells = [f"`{name}`", f"{v:.6g}", f"{s:.4g}", f"{r:.2f}", f"{a:.5g}"]
+            if truth:
+                cells.append(f"{truth.get(name, float('nan')):.5g}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", f"Standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}."]
+        if self.fit:
+            lines += ["", "| output | RMS error | Theil U |", "| --- | ---: | ---: |"]
+            lines += [f"| {k} | {v['rms']:.4g} | {v['theil']:.4f} |" for k, v in self.fit.items()]
+        lines += ["", "Modes of the identified model:", "", "```", format_modes(self.model.modes()), "```"]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        modes = [{"real": m.eigenvalue.real, "imag": m.eigenvalue.imag, "frequency": m.frequency,
+                  "damping": m.damping} for m in self.model.modes()]
+        return {
+            "method": self.method,
+            "profile": self.profile.name,
+            "runs": self.runs,
+            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a)}
+                           for n, v, s, a in zip(self.names, self.theta, self.std, self.apriori)},
+            "fit": self.fit,
+            "eigenvalues": modes,
+            "info": _jsonable(self.info),
+        }
+
+    def save(self, outdir: str | Path) -> Path:
+        """Write ``result.json`` and ``identified_profile.toml`` into ``outdir``."""
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        (outdir / "result.json").write_text(json.dumps(self.to_dict(), indent=2))
+        self.identified_profile().save(outdir / "identified_profile.toml")
+        return outdir
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return str(obj)
+    return obj
