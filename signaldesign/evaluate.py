@@ -1,5 +1,5 @@
-"""Score any signal set on an a priori model: Fisher information, D-efficiency, Cramér-Rao bounds,
-in-band power, peak response and robustness over perturbed models.
+"""Score any signal set on an a priori model at equal peak response: Fisher information,
+D-efficiency, Cramér-Rao bounds, band coverage, the binding limit and robustness over a model set.
 
 Every signal is sampled on one record grid (``record`` s at ``dt`` s, zero-order hold, zero
 initial state), so all signals are compared on the same footing; the D-optimal designer uses
