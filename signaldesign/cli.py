@@ -83,7 +83,11 @@ def cmd_design(args) -> int:
     print(format_scores(scores, "the best-width 3211"))
     print(designer.summary())
     if len(inputs) > 1:
-        singles = [_designer([i], args).fit(model).signals_ for i in inputs]
+        singles = []
+        for i in inputs:  # each axis in its own run, within the same limits
+            single = _designer([i], args)
+            single.limits = designer.limits
+            singles.append(single.fit(model).signals_)
         joint, separate = information_per_second(ev, designer.signals_, singles, args.record)
         print(f"information per second of flight (det M^(1/p) / s): {joint:.4g} with the axes in one run, "
               f"{separate:.4g} with one run per axis (x{joint / separate:.2f})")

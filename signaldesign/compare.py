@@ -1,9 +1,10 @@
-"""Tuned baseline signals at a given duration and amplitude, and the comparison table the
-``design`` and ``compare`` commands and the benchmark print.
+"""Tuned baseline signals, the response limits they set when a profile has none, the per-model
+yardsticks of the robust columns, and information per second of flight.
 
 Baselines are tuned on the a priori model the same way the optimised sequence is: the pulse
-width of each doublet, 3211 and PRTS is the one (on the time-step grid, within the duration)
-that maximises log det of the Fisher information. The multisine spans the harmonics of
+width of each doublet, 3211 and PRTS is the one (on the time-step grid, within the duration, no
+pulse under the pilot's minimum) that maximises log det of the Fisher information at equal peak
+response. The multisine spans the harmonics of
 2 pi / duration up to twice the required band's top (at least three). Several axes get the same
 signal type at once (the paper's "combined input"): doublets and 3211s with their widths tuned
 jointly per axis (identical signals on two axes cannot separate the axes' control derivatives),
