@@ -58,13 +58,14 @@ def model_set(model: LinearModel, frequencies=(0.6, 0.77, 1.0, 1.3, 1.6), draws:
     return models, labels
 
 
-def design_set(model: LinearModel, seed: int = 1) -> tuple[list[LinearModel], list[str]]:
-    """The designer's default robust set (9 models): the a priori at frequency scales 0.6, 0.77,
-    1, 1.3, 1.6, and four models with derivatives x U(0.7, 1.3) at log-uniform random scales."""
+def design_set(model: LinearModel, seed: int = 1, draws: int = 4) -> tuple[list[LinearModel], list[str]]:
+    """The designer's default robust set (5 + ``draws`` models): the a priori at frequency scales
+    0.6, 0.77, 1, 1.3, 1.6, and ``draws`` models with derivatives x U(0.7, 1.3) at log-uniform
+    random scales."""
     models, labels = model_set(model)
     rng = np.random.default_rng(seed)
     lo, hi = np.log(FREQUENCY_RANGE)
-    for d in range(4):
+    for d in range(draws):
         k = float(np.exp(rng.uniform(lo, hi)))
         f = rng.uniform(1 - PERTURBATION, 1 + PERTURBATION, len(model.theta))
         base = frequency_scaled(model, k)
