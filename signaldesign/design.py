@@ -126,8 +126,8 @@ class SequenceDesign:
             i = int(np.argmax(ratios))
             y = model.profile.outputs[i]
             raise DesignError(
-                f"infeasible: no flyable sequence at amplitude {amplitude:g} keeps {y} within its limit "
-                f"{ev.limits[i]:g} (smallest peak found {peaks[i]:.3g}); lower the amplitude below "
+                f"infeasible: the search found no flyable sequence at amplitude {amplitude:g} that keeps {y} "
+                f"within its limit {ev.limits[i]:g} (smallest peak found {peaks[i]:.3g}); lower the amplitude below "
                 f"{amplitude / ratios.max():.3g} or leave it free")
         self.levels_, self.amplitude_ = result.levels, np.full(len(self.inputs), amplitude)
         self.peaks_, self.limits_ = peaks, ev.limits

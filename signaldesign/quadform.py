@@ -118,14 +118,15 @@ class Objective:
     Free amplitude (``amplitude`` None): per model m, ``log det M_m(l) - 2 p log r_m(l)`` with
     ``r_m`` the largest output peak over its limit on model m (the information at equal peak
     response; the amplitude is an outcome, 1 / r_0). Fixed amplitude A: ``log det M_m(l) + 2 p log A``
-    while ``A r_0(l) <= 1``, and a steep penalty beyond (the search may cross infeasible ground; the
-    designer rejects an infeasible result). Criterion ``nominal`` scores model 0 (the a priori),
+    while ``A r_0(l) <= 1``; beyond, a large offset (any sequence within the limits scores higher) and
+    a graded penalty that leads the search back (the designer rejects an infeasible result). Criterion ``nominal`` scores model 0 (the a priori),
     ``mean`` the mean over models with ``weights`` (the expected log det under that prior), ``worst`` the minimum over models of the
     score minus ``offsets`` (n_models,) (a relative D-efficiency, e.g. against each model's
     correctly tuned 3211).
     """
 
     PENALTY = 10.0  # per unit of 2 p log(A r_0) beyond the limit
+    INFEASIBLE = 1e4  # offset of any sequence beyond a limit at a fixed amplitude
 
     def __init__(self, basis: StepBasis, criterion: str = "mean", inv_limits=None, amplitude: float | None = None,
                  offsets=None, weights=None):
@@ -210,6 +211,8 @@ class Objective:
         else:
             over = max(0.0, float(np.log(self.amplitude * r[0]))) if r[0] > 0 else 0.0
             per_model = ld + 2 * self.p * (np.log(self.amplitude) - self.PENALTY * over)
+            if over > 0:  # below every flyable sequence within the limits, graded toward them
+                per_model = per_model - self.INFEASIBLE
         per_model = np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
         if self.criterion == "nominal":
             return float(per_model[0])
