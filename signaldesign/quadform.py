@@ -139,8 +139,8 @@ class Objective:
         # per step, contiguous, every other sample: a proposal reads the few rows it changes; the
         # responses are smooth at 2 dt and the designer checks the final peaks on every sample
         self.Yk = np.ascontiguousarray(np.moveaxis(self.Y[:, ::2], 3, 1))  # (m, K, N/2, ny)
-        inv = basis.evaluator.limits if inv_limits is None else None
-        self.inv_limits = (1.0 / inv) if inv is not None else np.asarray(inv_limits, float)
+        # 1 / limit per output (ny,); 0 for an output without a limit
+        self.inv_limits = 1.0 / basis.evaluator.limits if inv_limits is None else np.asarray(inv_limits, float)
         self.offsets = np.zeros(self.n_models) if offsets is None else np.asarray(offsets, float)[:self.n_models]
         w = np.ones(self.n_models) if weights is None else np.asarray(weights, float)[:self.n_models]
         self.weights = w / w.sum()
