@@ -187,3 +187,21 @@ M_eta = 1.0
 theta_q = 1.0
 """)
     assert output_units(p2) == {"q_dot": "rad/s^2", "theta": "rad", "eta": "rad", "mix": ""}
+
+
+def test_limits_are_read_validated_and_written_back():
+    base = 'name = "x"\nstates = { q = "rad/s", theta = "rad" }\ninputs = { e = "rad" }\noutputs = ["q", "theta"]\n' \
+           '[free]\nM_q = -1.0\nM_e = 2.0\n[fixed]\ntheta_q = 1.0\n'
+    p = parse_profile(base + "[limits]\ntheta = 0.17\n")
+    assert p.limits == {"theta": 0.17}
+    assert parse_profile(p.to_toml()).limits == {"theta": 0.17}
+    with pytest.raises(ProfileError, match=r"\[limits\] zz: not an output"):
+        parse_profile(base + "[limits]\nzz = 1.0\n")
+    with pytest.raises(ProfileError, match=r"\[limits\] q = 0 must be positive"):
+        parse_profile(base + "[limits]\nq = 0\n")
+
+
+def test_every_bundled_profile_limits_every_output():
+    for name in ("s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long"):
+        p = load_profile(name)
+        assert set(p.limits) == set(p.outputs), name
