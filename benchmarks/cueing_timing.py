@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 import pygame  # noqa: E402
 
 from cueing.display import Display, FrameState  # noqa: E402
-from cueing.flightlog import LOW_RATE, frame_rate_warning  # noqa: E402
+from cueing.flightlog import LOW_RATE, SYNC_INTERVAL, FrameLogWriter, frame_rate_warning  # noqa: E402
 from cueing.runner import Runner  # noqa: E402
 from cueing.sources import PilotSource  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
@@ -63,11 +63,26 @@ def interval_stats(t: np.ndarray) -> tuple[float, float, float, float]:
     return rate, float(np.std(steps)), float(np.max(steps)), float(np.max(np.abs(steps - 1 / RATE)))
 
 
+def sync_period(folder: Path, seconds: float = 1.0) -> float:
+    """Mean time between the frame log's fsyncs while frames are written at the display rate [s]."""
+    w = FrameLogWriter(folder / "sync.frames.csv", ["theta_s"]).open({})
+    start, k = time.perf_counter(), 0
+    while time.perf_counter() - start < seconds:
+        w.frame(k, k / RATE, k / RATE, False, [0.0], [0.0])
+        k += 1
+        time.sleep(1 / RATE)
+    n = w.fsyncs - 1  # the one at open is not periodic
+    elapsed = time.perf_counter() - start
+    w.close()
+    return elapsed / max(n, 1)
+
+
 def main() -> int:
     pygame.display.init()
     signal = m3211(1.0, amplitude=0.02, delay=0.5)  # 7 s of signal
     with tempfile.TemporaryDirectory() as tmp:
         log, render = cueing_run(signal, Path(tmp))
+        synced = sync_period(Path(tmp))
     t, ts, cmd = log.columns["time"], log.columns["t_signal"], log.columns["theta_s_cmd"]
     seq = t >= 0
     rate, jit_std, jit_max, dev_max = interval_stats(t[seq])
@@ -109,6 +124,7 @@ def main() -> int:
     stats = log.frame_stats()
     print(f"lowest rate over any 1 s: {stats['rate_lowest_1s']:.2f} Hz; low-frame-rate flag "
           f"(< {100 * LOW_RATE:g} % of target): {frame_rate_warning(stats) or 'not raised'}")
+    print(f"frame log fsync: every {1e3 * synced:.1f} ms on average (target {1e3 * SYNC_INTERVAL:g} ms)")
     print(f"off-screen render time per frame: mean {1e3 * render.mean():.3f} ms, "
           f"p95 {1e3 * np.percentile(render, 95):.3f} ms, max {1e3 * render.max():.3f} ms")
     ok_rate = abs(rate / RATE - 1) < 0.005

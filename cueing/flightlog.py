@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from identify import Run
+from identify.errors import read_text
 from signaldesign.signal import Signal
 
 from .errors import CueingError
@@ -193,12 +194,7 @@ def frame_rate_warning(stats: dict) -> str | None:
 def read_frame_log(path: str | Path) -> FrameLog:
     """Read a frame log, even one cut off mid-line by a kill; one CueingError if it is unusable."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise CueingError(f"{path}: cannot read frame log ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise CueingError(f"{path}: not a pseudostep frame log (binary, not text)") from None
+    text = read_text(path, CueingError, "pseudostep frame log")
     meta, events, rows, header, status = {}, [], [], None, None
     lines = text.split("\n")
     complete = lines[:-1]  # the part after the last newline is a row the kill cut short

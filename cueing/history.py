@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from identify.errors import read_text
+
 from .errors import CueingError
 
 ENV = "PSEUDOSTEP_HISTORY"
@@ -43,12 +45,7 @@ def load_history(pilot: str, directory=None) -> list[dict]:
     path = history_path(pilot, directory)
     if not path.is_file():
         raise CueingError(f"no practice history for pilot '{pilot}' ({path} does not exist)")
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise CueingError(f"{path}: cannot read the practice history ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise CueingError(f"{path}: not a practice history (binary, not text)") from None
+    text = read_text(path, CueingError, "practice history")
     records = []
     for n, line in enumerate(text.splitlines(), start=1):
         if line.strip():

@@ -45,3 +45,17 @@ class DesignError(PseudostepError):
 # -- cueing ---------------------------------------------------------------------------------------
 class CueingError(PseudostepError):
     """Bad cueing input: unknown source, missing device, unreadable flight log, bad option."""
+
+
+def read_text(path, error: type[PseudostepError], what: str) -> str:
+    """The text of the file ``path``; an unreadable or binary file raises one ``error`` naming
+    ``what`` the file should have been (``"profile"``, ``"frame log"``)."""
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise error(f"{path}: not a {what} (binary, not UTF-8 text)") from None

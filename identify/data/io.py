@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..errors import RunError
+from ..errors import RunError, read_text
 from .matfile import mat_runs
 from .runs import Run, csv_runs
 from .units import unit_info
@@ -29,10 +29,7 @@ def load_channel_map(spec: str | Path) -> dict:
     path = Path(text)
     source = text
     if not text.lstrip().startswith("{"):
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise RunError(f"{spec}: cannot read channel map ({exc.strerror or exc})") from None
+        text = read_text(path, RunError, "channel map")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

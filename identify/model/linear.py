@@ -273,4 +273,5 @@ def residualize(model: LinearModel, fast: list[str], name: str | None = None,
         output_defs={k: v for k, v in p.output_defs.items() if k in outputs},
         meta={"reduced_from": p.name, "instantaneous_states": list(fast)},
         source=p.source,
+        limits={y: v for y, v in p.limits.items() if y in outputs},
     )

@@ -23,12 +23,12 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..errors import ProfileError
+from ..errors import ProfileError, read_text
 
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
 _KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_defs", "free",
-               "fixed", "ties", "meta"}
+               "fixed", "ties", "meta", "limits"}
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,9 @@ class Profile:
     description: str = ""
     meta: dict[str, object] = field(default_factory=dict)
     source: str = "<profile>"
+    # largest |perturbation| each output may reach in a test manoeuvre, in the output's own units
+    # (signal design keeps every output's peak response within it)
+    limits: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self):
         _validate(self)
@@ -135,7 +138,7 @@ class Profile:
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_inline(v)}" for k, v in rows.items()]
-        for table in ("free", "fixed", "meta"):
+        for table in ("free", "fixed", "limits", "meta"):
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_toml_value(v)}" for k, v in rows.items()]
@@ -198,11 +201,7 @@ def resolve_profile_path(spec: str | Path) -> Path:
 def load_profile(spec: str | Path) -> Profile:
     """Read a profile from a path or a bundled profile's name (``s61_hover_8state``)."""
     path = resolve_profile_path(spec)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ProfileError(f"{path}: cannot read ({exc.strerror})") from None
-    return parse_profile(text, source=str(path))
+    return parse_profile(read_text(path, ProfileError, "profile"), source=str(path))
 
 
 def parse_profile(text: str, source: str = "<profile>") -> Profile:
@@ -230,6 +229,7 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
                      for k, v in _require(dict, data.get("output_defs", {}), "output_defs", source).items()},
         meta=_require(dict, data.get("meta", {}), "meta", source),
         source=source,
+        limits=_numbers(data.get("limits", {}), "limits", source),
     )
 
 
@@ -317,6 +317,11 @@ def _validate(p: Profile) -> None:
             if term not in terms_ok:
                 what = f"output '{y}'" if y in p.output_defs else "output"
                 raise ProfileError(f"{src}: {what} term '{term}' is not a state, state derivative or input")
+    for y, limit in p.limits.items():
+        if y not in p.outputs:
+            raise ProfileError(f"{src}: [limits] {y}: not an output (outputs: {', '.join(p.outputs)})")
+        if not limit > 0:
+            raise ProfileError(f"{src}: [limits] {y} = {limit:g} must be positive")
 
 
 def _astuple(entry: Entry):

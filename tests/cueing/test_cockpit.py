@@ -36,7 +36,7 @@ def s61_4dof():
 @pytest.fixture(scope="module")
 def design(s61_4dof):
     """A 7 s optimised sequence designed for a 20 s record (0.35 s steps: shorter than a pilot's lag)."""
-    d = SequenceDesign("theta_s", duration=7.0, record=20.0, amplitude=AMP, dt=0.05, widths=[0.35],
+    d = SequenceDesign("theta_s", duration=7.0, record=20.0, amplitude=AMP, dt=0.05, grid=0.35, min_pulse=0.35,
                        max_changes=8, n_iter=300, restarts=1).fit(s61_4dof)
     return d.signals_[0]
 

@@ -279,14 +279,18 @@ def test_keyboard_and_mouse_sources(s3211):
     assert mouse.read(0.0)[0] == pytest.approx(-0.01, abs=1.5 * AMP / 360)  # within one pixel
 
 
-def test_log_is_synced_to_disk_at_least_every_0_1_s(tmp_path):
+def test_log_is_synced_to_disk_by_the_writer_s_own_timer(tmp_path):
+    """The fsyncs come from the writer's timer, not from frames: they keep coming while no frame
+    is written. (Their 0.1 s period is measured in benchmarks/cueing_timing.py, not timed here: a
+    loaded CI machine may delay a thread.)"""
     import time
-    w = FrameLogWriter(tmp_path / "s.frames.csv", ["theta_s"]).open({"x": 1})
-    start = time.perf_counter()
-    while time.perf_counter() - start < 0.55:
-        w.frame(0, 0.0, 0.0, False, [0.0], [0.0])
+    w = FrameLogWriter(tmp_path / "s.frames.csv", ["theta_s"], sync_interval=0.02).open({"x": 1})
+    w.frame(0, 0.0, 0.0, False, [0.0], [0.0])
+    synced, deadline = w.fsyncs, time.monotonic() + 10.0
+    while w.fsyncs < synced + 3 and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert w.fsyncs >= 1 + 5  # one at open, one per 0.1 s
+    assert w.fsyncs >= synced + 3
+    assert "0,0.000000" in (tmp_path / "s.frames.csv").read_text()
     w.close()
 
 

@@ -14,6 +14,8 @@ def test_demo_pipeline_finds_the_undeclared_delay(tmp_path):
         assert (out / name).exists(), name
     for link in re.findall(r"!\[[^]]*\]\(([^)]+)\)", text):  # every figure the report shows exists
         assert (out / link).exists(), link
+    # the default design, its peak responses against the limits, one of them binding
+    assert "Peak response on the a priori model against the limits" in text and "(binds)" in text
     # the refine step names the undeclared effect: the truth's delay on each cyclic, within 3 std
     found = re.findall(r"\*\*delay\*\* on `(theta_[sc])`: `tau_theta_[sc]` = ([0-9.]+) ± ([0-9.e-]+)", text)
     assert sorted(f[0] for f in found) == ["theta_c", "theta_s"], text

@@ -87,6 +87,12 @@ def test_bad_profile_on_command_line(tmp_path):
     bad.write_text(GOOD.replace("M_q = -0.6", "M_zz = -0.6"))
     one_error_line(run_cli("identify", "model", bad), "bad.toml", "M_zz")
     one_error_line(run_cli("identify", "model", tmp_path / "none.toml"), "none.toml")
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\x00\xff\xfe\x81 not text")
+    one_error_line(run_cli("identify", "model", binary), "binary.toml", "not a profile")
+    bom = tmp_path / "bom.toml"
+    bom.write_text("\ufeff" + GOOD, encoding="utf-8")
+    assert load_profile(bom).free == parse_profile(GOOD).free
 
 
 @pytest.mark.parametrize("path", sorted(bundled_profiles_dir().glob("*.toml")), ids=lambda p: p.stem)
@@ -181,3 +187,21 @@ M_eta = 1.0
 theta_q = 1.0
 """)
     assert output_units(p2) == {"q_dot": "rad/s^2", "theta": "rad", "eta": "rad", "mix": ""}
+
+
+def test_limits_are_read_validated_and_written_back():
+    base = 'name = "x"\nstates = { q = "rad/s", theta = "rad" }\ninputs = { e = "rad" }\noutputs = ["q", "theta"]\n' \
+           '[free]\nM_q = -1.0\nM_e = 2.0\n[fixed]\ntheta_q = 1.0\n'
+    p = parse_profile(base + "[limits]\ntheta = 0.17\n")
+    assert p.limits == {"theta": 0.17}
+    assert parse_profile(p.to_toml()).limits == {"theta": 0.17}
+    with pytest.raises(ProfileError, match=r"\[limits\] zz: not an output"):
+        parse_profile(base + "[limits]\nzz = 1.0\n")
+    with pytest.raises(ProfileError, match=r"\[limits\] q = 0 must be positive"):
+        parse_profile(base + "[limits]\nq = 0\n")
+
+
+def test_every_bundled_profile_limits_every_output():
+    for name in ("s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long"):
+        p = load_profile(name)
+        assert set(p.limits) == set(p.outputs), name

@@ -1,3 +1,5 @@
+import dataclasses
+
 import control
 import numpy as np
 import pytest
@@ -68,7 +70,7 @@ def test_sensitivities_match_finite_differences(s61, rng):
 
 
 def test_derivative_outputs_have_sensitivities_through_C_and_D(rng):
-    p = load_profile("s61_hover_4dof")
+    p = dataclasses.replace(load_profile("s61_hover_4dof"), limits={})  # its limits name the outputs dropped
     text = p.to_toml().replace('outputs = ["u", "v", "p", "q", "theta", "phi"]',
                                'outputs = ["q", "q_dot", "a_x"]\n[output_defs]\na_x = { u_dot = 1.0, theta = 9.81 }')
     from identify import parse_profile
