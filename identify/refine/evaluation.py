@@ -6,6 +6,14 @@ multiple-shooting segments; each segment's initial state and (by default) each r
 shifts are then the least-squares fit to the measured outputs, weighted by each output's noise as
 ML weights them, exact because the outputs are linear in them. With ``jacobian`` the output
 sensitivities to the free parameters and to the nuisance come along: the columns of the score tests.
+
+A pseudo-input built from the model's *states* (a nonlinear term such as q|q| or q theta_s) is
+never taken from the measured channels here (:func:`predict`): those carry the gust response, and
+feeding measured outputs back as an input turns output error into partly equation error, which
+"predicts" turbulent data better although the truth is linear. It is computed from the model's own
+simulated states instead, iterated to the fixed point of the nonlinear recursion
+``x_{k+1} = Phi x_k + Gamma [u_k; f(x_k)]`` (simulate, build the term from the simulated states,
+re-simulate): a true prediction from the inputs and each segment's initial state.
 """
 from __future__ import annotations
 
@@ -16,12 +24,16 @@ import numpy as np
 
 from ..data.runs import Run
 from ..errors import EstimationError
-from ..estimators.output_error import OutputError
+from ..estimators.output_error import OutputError, cut
+from ..model import pseudo_inputs as pi
 from ..model.linear import LinearModel
 from ..model.profile import Profile
+from ..model.simulate import discretize
 from . import diagnostics as dg
 
 MIN_SAMPLES = 50  # per run: fewer leave the residual tests without power
+PREDICT_ITER, PREDICT_TOL = 20, 1e-6  # fixed-point iterations of a state-built term; relative change
+REFITS = 8  # at most, for a model with a state-built term: fits until the estimates settle
 
 
 @dataclass
@@ -37,6 +49,7 @@ class ModelFit:
     bias: list[np.ndarray]
     dy: list[np.ndarray] | None = None
     nuisance: list[np.ndarray] | None = None
+    runs: list[Run] | None = None  # the runs as simulated (state-built pseudo-inputs from the model)
 
 
 def _problem(profile: Profile, runs: list[Run], segment: float, zero_shifts: bool, inputs=None) -> OutputError:
@@ -101,6 +114,98 @@ def evaluate(profile: Profile, runs: list[Run], zero_shifts: bool = True, segmen
         ev.dy = [d.reshape(len(d), ny, p) for d in prob.per_run(jac.reshape(L, ny * p, S))]
         ev.nuisance = nuis
     return ev
+
+
+def state_terms(p: Profile) -> dict[str, dict]:
+    """``{name: description}`` of the pseudo-inputs of ``p`` built from its states (a product with a
+    state factor): they are computed from the model's simulated states, never from measurements."""
+    return {n: spec for n, spec in pi.specs(p).items() if set(spec.get("product", ())) & set(p.states)}
+
+
+def simulated_terms(p: Profile, runs: list[Run], ev: ModelFit, terms: dict[str, dict],
+                    segment: float = math.inf) -> list[Run]:
+    """``runs`` with each pseudo-input of ``terms`` computed from the model's own states: every
+    segment simulated sample by sample from its fitted initial state ``ev.x0`` with the terms fed
+    back, ``x_{k+1} = Phi x_k + Gamma [u_k; f(x_k, u_k)]`` (the engine's zero-order hold), so the
+    channels returned are exactly those of that simulation."""
+    model = LinearModel(p)
+    dt = runs[0].dt
+    Phi, Gamma = discretize(model.A, model.B, dt)
+    lay = cut([len(r) for r in runs], dt, segment)
+    col = {n: p.input_names.index(n) for n in terms}
+    state = {s: i for i, s in enumerate(p.state_names)}
+    out = []
+    for r, run in enumerate(runs):
+        u = run.matrix(p.input_names)
+        chans = {f: run[f] for spec in terms.values() for f in spec["product"] if f not in state}
+        with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported by the caller
+            for i, s in enumerate(np.flatnonzero(lay.run == r)):
+                x = np.array(ev.x0[r][i], float)
+                for k in range(lay.start[s], lay.start[s] + lay.length[s]):
+                    for n, spec in terms.items():
+                        u[k, col[n]] = math.prod(
+                            (abs(v) if a else v) for v, a in
+                            zip((x[state[f]] if f in state else chans[f][k] for f in spec["product"]),
+                                spec.get("abs", [False] * len(spec["product"]))))
+                    x = Phi @ x + Gamma @ u[k]
+        out.append(run.with_channels({n: u[:, col[n]] for n in terms}))
+    return out
+
+
+def predict(profile: Profile, runs: list[Run], zero_shifts: bool = True, segment: float = math.inf) -> ModelFit:
+    """:func:`evaluate` as a true prediction: the pseudo-inputs built from states (:func:`state_terms`)
+    computed from the model's own simulated states (:func:`simulated_terms`), alternating with the
+    least-squares fit of the initial states and zero shifts until the terms settle; ``ModelFit.runs``
+    holds the runs with those channels. Raises :class:`EstimationError` if they do not (a term
+    that makes the model diverge)."""
+    terms = state_terms(profile)
+    current = [r.with_channels({n: np.zeros(len(r)) for n in terms}) for r in runs] if terms else runs
+    ev = evaluate(profile, current, zero_shifts, segment)
+    change = 0.0
+    for _ in range(PREDICT_ITER if terms else 0):
+        new = simulated_terms(profile, runs, ev, terms, segment)
+        change = max(np.max(np.abs(a[n] - b[n])) / max(np.max(np.abs(a[n])), 1e-300)
+                     for a, b in zip(new, current) for n in terms)
+        if not np.isfinite(change):
+            break
+        current = new
+        ev = evaluate(profile, current, zero_shifts, segment)
+        if change < PREDICT_TOL:
+            break
+    if terms and not change < PREDICT_TOL:
+        raise EstimationError(f"profile '{profile.name}': the simulation with the nonlinear term(s) "
+                              f"{', '.join(terms)} from the model's own states does not settle (change "
+                              f"{change:.3g} after {PREDICT_ITER} iterations): the term makes the model diverge")
+    ev.runs = current
+    return ev
+
+
+def settle(refit, profile: Profile, max_fits: int = REFITS):
+    """The fixed point of ``refit`` (a profile -> (fitted profile, result)) for a model whose
+    state-built terms come from the simulated states of the model being fitted: each fit holds the
+    terms of its starting values, so fit again from the estimate until no estimate moves by more
+    than a tenth of its standard error (a thousandth of its value without bounds); a secant step
+    on the last two fits (a contraction of rate lambda, ``F(theta) = (lambda - 1)(theta - theta*)``)
+    jumps to the extrapolated fixed point. Raises :class:`EstimationError` if it does not settle."""
+    pairs = []
+    for _ in range(max_fits):
+        fitted, result = refit(profile)
+        move = result.theta - result.apriori
+        std = np.asarray(result.std, float)
+        tol = np.where(np.isfinite(std) & (std > 0), 0.1 * std, 1e-3 * np.abs(result.theta) + 1e-12)
+        if np.all(np.abs(move) <= tol):
+            return fitted, result
+        pairs.append((np.asarray(result.apriori, float), move))
+        nxt = result.theta
+        if len(pairs) > 1:
+            (a, Fa), (b, Fb) = pairs[-2:]
+            slope = float((Fb - Fa) @ (b - a) / max((b - a) @ (b - a), 1e-300))  # lambda - 1
+            if -2.0 < slope < -0.05:
+                nxt = b - Fb / slope
+        profile = fitted.with_values(dict(zip(result.names, map(float, nxt))))
+    raise EstimationError(f"the estimates of '{profile.name}' with its nonlinear term(s) from the model's own "
+                          f"states did not settle in {max_fits} fits (largest move {np.max(np.abs(move) / tol):.3g} "
+                          f"tenths of a standard error)")
 
 
 def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance: list[np.ndarray],
@@ -187,5 +292,5 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["ModelFit", "evaluate", "errors", "neg_log_likelihood", "unexplained", "split_validation",
+__all__ = ["ModelFit", "evaluate", "predict", "settle", "state_terms", "simulated_terms", "errors", "neg_log_likelihood", "unexplained", "split_validation",
            "input_response", "check_identifiable", "MIN_SAMPLES"]

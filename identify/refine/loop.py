@@ -1,24 +1,21 @@
 """Close the loop: find the structure left in the residuals, name the effect, add it, re-identify.
 
-``Refine(profile).fit(runs, validate=val_runs)`` fits the declared model (ML by default), then
-repeats:
+``Refine(profile).fit(runs, validate=val_runs)`` fits the declared model (ML by default), then repeats:
 
-1. residuals of every output on every run (the model simulated from the inputs by the segmented
-   output-error engine :class:`identify.estimators.output_error.OutputError`, with each segment's initial state
-   and, by default, each run's output zero shifts fitted by linear least squares weighted by each
-   output's noise, as ML weights them);
+1. residuals of every output on every run, a true prediction (:mod:`identify.refine.evaluation`: the
+   model simulated from the inputs, each segment's initial state and each run's zero shifts fitted,
+   terms built from states computed from the model's simulated states, never the measured ones);
 2. a vector autoregressive noise model of those residuals (:mod:`identify.refine.noise`), and a score
-   (Lagrange-multiplier) test of every candidate of the catalogue (:mod:`identify.refine.candidates`) at its
-   null value in the metric of that noise model (a GLS score test, valid for coloured residuals:
-   turbulence, filtered sensors), against the chi-square threshold at a Šidák-corrected family
-   level ``alpha`` over all candidates tested;
+   test of every candidate (:mod:`identify.refine.candidates`) at its null value in that noise model's
+   metric (a GLS score test, valid for coloured residuals), against the chi-square threshold at a
+   Šidák-corrected family level ``alpha`` over all candidates tested;
 3. the most significant candidate (nonlinear terms ranked below simpler explanations) is
-   estimated (ML re-fit; a delay by a 1-D profile-likelihood search over tau, and a lag fitted
-   too), and kept only if (a) the likelihood ratio of the re-fit in the same noise metric, (b) the
-   Wald statistic of its estimate with ML's coloured-residual (Morelli-Klein) standard errors both
-   exceed the threshold, (c) it lowers the prediction error on the *choosing* part of the
-   validation data and (d) on the *judging* part, which takes no other part in the loop, each by
-   more than the 95 % chi-square quantile of its parameter count;
+   estimated (ML re-fit; a delay by a profile-likelihood search over tau, and a lag fitted too),
+   and kept only if (a) the likelihood ratio of the re-fit in the same metric, (b) the Wald
+   statistic of its estimate with ML's coloured-residual (Morelli-Klein) bounds both exceed the
+   threshold, (c) it lowers the prediction error on the *choosing* part of the validation data and
+   (d) on the *judging* part (no other part in the loop), each by more than the 95 % chi-square
+   quantile of its parameter count;
 
 until no candidate is significant, ``max_steps`` effects were added or ``3 max_steps`` candidates
 were tried. Every try keeps its evidence (:class:`Step`).
@@ -48,8 +45,8 @@ from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from . import diagnostics as dg
 from .candidates import KINDS, Candidate, Context, catalogue, extend_all, prepare_runs
-from .evaluation import (MIN_SAMPLES, ModelFit, check_identifiable, errors, evaluate, input_response,
-                         split_validation, unexplained)
+from .evaluation import (MIN_SAMPLES, ModelFit, check_identifiable, errors, evaluate, input_response, predict,
+                         settle, simulated_terms, split_validation, state_terms, unexplained)
 from .noise import NoiseModel
 
 SIMPLER_FIRST = math.log(100.0)  # a nonlinear term ranks as if its p-value were 100 times larger
@@ -151,9 +148,8 @@ class Refine:
         # a priori values: before spending a fit on it
         check_identifiable(self.profile, prepare_runs(self.profile, runs), self.zero_shifts, self.segment_)
         self._say(f"fitting the declared model ({len(self.profile.free)} parameters, {len(runs)} runs)")
-        est = self._estimate(self.profile, prepare_runs(self.profile, runs))
+        current, est = self.refit(self.profile, self.profile)
         self.initial_result_ = est
-        current = _keep_meta(est.identified_profile(self.profile.name), self.profile)
         self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.profile.outputs])
         self.steps_, self.rejected_ = [], []
         excluded: set[str] = set()
@@ -248,11 +244,12 @@ class Refine:
 
     def _eval(self, p: Profile, data: str = "fit") -> ModelFit:
         """The profile on one data set (``fit``, ``choosing``, ``validation``) with the loop's
-        segments and nuisance; every (model, data set) pair is simulated once."""
+        segments and nuisance, as a true prediction (state-built terms from the model's simulated
+        states: :func:`identify.refine.evaluation.predict`); every (model, data set) pair is simulated once."""
         key = (p.to_toml(), data)
         if key not in self._cache:
             self.evaluations_ += 1
-            self._cache[key] = evaluate(p, prepare_runs(p, self._data[data]), self.zero_shifts, self.segment_)
+            self._cache[key] = predict(p, prepare_runs(p, self._data[data]), self.zero_shifts, self.segment_)
         return self._cache[key]
 
     def _errors(self, p: Profile) -> dict:
@@ -267,25 +264,24 @@ class Refine:
     def _score(self, p: Profile, excluded: set[str]) -> list[dict]:
         """Score statistic, threshold and p-value of every candidate at the fitted profile ``p``.
 
-        Two noise models, hence two families of tests, Šidák-corrected together: the *residual*
-        model (fitted to the residuals, lines and trends removed) tests every candidate; it is
-        valid under the null, but where one effect dominates the residual the model learns the
-        effect as colour (a 0.1 s delay in white noise: score 5477 in the white metric, 4 in this
-        one). So the ``TOP_ALTERNATIVE`` candidates that explain most of the residual's energy are tested once more in the metric of an *alternative* model, fitted to the
-        residuals with that candidate's own least-squares fit removed (one or two columns, which
-        leave the noise estimate nearly unbiased under the null; removing every candidate's columns
-        at once biased it so that smooth terms scored up to 75 for a threshold of 22)."""
-        runs = prepare_runs(p, self._raw)
+        Two noise models, two families of tests, Šidák-corrected together: the *residual* model
+        (lines and trends removed) tests every candidate, but learns an effect that dominates the
+        residual as colour (a 0.1 s delay: score 5477 white, 4 in its metric); so the
+        ``TOP_ALTERNATIVE`` candidates that explain most of the residual's energy are tested again
+        in an *alternative* model fitted with that candidate's own least-squares fit removed (all
+        candidates' columns removed at once biased it: smooth terms scored 75 for a threshold of 22)."""
         ev = self._eval(p)
-        cands = self._candidates(p, runs, ev, excluded)
+        cands = self._candidates(p, ev.runs, ev, excluded)
         ext_p, linear = extend_all(p, [c for c in cands if c.linear])
-        ext_runs = runs
+        ext_runs = ev.runs
         for c in linear:
             ext_runs = c.runs(ext_runs)
+        # a state-built term's column from the simulated states (at the null value, the model's own):
+        # an instrumental-variable score, uncorrelated with the gusts the measured states carry
+        ext_runs = simulated_terms(ext_p, ext_runs, ev, state_terms(ext_p), self.segment_)
         evj = evaluate(ext_p, ext_runs, self.zero_shifts, self.segment_, jacobian=True)
         self.evaluations_ += 1
-        # per run (N_r, ny, columns): the model's parameters, then every candidate's columns (the
-        # output sensitivities of the extended profile, then those the other candidates supply)
+        # per run (N_r, ny, columns): the model's parameters, then every candidate's columns
         own = [(c, c.score_columns(self, p)) for c in cands if not c.linear]
         dy = [np.concatenate([d] + [cols[r] for _, cols in own], axis=2) for r, d in enumerate(evj.dy)]
         nb = len(p.free)
@@ -309,8 +305,7 @@ class Refine:
                 alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
                                      self.dt, self.f_min)
                 tested += self._tests(alt, design, [(c, cols)], "alternative")
-        # Šidák over every elementary hypothesis of both families: a periodic candidate is the best
-        # of n_tests frequencies, so it is compared with the same per-hypothesis threshold as the others
+        # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
         n_tests = sum(t["candidate"].n_tests for t in tested)
         level = 1.0 - (1.0 - self.alpha) ** (1.0 / max(n_tests, 1))
         best: dict[str, dict] = {}
@@ -356,9 +351,14 @@ class Refine:
         return input_response(p, prepare_runs(p, self._raw), self.segment_, input_name, transform)
 
     def refit(self, ext_p: Profile, p: Profile, bounds: bool = True) -> tuple[Profile, IdentificationResult]:
-        """ML re-fit of an extended profile: the fitted profile (named as ``p``) and the result."""
-        result = self._estimate(ext_p, prepare_runs(ext_p, self._raw), bounds=bounds)
-        return _keep_meta(result.identified_profile(p.name), ext_p), result
+        """ML re-fit of an extended profile: the fitted profile (named as ``p``) and the result.
+        State-built terms come from the simulated states of the model being fitted (:func:`settle`)."""
+        def fit(prof: Profile):
+            runs = self._eval(prof).runs if state_terms(prof) else prepare_runs(prof, self._raw)
+            result = self._estimate(prof, runs, bounds=bounds)
+            return _keep_meta(result.identified_profile(p.name), ext_p), result
+
+        return settle(fit, ext_p) if state_terms(ext_p) else fit(ext_p)
 
     def residuals(self, p: Profile) -> list[np.ndarray]:
         return self._eval(p).residuals
@@ -380,6 +380,7 @@ class Refine:
                       why=cand.spec.get("why", ""), metric=best["metric"])
         try:
             options = cand.estimate(self, p, noise, best["hint"])
+            [self._eval(o[0], d) for o in options for d in self._data if self._data[d]]  # may diverge
         except PseudostepError as exc:  # e.g. an equation-error method and an output-only effect
             step = Step(cand.kind, cand.target, {}, lr_statistic=float("nan"), error_before=before,
                         error_after=before, accepted=False, reason=f"could not be estimated: {exc}", **common)
