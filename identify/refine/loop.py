@@ -294,7 +294,7 @@ class Refine:
         sigma = np.sqrt(np.mean(np.vstack(ev.residuals) ** 2, axis=0))
         sigma = np.where(sigma > 0, sigma, 1.0)
         design = (ev.residuals, dy, evj.nuisance, nb)
-        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min) if self.coloured else NoiseModel.white(sigma)
+        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min, segment=self.segment_) if self.coloured else NoiseModel.white(sigma)
         self.noise_orders_.append(null.order)
         self._say(f"  {len(cands)} candidates, residual noise model order {null.order}")
         tested = self._tests(null, design, groups, "residual")
@@ -303,7 +303,7 @@ class Refine:
             for c, cols in [groups[i] for i in np.argsort(energy)[::-1][:TOP_ALTERNATIVE]]:
                 keep = list(range(nb)) + [nb + k for k in cols]
                 alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
-                                     self.dt, self.f_min)
+                                     self.dt, self.f_min, segment=self.segment_)
                 tested += self._tests(alt, design, [(c, cols)], "alternative")
         # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
         n_tests = sum(t["candidate"].n_tests for t in tested)

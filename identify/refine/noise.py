@@ -23,13 +23,24 @@ line are regressed out of its residual: a drift or a vibration is structure a ca
 explain, and a noise model that absorbed it (an AR pole pair sitting on the line) would hide it.
 The line is found against the spectrum's running median (:func:`line_frequency`), so a broad
 turbulence hump is not mistaken for it.
+
+With multiple shooting (an unstable model's runs cut into segments, each from its own fitted
+initial state) the residual restarts at every segment: the gust response accumulated over one
+segment drops to nothing at the next. A recursion run across that boundary turns the jump into a
+whitened spike, in the residual and in every sensitivity column alike (they restart there too), and
+the correlated spikes inflate every statistic. The model is therefore fitted and applied segment by
+segment (``segment`` s, cut as :func:`identify.estimators.output_error.cut` cuts the runs), the
+first ``p`` samples of each segment dropped.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
+
+from ..estimators.output_error import cut
 
 MAX_ORDER = 25  # lags: enough for turbulence through slow modes at 100 Hz (AR poles carry the memory)
 LINE_WIDTH = 15  # bins either side for the running median that is the smooth background spectrum
@@ -38,11 +49,14 @@ LINE_WIDTH = 15  # bins either side for the running median that is the smooth ba
 @dataclass
 class NoiseModel:
     """``sigma`` (ny,) residual RMS, ``A`` (p, ny, ny) autoregressive matrices, ``L_inv`` (ny, ny)
-    the inverse Cholesky factor of the innovation covariance (of the scaled residual)."""
+    the inverse Cholesky factor of the innovation covariance (of the scaled residual); ``segment``
+    (s, ``inf``: whole runs) and ``dt`` (s) the multiple-shooting segments it restarts at."""
 
     sigma: np.ndarray
     A: np.ndarray
     L_inv: np.ndarray
+    segment: float = math.inf
+    dt: float = 1.0
 
     @property
     def order(self) -> int:
@@ -57,7 +71,8 @@ class NoiseModel:
 
     @classmethod
     def fit(cls, residuals: list[np.ndarray], dt: float, f_min: float = 0.5,
-            max_order: int = MAX_ORDER, order: int | None = None, deterministic: bool = True) -> "NoiseModel":
+            max_order: int = MAX_ORDER, order: int | None = None, deterministic: bool = True,
+            segment: float = math.inf) -> "NoiseModel":
         """Fit the VAR model to residuals (list of (N_r, ny) arrays, one per run); ``order`` fixes
         the order (else Akaike's choice up to ``max_order``); ``deterministic``: remove each run's
         mean, trend and the most prominent line first (for the score tests), else fit the
@@ -68,7 +83,8 @@ class NoiseModel:
         sigma = np.where(sigma > 0, sigma, 1.0)
         freqs = [line_frequency([e[:, j] for e in runs], dt, f_min) if deterministic else np.nan
                  for j in range(ny)]
-        clean = [_deterministic_removed(e / sigma, dt, freqs) if deterministic else e / sigma for e in runs]
+        clean = [piece for e in runs for piece in _segments(
+            _deterministic_removed(e / sigma, dt, freqs) if deterministic else e / sigma, dt, segment)]
         p_max = int(min(max_order, min(len(e) for e in clean) // 10,
                         max(sum(len(e) for e in clean) // (4 * ny) - 1, 0)))
         if order is not None:
@@ -93,12 +109,18 @@ class NoiseModel:
         innov = Y - X[:, :c] @ coef
         Sigma = innov.T @ innov / max(n - c, 1)
         Sigma += 1e-10 * np.trace(Sigma) / ny * np.eye(ny)  # exactly dependent outputs
-        return cls(sigma, A, np.linalg.inv(np.linalg.cholesky(Sigma)))
+        return cls(sigma, A, np.linalg.inv(np.linalg.cholesky(Sigma)), segment, dt)
 
     def whiten(self, x: np.ndarray) -> np.ndarray:
         """``W x`` of one run: ``x`` (N, ny, ...) residual or sensitivity columns, returns
-        (N - p, ny, ...) (the first ``p`` samples have no full past and are dropped)."""
+        (N - S p, ny, ...) (the first ``p`` samples of each of its S segments have no full past and
+        are dropped)."""
         x = np.asarray(x, float)
+        if math.isfinite(self.segment) and self.order:
+            return np.concatenate([self._whiten(piece) for piece in _segments(x, self.dt, self.segment)])
+        return self._whiten(x)
+
+    def _whiten(self, x: np.ndarray) -> np.ndarray:
         s = self.sigma.reshape((1, -1) + (1,) * (x.ndim - 2))
         z = x / s
         p, N = self.order, len(x)
@@ -135,6 +157,12 @@ def _on_outputs(M: np.ndarray, x: np.ndarray) -> np.ndarray:
 def _logdet(S: np.ndarray) -> float:
     sign, val = np.linalg.slogdet(S + 1e-12 * max(np.trace(S), 1e-300) * np.eye(len(S)))
     return float(val) if sign > 0 else np.inf
+
+
+def _segments(x: np.ndarray, dt: float, segment: float) -> list[np.ndarray]:
+    """One run's series cut into its multiple-shooting segments (as the output-error engine cuts it)."""
+    lay = cut([len(x)], dt, segment)
+    return [x[a:a + n] for a, n in zip(lay.start, lay.length)]
 
 
 def _deterministic_removed(e: np.ndarray, dt: float, freqs: list[float]) -> np.ndarray:

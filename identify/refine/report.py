@@ -4,7 +4,10 @@
 std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``error_before``,
 ``error_after``), the ``rejected`` candidates with the reason, top-level ``error_before`` /
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
-``diagnostics`` before and after, and ``final_profile`` (the refined model as profile TOML text).
+``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
+the declared model's fit and of the refined model against the fit runs' frequency responses, per
+input-output pair and the mean: :func:`identify.frequency.cost_report`) and ``final_profile`` (the
+refined model as profile TOML text).
 """
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..estimators.result import _jsonable
+from ..frequency import cost_report, format_cost
 from .diagnostics import spectral_peak
 from .loop import Refine
 
@@ -40,6 +44,7 @@ def to_dict(r: Refine) -> dict:
         "error_before": r.error_before_,
         "error_after": r.error_after_,
         "diagnostics": r.diagnostics_,
+        "frequency_cost_J": cost_report(r._raw, {"before": r.initial_result_.model, "after": r.result_.model})[1],
         "last_scores": [{"effect": t["candidate"].kind, "target": t["candidate"].target,
                          "statistic": t["statistic"], "threshold": t["threshold"], "dof": t["dof"],
                          "metric": t["metric"]}
@@ -128,6 +133,10 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
               "RMS error per output; `overall` is the RMS over outputs of RMS / std of the measured output; "
               "validation = the judging data.", ""]
     lines += _error_table(r.error_before_, r.error_after_, outputs)
+    cost = data["frequency_cost_J"]
+    lines += ["", "Frequency-domain fit cost J on the fit runs, before (the declared model's fit) and after:", "",
+              "```", cost["not_computed"] if "not_computed" in cost else
+              "\n".join(format_cost(c, f"model {label} refinement") for label, c in cost.items()), "```"]
     for i, s in enumerate(r.steps_, start=1):
         lines += ["", f"## Step {i}: {s.effect} on {s.target}", ""] + _evidence(s)
     if r.rejected_:

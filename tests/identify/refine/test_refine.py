@@ -255,6 +255,12 @@ def test_cli_refine_writes_json_report_and_profile(tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     assert "derivative on M_u" in report and "residuals.png" in report
     assert "## Final identification" in report and "| `M_u` |" in report  # the result's Markdown summary
+    # issue 13: the frequency-domain fit cost J before and after, every pair judged; both models fit
+    # (J well below 100: M_u acts at the phugoid, below the band where J is judged)
+    J = data["frequency_cost_J"]
+    assert set(J["before"]["pairs"]) == set(J["after"]["pairs"]) == {"u/eta", "q/eta", "theta/eta"}
+    assert all(0 < j < 100 for side in J.values() for j in side["pairs"].values())
+    assert "fit cost J of the model before refinement" in report and "model after refinement" in report
     assert (tmp_path / "out" / "residuals.png").stat().st_size > 1000
 
 
