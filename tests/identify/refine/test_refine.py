@@ -406,3 +406,41 @@ def test_nonlinear_library_has_physical_reasons_only():
     assert "M:q_absq" in terms and "own state" in terms["M:q_absq"]
     assert "X:u_x_eta" in terms and "M:eta_abseta" in terms
     assert not any(k in terms for k in ("X:q_absq", "M:u_absu", "X:q_x_theta", "M:u_x_q", "theta:q_sq"))
+
+
+def trimmed_turbulent_runs(seeds, trim: float = 0.05, strength: float = 4.0):
+    """The linear pitch truth flown about a trimmed elevator (``trim`` rad added to the steps), in
+    ``strength`` times TURBULENCE, with a filtered sensor: no nonlinear term in the truth."""
+    model, t = LinearModel(PROFILE), np.arange(N) * DT
+    runs = [coloured_noise(simulate_run(model, t, excitation(s) + trim, noise_fraction=0.01, seed=s,
+                                        process_noise=strength * TURBULENCE), s) for s in seeds]
+    return runs[:-1], runs[-1:]
+
+
+def test_no_nonlinear_term_from_turbulence_in_the_measured_states():
+    """A turbulent linear truth refined with the nonlinear library: nothing nonlinear is added, and
+    the score of the state-built q|q| stays chi-square(1)-like on average. Built from the *measured*
+    q (which carries the gust response; an odd function of it correlates with the residual) its
+    score averaged 6 and reached 10.4 of 11.7 on these realisations; from the model's simulated
+    states (an instrumental-variable score) it does not."""
+    scores = []
+    for i in range(3):
+        fit, val = trimmed_turbulent_runs((100 + 3 * i, 101 + 3 * i, 102 + 3 * i))
+        r = Refine(PROFILE, kinds=("derivative", "nonlinear")).fit(fit, validate=val)
+        assert not [s for s in r.steps_ if s.effect == "nonlinear"], [s.to_dict() for s in r.steps_]
+        scores.append(next(t["statistic"] for t in r.last_scores_ if t["candidate"].name == "nonlinear:M:q_absq"))
+    assert np.mean(scores) < 4.0, scores
+
+
+def test_state_built_terms_come_from_the_simulated_states():
+    """``predict`` builds q|q| from the model's simulated q (zero shift removed), never the measured q."""
+    from identify.refine.candidates import Nonlinear, prepare_runs
+    from identify.refine.evaluation import predict
+
+    fit, _ = nonlinear_runs(-20.0)
+    p = Nonlinear("M", "q_absq", ("q",), "absq").profile(PROFILE, {"M_q_absq": -20.0})
+    ev = predict(p, prepare_runs(p, fit))
+    for run, mod, b in zip(ev.runs, ev.modelled, ev.bias):
+        q_sim = mod[:, 1] - b[1]
+        assert np.allclose(run["q_absq"], q_sim * np.abs(q_sim), atol=1e-9 * np.max(q_sim ** 2))
+        assert not np.allclose(run["q_absq"], run["q"] * np.abs(run["q"]), atol=1e-3 * np.max(q_sim ** 2))
