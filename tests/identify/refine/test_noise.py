@@ -76,3 +76,24 @@ def test_line_found_against_a_broad_turbulence_hump():
     x = _turbulent_noise(rng, 2000, ny=1)[:, 0] * 20 + 0.5 * np.cos(2 * np.pi * 4.3 * t)
     assert abs(dg.dominant_frequency([x], DT, 0.5) - 4.3) > 0.5  # the plain maximum is not the line
     assert abs(line_frequency([x], DT, 0.5) - 4.3) < 0.02
+
+
+def test_portmanteau_whiteness_and_segment_restarts():
+    """The whiteness check that may raise the VAR order: white innovations pass, AR(1) ones do not;
+    a noise model with segments whitens each segment from its own start (jumps at a restart give
+    no spike)."""
+    from identify.refine.noise import portmanteau_p
+
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal((3000, 2))
+    assert portmanteau_p(white, [1500, 1500], 0, 30) > 0.01
+    ar = signal.lfilter([1.0], [1.0, -0.3], rng.standard_normal((3000, 2)), axis=0)
+    assert portmanteau_p(ar, [3000], 0, 30) < 1e-6
+    # a segmented residual: AR(1) restarted from zero every 100 samples (2 s), cut as the engine cuts
+    e = np.concatenate([signal.lfilter([1.0], [1.0, -0.95], rng.standard_normal((100, 1)), axis=0)
+                        for _ in range(20)])
+    seg = NoiseModel.fit([e], DT, segment=100 * DT, deterministic=False)
+    whole = NoiseModel.fit([e], DT, deterministic=False)
+    assert seg.order >= 1 and len(seg.whiten(e)) == len(e) - 20 * seg.order
+    # restarting at the segments the whitened series has no spikes; across them it does
+    assert np.max(np.abs(seg.whiten(e))) < 4.5 < np.max(np.abs(whole.whiten(e)))
