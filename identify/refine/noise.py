@@ -10,7 +10,7 @@ fitted to the residuals of the current model (a generalised-least-squares score 
 
 ``e_t`` (ny,) the residual of every output at sample t, ``sigma`` (ny,) their RMS (so the outputs'
 units do not matter), ``A_k`` (ny, ny) and the order ``p`` (0..``max_order``) chosen by Akaike's
-criterion on all runs pooled. A vector model, not one per output: turbulence drives every output
+criterion on all runs pooled, raised until the innovations pass a portmanteau whiteness test. A vector model, not one per output: turbulence drives every output
 at once, and the cross-correlations (q and theta, v and r) matter as much as each output's own.
 
 The whitening ``W x_t = L^-1 (x_t - sum_k A_k x_{t-k}) / sigma`` (first ``p`` samples of each run
