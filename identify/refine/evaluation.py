@@ -11,9 +11,10 @@ A pseudo-input built from the model's *states* (a nonlinear term such as q|q| or
 never taken from the measured channels here (:func:`predict`): those carry the gust response, and
 feeding measured outputs back as an input turns output error into partly equation error, which
 "predicts" turbulent data better although the truth is linear. It is computed from the model's own
-simulated states instead, iterated to the fixed point of the nonlinear recursion
-``x_{k+1} = Phi x_k + Gamma [u_k; f(x_k)]`` (simulate, build the term from the simulated states,
-re-simulate): a true prediction from the inputs and each segment's initial state.
+states instead, each segment simulated sample by sample by the nonlinear recursion
+``x_{k+1} = Phi x_k + Gamma [u_k; f(x_k, u_k)]``, alternating with the least-squares fit of the
+initial states and zero shifts until the term settles: a true prediction from the inputs and each
+segment's initial state.
 """
 from __future__ import annotations
 

@@ -294,7 +294,8 @@ class Refine:
         sigma = np.sqrt(np.mean(np.vstack(ev.residuals) ** 2, axis=0))
         sigma = np.where(sigma > 0, sigma, 1.0)
         design = (ev.residuals, dy, evj.nuisance, nb)
-        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min, segment=self.segment_) if self.coloured else NoiseModel.white(sigma)
+        null = NoiseModel.fit(ev.residuals, self.dt, self.f_min, segment=self.segment_) if self.coloured \
+            else NoiseModel.white(sigma)
         self.noise_orders_.append(null.order)
         self._say(f"  {len(cands)} candidates, residual noise model order {null.order}")
         tested = self._tests(null, design, groups, "residual")
