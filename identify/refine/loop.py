@@ -159,7 +159,7 @@ class Refine:
         result = est
         self.tries_ = 0
         self.last_scores_: list[dict] = []
-        self.noise_orders_: list[int] = []
+        self.noise_orders_, self.noise_white_ = [], []  # per step: the order, whether its innovations were white
         while True:
             if len(self.steps_) >= self.max_steps:
                 self.stopped_ = f"{self.max_steps} effects added (max_steps)"
@@ -296,8 +296,9 @@ class Refine:
         design = (ev.residuals, dy, evj.nuisance, nb)
         null = NoiseModel.fit(ev.residuals, self.dt, self.f_min, segment=self.segment_) if self.coloured \
             else NoiseModel.white(sigma)
-        self.noise_orders_.append(null.order)
-        self._say(f"  {len(cands)} candidates, residual noise model order {null.order}")
+        self.noise_orders_.append(null.order), self.noise_white_.append(null.white)
+        self._say(f"  {len(cands)} candidates, residual noise model order {null.order}"
+                  + ("" if null.white else " (its limit: the innovations are still not white)"))
         tested = self._tests(null, design, groups, "residual")
         if self.coloured:
             energy = dg.residual_energy(ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in groups], sigma)

@@ -10,8 +10,10 @@ fitted to the residuals of the current model (a generalised-least-squares score 
 
 ``e_t`` (ny,) the residual of every output at sample t, ``sigma`` (ny,) their RMS (so the outputs'
 units do not matter), ``A_k`` (ny, ny) and the order ``p`` (0..``max_order``) chosen by Akaike's
-criterion on all runs pooled, raised until the innovations pass a portmanteau whiteness test. A vector model, not one per output: turbulence drives every output
-at once, and the cross-correlations (q and theta, v and r) matter as much as each output's own.
+criterion on all runs pooled, raised until the innovations pass a portmanteau whiteness test
+(``white`` False if they still fail at ``max_order``). A vector model, not one per output:
+turbulence drives every output at once, and the cross-correlations (q and theta, v and r) matter
+as much as each output's own.
 
 The whitening ``W x_t = L^-1 (x_t - sum_k A_k x_{t-k}) / sigma`` (first ``p`` samples of each run
 dropped) is applied alike to the residual and to every sensitivity column; under the null
@@ -58,6 +60,7 @@ class NoiseModel:
     L_inv: np.ndarray
     segment: float = math.inf
     dt: float = 1.0
+    white: bool = True  # the innovations passed the portmanteau test (False: the order is at its limit)
 
     @property
     def order(self) -> int:
@@ -106,20 +109,21 @@ class NoiseModel:
                 best, best_aic = p, aic
         # Akaike weighs all frequencies alike; colour left at low frequencies, in a few bins, costs it
         # little but biases the tests of smooth columns (derivatives scored 2.1 on average on the
-        # turbulent BO 105 at its order 6, 1.1 at 12): raise the order until the innovations pass
+        # turbulent BO 105 at its order 6, 0.8 at 25): raise the order until the innovations pass
         # a portmanteau whiteness test
         lengths = [len(e) - p_max for e in clean]
         while True:
             c = ny * best
             coef = np.linalg.solve(G[:c, :c], H[:c]) if c else np.zeros((0, ny))
             innov = Y - X[:, :c] @ coef
-            if order is not None or best >= p_max or portmanteau_p(innov, lengths, best, PORTMANTEAU_LAGS) > WHITE_LEVEL:
+            white = order is not None or portmanteau_p(innov, lengths, best, PORTMANTEAU_LAGS) > WHITE_LEVEL
+            if white or best >= p_max:
                 break
             best += 1
         A = coef.T.reshape(ny, best, ny).transpose(1, 0, 2) if best else np.zeros((0, ny, ny))
         Sigma = innov.T @ innov / max(n - c, 1)
         Sigma += 1e-10 * np.trace(Sigma) / ny * np.eye(ny)  # exactly dependent outputs
-        return cls(sigma, A, np.linalg.inv(np.linalg.cholesky(Sigma)), segment, dt)
+        return cls(sigma, A, np.linalg.inv(np.linalg.cholesky(Sigma)), segment, dt, white)
 
     def whiten(self, x: np.ndarray) -> np.ndarray:
         """``W x`` of one run: ``x`` (N, ny, ...) residual or sensitivity columns, returns

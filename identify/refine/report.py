@@ -33,6 +33,7 @@ def to_dict(r: Refine) -> dict:
         "alpha": r.alpha,
         "coloured_tests": r.coloured,
         "noise_model_orders": r.noise_orders_,
+        "noise_model_white": r.noise_white_,
         "tries": r.tries_,
         "evaluations": r.evaluations_,
         "catalogue": list(r.kinds),
@@ -104,6 +105,8 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
     outputs = list(r.profile.outputs)
     d = data["data"]
     lines = [f"# Model refinement: {r.profile.name}", ""]
+    orders = ", ".join(f"{o}" + ("" if w else " (its limit: innovations still not white)")
+                       for o, w in zip(r.noise_orders_, r.noise_white_))
     lines += ["## Data and tests", "",
               f"- **fit** (estimation, score and likelihood-ratio tests): {_names(d['fit'])}",
               f"- **choosing** (every try's held-out check, the choice between a delay and a lag): "
@@ -114,7 +117,7 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
               f"level alpha = {r.alpha} per step (Šidák over all candidates tested)",
               "- tests " + ("valid for coloured residuals: score and likelihood-ratio statistics in the metric "
                             "of a vector autoregressive noise model of the residuals (orders per step: "
-                            f"{', '.join(map(str, r.noise_orders_)) or '-'})" if r.coloured else
+                            f"{orders or '-'})" if r.coloured else
                             "for white residuals (`coloured=False`)"),
               f"- {r.tries_} candidate(s) tried: {len(r.steps_)} accepted, {len(r.rejected_)} rejected; "
               f"stopped: {r.stopped_}", ""]
