@@ -293,5 +293,6 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["ModelFit", "evaluate", "predict", "settle", "state_terms", "simulated_terms", "errors", "neg_log_likelihood", "unexplained", "split_validation",
+__all__ = ["ModelFit", "evaluate", "predict", "settle", "state_terms", "simulated_terms", "errors",
+           "neg_log_likelihood", "unexplained", "split_validation",
            "input_response", "check_identifiable", "MIN_SAMPLES"]

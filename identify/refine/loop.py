@@ -382,7 +382,7 @@ class Refine:
                       why=cand.spec.get("why", ""), metric=best["metric"])
         try:
             options = cand.estimate(self, p, noise, best["hint"])
-            [self._eval(o[0], d) for o in options for d in self._data if self._data[d]]  # may diverge
+            [self._eval(o[0], d) for o in options for d in self._data if self._data[d]]  # a diverging term: refused
         except PseudostepError as exc:  # e.g. an equation-error method and an output-only effect
             step = Step(cand.kind, cand.target, {}, lr_statistic=float("nan"), error_before=before,
                         error_after=before, accepted=False, reason=f"could not be estimated: {exc}", **common)
