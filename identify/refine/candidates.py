@@ -49,6 +49,10 @@ from ..model.pseudo_inputs import delay_run
 from .noise import line_frequency
 
 
+# a calibrated sensor's scale-factor error is a few per cent; beyond this a fitted "scale factor" is
+# absorbing missing dynamics (seen: -50 % on a rotor-tilt output standing in for a control delay)
+MAX_SCALE_ERROR = 0.3
+
 @dataclass
 class Context:
     """What proposing candidates needs besides the profile: the fit ``runs`` (raw), their
@@ -115,6 +119,12 @@ class Candidate:
         params = {k: {"value": float(result.theta[result.names.index(k)]),
                       "std": float(result.std[result.names.index(k)])} for k in self.params}
         return [(new_p, result, params, self.kind)]
+
+    def implausible(self, params: dict[str, dict]) -> str:
+        """Why the fitted ``params`` ({name: {"value", "std"}}) are physically implausible for
+        this effect ('' if they are not): a statistically significant but unphysical value means
+        the effect stands in for another one the model lacks."""
+        return ""
 
     def to_dict(self) -> dict:
         return {"effect": self.kind, "target": self.target, "params": list(self.params),
@@ -390,6 +400,14 @@ class Scale(OutputTerm):
 
     def entry_term(self):
         return self.target
+
+    def implausible(self, params):
+        sf = params[self.params[0]]["value"]
+        if abs(sf) > MAX_SCALE_ERROR:
+            return (f"a scale-factor error of {100 * sf:+.0f} % on '{self.target}' is beyond any "
+                    f"calibration error (limit ±{100 * MAX_SCALE_ERROR:.0f} %): it stands in for an effect "
+                    f"the model lacks")
+        return ""
 
 
 def bias(output: str) -> Bias:

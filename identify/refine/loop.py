@@ -397,7 +397,7 @@ class Refine:
             wald = float(sum((v["value"] / v["std"]) ** 2 if v["std"] > 0 else math.inf for v in params.values()))
             step = Step(kind, cand.target, params, lr_statistic=float(lr), error_before=before,
                         error_after=self._errors(new_p), wald=wald, held_out=held, noise_order=noise.order, **common)
-            reason = self._refusal(step, stats.chi2.isf(best["level"], len(params)))
+            reason = cand.implausible(params) or self._refusal(step, stats.chi2.isf(best["level"], len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
                 reason = _held_out_refusal(held, "validation", "judging", len(params))

@@ -92,3 +92,11 @@ def test_catalogue_lists_every_structurally_zero_entry_once():
     assert kinds == {"derivative", "delay", "bias", "drift", "scale", "nonlinear", "periodic"}
     p = Derivative("M_u").profile(PROFILE)
     assert "M_u" not in [c.target for c in catalogue(p, ctx, kinds=("derivative",))]
+
+
+def test_a_scale_factor_beyond_any_calibration_error_is_implausible():
+    sf = scale("q")
+    assert sf.implausible({"sf_q": {"value": 0.15, "std": 0.02}}) == ""
+    reason = sf.implausible({"sf_q": {"value": -0.5, "std": 0.007}})
+    assert "-50 %" in reason and "'q'" in reason
+    assert Derivative("M_u").implausible({"M_u": {"value": 40.0, "std": 1.0}}) == ""
