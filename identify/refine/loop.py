@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,38 +48,10 @@ from .candidates import KINDS, Candidate, Context, catalogue, extend_all, prepar
 from .evaluation import (MIN_SAMPLES, ModelFit, check_identifiable, errors, evaluate, input_response, predict,
                          settle, simulated_terms, split_validation, state_terms, unexplained)
 from .noise import NoiseModel
+from .steps import Step
 
 SIMPLER_FIRST = math.log(100.0)  # a nonlinear term ranks as if its p-value were 100 times larger
 TOP_ALTERNATIVE = 3  # candidates also tested in the metric of their own alternative noise model
-
-
-# -- steps ----------------------------------------------------------------------------------------
-@dataclass
-class Step:
-    """One tried effect with its evidence; ``accepted`` or rejected with the ``reason``."""
-
-    effect: str
-    target: str
-    parameters: dict  # name -> {"value", "std"}
-    statistic: float
-    threshold: float
-    dof: int
-    p_value: float
-    lr_statistic: float
-    error_before: dict
-    error_after: dict
-    accepted: bool = True
-    reason: str = ""
-    tested: int = 0
-    runner_up: list = field(default_factory=list)
-    wald: float = float("nan")
-    why: str = ""  # the physical reason of a nonlinear term
-    noise_order: int = 0
-    metric: str = "residual"  # the noise model of the test: of the residual, or of the candidate's alternative
-    held_out: dict = field(default_factory=dict)  # data -> (cost before, cost after), noise-model metric
-
-    def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 class Refine:
@@ -149,6 +121,10 @@ class Refine:
         check_identifiable(self.profile, prepare_runs(self.profile, runs), self.zero_shifts, self.segment_)
         self._say(f"fitting the declared model ({len(self.profile.free)} parameters, {len(runs)} runs)")
         current, est = self.refit(self.profile, self.profile)
+        if self._segment(runs, current) < self.segment_:  # the fit diverges faster than the a priori
+            self.segment_ = self._segment(runs, current)
+            self._say(f"the fitted model diverges faster: segments cut to {self.segment_:.3g} s, re-fitting")
+            current, est = self.refit(self.profile, self.profile)
         self.initial_result_ = est
         self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.profile.outputs])
         self.steps_, self.rejected_ = [], []
@@ -219,12 +195,13 @@ class Refine:
                                       f"{MIN_SAMPLES} per run to test the residuals")
 
     # -- estimation and evaluation -------------------------------------------------------------
-    def _segment(self, runs: list[Run]) -> float:
+    def _segment(self, runs: list[Run], fitted: Profile | None = None) -> float:
         """One segmentation for every fit and test of the loop (ML's automatic choice for the
-        declared model unless given), so that costs before and after a step compare."""
+        declared model, or for its first ``fitted`` model where that diverges faster, unless
+        given), so that costs before and after a step compare."""
         seg = self.estimator_options.get("segment", self.segment)
         if seg is None:
-            seg = auto_segment(LinearModel(self.profile), max(r.duration for r in runs)) \
+            seg = auto_segment(LinearModel(fitted or self.profile), max(r.duration for r in runs)) \
                 if self.estimator is None and self.method == "ml" else math.inf
         return math.inf if seg == "plain" else float(seg)
 

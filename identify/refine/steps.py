@@ -1,0 +1,33 @@
+"""The evidence of one tried effect in the refinement loop (:class:`Step`), kept whether the effect
+was accepted or rejected, for the report and ``refine.json``."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+
+@dataclass
+class Step:
+    """One tried effect with its evidence; ``accepted`` or rejected with the ``reason``."""
+
+    effect: str
+    target: str
+    parameters: dict  # name -> {"value", "std"}
+    statistic: float
+    threshold: float
+    dof: int
+    p_value: float
+    lr_statistic: float
+    error_before: dict
+    error_after: dict
+    accepted: bool = True
+    reason: str = ""
+    tested: int = 0
+    runner_up: list = field(default_factory=list)
+    wald: float = float("nan")
+    why: str = ""  # the physical reason of a nonlinear term
+    noise_order: int = 0
+    metric: str = "residual"  # the noise model of the test: of the residual, or of the candidate's alternative
+    held_out: dict = field(default_factory=dict)  # data -> (cost before, cost after), noise-model metric
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
