@@ -27,7 +27,7 @@ from .quadform import Objective, StepBasis
 from .robust import design_set
 from .search import SearchResult, anneal, exhaustive  # noqa: F401 (re-exported)
 
-CRITERIA = ("mean", "worst", "nominal")
+CRITERIA = ("robust", "mean", "worst", "nominal")
 
 
 class SequenceDesign:
@@ -51,10 +51,11 @@ class SequenceDesign:
 
     def __init__(self, inputs="theta_s", duration: float = 7.0, record: float = 20.0, amplitude=None,
                  dt: float = 0.05, grid: float = 0.1, min_pulse: float = 0.3, max_changes: int | None = 12,
-                 allow_double_jumps: bool = True, criterion: str = "mean", models=None, model_labels=None,
+                 allow_double_jumps: bool = True, criterion: str = "robust", models=None, model_labels=None,
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
-                 progress=None, apriori_weight: float = 0.5):
+                 progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
+                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.25):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -63,7 +64,8 @@ class SequenceDesign:
         self.reference_amplitude = reference_amplitude
         self.exhaustive_limit, self.n_iter, self.restarts, self.seed = exhaustive_limit, n_iter, restarts, seed
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
-        self.apriori_weight = apriori_weight
+        self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
+        self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -107,16 +109,27 @@ class SequenceDesign:
         models, labels = self._model_set(model)
         basis = StepBasis(ev, self.grid, K, self.delay, models)
         offsets = None
-        if self.criterion == "worst":
+        if self.criterion in ("worst", "robust"):
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
             offsets = yardsticks(yard, self.duration, self.min_pulse)._yardsticks
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
+        starts, classic = self._starts(ev, basis)
+        floor = None
+        if self.criterion == "robust":
+            # the nominal optimum seeds the robust search; the floor keeps the robust design at least
+            # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
+            nominal = Objective(basis, "nominal", amplitude=amp)
+            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter)
+            starts = [best.levels] + starts
+            if self.nominal_margin is not None and amp is None:
+                floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
         objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets,
-                              weights=prior_weights(len(models), self.apriori_weight))
-        result, gap = self._search(objective, fly, self._starts(ev, basis))
+                              weights=prior_weights(len(models), self.apriori_weight),
+                              worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor)
+        result, gap = self._search(objective, fly, starts)
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
             raise DesignError("the designed sequence moves no output that has a response limit")
@@ -150,23 +163,25 @@ class SequenceDesign:
         if self.models is not None:
             models = list(self.models)
             return models, list(self.model_labels or [f"model {i}" for i in range(len(models))])
-        return design_set(model, seed=self.seed + 1)
+        return design_set(model, seed=self.seed + 1, draws=self.draws, extreme_draws=self.extreme_draws)
 
-    def _starts(self, ev: Evaluator, basis: StepBasis) -> list[np.ndarray]:
+    def _starts(self, ev: Evaluator, basis: StepBasis) -> tuple[list[np.ndarray], list[float]]:
         """The best-width 3211 and doublet (tuned on the a priori at equal peak response) rounded
-        onto the grid: the search starts from the classic inputs, so it cannot end below them."""
-        out = []
+        onto the grid: the search starts from the classic inputs, so it cannot end below them.
+        Also their equal-peak log dets on the a priori (at their tuned widths, off the grid)."""
+        out, lds = [], []
         for factory, pulses, parts in ((m3211, 7, (3, 2, 1, 1)), (doublet, 2, (1, 1))):
             widths = _grid(self.min_pulse, self.duration / pulses, self.dt)
             if not widths.size:
                 continue
-            _, w, _ = _tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)
+            _, w, ld = _tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)
+            lds.append(ld)
             ws = [float(x) for x in str(w).split("/")]
             ws = ws * len(self.inputs) if len(ws) == 1 else ws
             out.append(np.concatenate([_on_grid(parts, wa, basis.width, basis.n_steps) for wa in ws]))
-        return out
+        return out, lds
 
-    def _search(self, objective: Objective, fly: Flyability, starts) -> tuple[SearchResult, float | None]:
+    def _search(self, objective: Objective, fly: Flyability, starts, n_iter=None) -> tuple[SearchResult, float | None]:
         """Exhaustive when the (single-axis) sequence space is small (gap 0), annealing otherwise."""
         K = objective.basis.n_steps
         limit = self.exhaustive_limit // max(objective.n_models, 1)
@@ -176,7 +191,7 @@ class SequenceDesign:
                               f"{self.max_changes} leave none in {self.duration:g} s")
         if n is not None:
             return exhaustive(objective, fly, limit), 0.0
-        return anneal(objective, fly, self.n_iter, self.restarts, self.seed, starts, self.progress), None
+        return anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress), None
 
     def summary(self) -> str:
         """The design's levels, amplitude and peak responses against the limits."""

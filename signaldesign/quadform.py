@@ -126,12 +126,16 @@ class Objective:
     """
 
     PENALTY = 10.0  # per unit of 2 p log(A r_0) beyond the limit
+    FLOOR_PENALTY = 20.0  # per unit of a priori log det below the nominal floor
     INFEASIBLE = 1e4  # offset of any sequence beyond a limit at a fixed amplitude
 
     def __init__(self, basis: StepBasis, criterion: str = "mean", inv_limits=None, amplitude: float | None = None,
-                 offsets=None, weights=None):
-        if criterion not in ("nominal", "worst", "mean"):
-            raise DesignError(f"unknown criterion '{criterion}' (nominal, worst, mean)")
+                 offsets=None, weights=None, worst_weight: float = 1.0, softness: float = 0.0,
+                 nominal_floor: float | None = None):
+        if criterion not in ("nominal", "worst", "mean", "robust"):
+            raise DesignError(f"unknown criterion '{criterion}' (robust, mean, worst, nominal)")
+        self.worst_weight, self.softness = float(worst_weight), float(softness)
+        self.nominal_floor = nominal_floor
         self.basis, self.criterion, self.amplitude = basis, criterion, amplitude
         self.n_models = 1 if criterion == "nominal" else len(basis.models)
         self.G = basis.G[:self.n_models]
@@ -218,7 +222,22 @@ class Objective:
             return float(per_model[0])
         if self.criterion == "worst":
             return float(per_model.min())
+        if self.criterion == "robust":
+            return self._robust(per_model)
         return float(per_model @ self.weights) if np.all(np.isfinite(per_model)) else -np.inf
+
+    def _robust(self, rel) -> float:
+        """weights . rel + worst_weight * soft minimum of rel (log-sum-exp at ``softness`` log-det
+        units; the plain minimum at 0)."""
+        if not np.all(np.isfinite(rel)):
+            return -np.inf
+        lo = float(rel.min())
+        if self.softness > 0:
+            lo -= self.softness * float(np.log(np.exp(-(rel - lo) / self.softness).sum()))
+        value = float(rel @ self.weights) + self.worst_weight * lo
+        if self.nominal_floor is not None:  # below the floor on the a priori: steeply worse
+            value -= self.FLOOR_PENALTY * max(0.0, self.nominal_floor - float(rel[0]))
+        return value
 
     def __call__(self, levels) -> float:
         levels = np.asarray(levels, dtype=float)
