@@ -25,7 +25,7 @@ from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
 from .quadform import Objective, StepBasis
 from .robust import design_set
-from .search import SearchResult, anneal, exhaustive  # noqa: F401 (re-exported)
+from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
 
 CRITERIA = ("robust", "mean", "worst", "nominal")
 
@@ -121,14 +121,15 @@ class SequenceDesign:
         if self.criterion == "robust":
             # the nominal optimum seeds the robust search; the floor keeps the robust design at least
             # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
-            nominal = Objective(basis, "nominal", amplitude=amp)
+            nominal = Objective(basis, "nominal", amplitude=amp, stride=2)
             best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter)
             starts = [best.levels] + starts
             if self.nominal_margin is not None and amp is None:
                 floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
         objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets,
                               weights=prior_weights(len(models), self.apriori_weight),
-                              worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor)
+                              worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
+                              stride=2)
         result, gap = self._search(objective, fly, starts)
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
@@ -190,8 +191,13 @@ class SequenceDesign:
             raise DesignError(f"no flyable sequence: min pulse {self.min_pulse:g} s and max changes "
                               f"{self.max_changes} leave none in {self.duration:g} s")
         if n is not None:
-            return exhaustive(objective, fly, limit), 0.0
-        return anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress), None
+            return exhaustive(objective.exact(), fly, limit), 0.0
+        # anneal on peaks read every other sample, then polish on every sample
+        found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress)
+        exact = objective.exact()
+        found.levels, found.objective = polish(exact, fly, found.levels)
+        found.evaluations += exact.evaluations
+        return found, None
 
     def summary(self) -> str:
         """The design's levels, amplitude and peak responses against the limits."""

@@ -177,6 +177,18 @@ def _feasible(levels, K, axes, fly) -> bool:
     return all(fly.feasible(levels[a * K:(a + 1) * K]) for a in range(axes))
 
 
+def polish(objective: Objective, fly: Flyability, levels) -> tuple[np.ndarray, float]:
+    """Local search from ``levels`` to a local optimum of ``objective`` (see :func:`_polish`)."""
+    K, axes = objective.basis.n_steps, len(objective.basis.inputs)
+    levels = [float(v) for v in levels]
+    objective.reset(levels)
+    value = objective(np.array(levels))
+    objective.commit()
+    levels, value = _polish(objective, levels, value, K, axes, fly.min_pulse, lambda c: _feasible(c, K, axes, fly))
+    objective.reset()
+    return np.array(levels), objective(np.array(levels))
+
+
 def _polish(score: Objective, levels, value, n_steps, axes, min_pulse, feasible):
     """Local search until no move improves the objective (first improvement): set any block of
     1..2 min_pulse steps of one axis to any level (which also moves any switch), flip the sign of
