@@ -38,15 +38,21 @@ class SequenceDesign:
     ``min_pulse`` s; at most ``max_changes`` level changes per axis. ``amplitude`` (rad, one per
     axis or one for all) fixes the deflection; None makes it an outcome. ``limits`` ({output: peak})
     default to the profile's ``[limits]``, else to the peaks of the best-width 3211 at
-    ``reference_amplitude``. ``criterion``: ``mean`` (expected log det over ``models``, default the
-    design set), ``worst`` (worst D-efficiency over them against each model's tuned 3211) or
-    ``nominal`` (the a priori only).
+    ``reference_amplitude``. ``criterion``: ``robust`` (default: over ``models``, default the
+    design set, each model's equal-peak log det relative to the 3211 tuned on it; maximise the
+    mean with ``apriori_weight`` on the a priori plus ``worst_weight`` times the minimum, a
+    log-sum-exp soft minimum at ``softness`` log-det units when positive, while keeping at least
+    ``nominal_margin`` times the D-efficiency of the best tuned 3211/doublet on the a priori when the
+    amplitude is free; the nominal optimum seeds the search), ``mean`` (expected log det only),
+    ``worst`` (worst relative D-efficiency only) or ``nominal`` (the a priori only). ``draws`` and
+    ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`).
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
     (SearchResult; ``trace`` the restarts' objectives), ``gap_`` (objective gap to an upper bound
     when one is computed: 0 for an exhaustive search, else None), ``evaluator_``, ``basis_``,
-    ``models_`` and ``model_labels_``, ``width_`` (the grid), ``seconds_``, ``cpu_seconds_``.
+    ``models_`` and ``model_labels_``, ``width_`` (the grid), ``seconds_``, ``cpu_seconds_``,
+    ``nominal_gain_`` (D-efficiency on the a priori against the best tuned 3211/doublet).
     """
 
     def __init__(self, inputs="theta_s", duration: float = 7.0, record: float = 20.0, amplitude=None,
@@ -147,6 +153,9 @@ class SequenceDesign:
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
         self.result_, self.gap_, self.basis_, self.evaluator_ = result, gap, basis, ev
+        # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
+        self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
+                                           - max(classic)) / ev.p)) if classic else float("nan")
         self.models_, self.model_labels_ = models, labels
         self.width_ = self.grid
         params = {"criterion": self.criterion, "method": result.method, "duration": self.duration,
@@ -216,6 +225,11 @@ class SequenceDesign:
         how = ("exhaustive: exact optimum, gap 0" if self.gap_ == 0 else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
                f"of each other in the criterion (no upper bound computed)")
+        floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
+                 and self.amplitude is None else "")
+        if floor and self.nominal_gain_ < self.nominal_margin * (1 - 1e-6):
+            floor += " NOT REACHED: the search found no flyable sequence above it"
+        lines.append(f"on the a priori: D-efficiency {self.nominal_gain_:.3f}x the best tuned 3211/doublet{floor}")
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         return "\n".join(lines)
