@@ -1,5 +1,6 @@
 """Searches over flyable sequences: exhaustive where the space is small, simulated annealing with
-restarts and a greedy local polish otherwise.
+restarts and a local search (:func:`polish`: blocks set, holds flipped and shifted, until no move
+improves) otherwise.
 
 The objective (see :mod:`signaldesign.quadform`) scores a candidate from the last accepted one by a
 low-rank update, so proposals change a few levels at a time: a block set to a level, a switch
