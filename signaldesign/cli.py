@@ -191,9 +191,11 @@ def build_parser() -> Parser:
     p.add_argument("--grid", type=float, default=0.1, help="level changes on this grid, s (default 0.1)")
     p.add_argument("--max-changes", type=int, default=12, help="most level changes per axis (default 12)")
     p.add_argument("--no-double-jumps", action="store_true", help="forbid +1 to -1 without a hold at 0")
-    p.add_argument("--criterion", choices=CRITERIA, default="mean",
-                   help="mean: expected log det over models around the a priori (default); worst: worst "
-                        "D-efficiency over them; nominal: the a priori only")
+    p.add_argument("--criterion", choices=CRITERIA, default="robust",
+                   help="robust (default): expected plus worst D-efficiency over models around the a priori "
+                        "(each against the 3211 tuned on it), at least 1.25x the best tuned 3211/doublet on "
+                        "the a priori; mean: expected log det only; worst: worst D-efficiency only; "
+                        "nominal: the a priori only")
     p.add_argument("--out", metavar="JSON", help="write the optimised signal here")
     p.add_argument("--plot", metavar="PNG", help="draw it against the best 3211 with spectra and the band")
     _record_options(p)

@@ -25,9 +25,9 @@ from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
 from .quadform import Objective, StepBasis
 from .robust import design_set
-from .search import SearchResult, anneal, exhaustive  # noqa: F401 (re-exported)
+from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
 
-CRITERIA = ("mean", "worst", "nominal")
+CRITERIA = ("robust", "mean", "worst", "nominal")
 
 
 class SequenceDesign:
@@ -38,23 +38,30 @@ class SequenceDesign:
     ``min_pulse`` s; at most ``max_changes`` level changes per axis. ``amplitude`` (rad, one per
     axis or one for all) fixes the deflection; None makes it an outcome. ``limits`` ({output: peak})
     default to the profile's ``[limits]``, else to the peaks of the best-width 3211 at
-    ``reference_amplitude``. ``criterion``: ``mean`` (expected log det over ``models``, default the
-    design set), ``worst`` (worst D-efficiency over them against each model's tuned 3211) or
-    ``nominal`` (the a priori only).
+    ``reference_amplitude``. ``criterion``: ``robust`` (default: over ``models``, default the
+    design set, each model's equal-peak log det relative to the 3211 tuned on it; maximise the
+    mean with ``apriori_weight`` on the a priori plus ``worst_weight`` times the minimum, a
+    log-sum-exp soft minimum at ``softness`` log-det units when positive, while keeping at least
+    ``nominal_margin`` times the D-efficiency of the best tuned 3211/doublet on the a priori when the
+    amplitude is free; the nominal optimum seeds the search), ``mean`` (expected log det only),
+    ``worst`` (worst relative D-efficiency only) or ``nominal`` (the a priori only). ``draws`` and
+    ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`).
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
     (SearchResult; ``trace`` the restarts' objectives), ``gap_`` (objective gap to an upper bound
     when one is computed: 0 for an exhaustive search, else None), ``evaluator_``, ``basis_``,
-    ``models_`` and ``model_labels_``, ``width_`` (the grid), ``seconds_``, ``cpu_seconds_``.
+    ``models_`` and ``model_labels_``, ``width_`` (the grid), ``seconds_``, ``cpu_seconds_``,
+    ``nominal_gain_`` (D-efficiency on the a priori against the best tuned 3211/doublet).
     """
 
     def __init__(self, inputs="theta_s", duration: float = 7.0, record: float = 20.0, amplitude=None,
                  dt: float = 0.05, grid: float = 0.1, min_pulse: float = 0.3, max_changes: int | None = 12,
-                 allow_double_jumps: bool = True, criterion: str = "mean", models=None, model_labels=None,
+                 allow_double_jumps: bool = True, criterion: str = "robust", models=None, model_labels=None,
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
-                 progress=None, apriori_weight: float = 0.5):
+                 progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
+                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.25):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -63,7 +70,8 @@ class SequenceDesign:
         self.reference_amplitude = reference_amplitude
         self.exhaustive_limit, self.n_iter, self.restarts, self.seed = exhaustive_limit, n_iter, restarts, seed
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
-        self.apriori_weight = apriori_weight
+        self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
+        self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -107,16 +115,28 @@ class SequenceDesign:
         models, labels = self._model_set(model)
         basis = StepBasis(ev, self.grid, K, self.delay, models)
         offsets = None
-        if self.criterion == "worst":
+        if self.criterion in ("worst", "robust"):
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
             offsets = yardsticks(yard, self.duration, self.min_pulse)._yardsticks
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
+        starts, classic = self._starts(ev, basis)
+        floor = None
+        if self.criterion == "robust":
+            # the nominal optimum seeds the robust search; the floor keeps the robust design at least
+            # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
+            nominal = Objective(basis, "nominal", amplitude=amp, stride=2)
+            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter)
+            starts = [best.levels] + starts
+            if self.nominal_margin is not None and amp is None:
+                floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
         objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets,
-                              weights=prior_weights(len(models), self.apriori_weight))
-        result, gap = self._search(objective, fly, self._starts(ev, basis))
+                              weights=prior_weights(len(models), self.apriori_weight),
+                              worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
+                              stride=2)
+        result, gap = self._search(objective, fly, starts)
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
             raise DesignError("the designed sequence moves no output that has a response limit")
@@ -133,6 +153,9 @@ class SequenceDesign:
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
         self.result_, self.gap_, self.basis_, self.evaluator_ = result, gap, basis, ev
+        # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
+        self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
+                                           - max(classic)) / ev.p)) if classic else float("nan")
         self.models_, self.model_labels_ = models, labels
         self.width_ = self.grid
         params = {"criterion": self.criterion, "method": result.method, "duration": self.duration,
@@ -150,23 +173,25 @@ class SequenceDesign:
         if self.models is not None:
             models = list(self.models)
             return models, list(self.model_labels or [f"model {i}" for i in range(len(models))])
-        return design_set(model, seed=self.seed + 1)
+        return design_set(model, seed=self.seed + 1, draws=self.draws, extreme_draws=self.extreme_draws)
 
-    def _starts(self, ev: Evaluator, basis: StepBasis) -> list[np.ndarray]:
+    def _starts(self, ev: Evaluator, basis: StepBasis) -> tuple[list[np.ndarray], list[float]]:
         """The best-width 3211 and doublet (tuned on the a priori at equal peak response) rounded
-        onto the grid: the search starts from the classic inputs, so it cannot end below them."""
-        out = []
+        onto the grid: the search starts from the classic inputs, so it cannot end below them.
+        Also their equal-peak log dets on the a priori (at their tuned widths, off the grid)."""
+        out, lds = [], []
         for factory, pulses, parts in ((m3211, 7, (3, 2, 1, 1)), (doublet, 2, (1, 1))):
             widths = _grid(self.min_pulse, self.duration / pulses, self.dt)
             if not widths.size:
                 continue
-            _, w, _ = _tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)
+            _, w, ld = _tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)
+            lds.append(ld)
             ws = [float(x) for x in str(w).split("/")]
             ws = ws * len(self.inputs) if len(ws) == 1 else ws
             out.append(np.concatenate([_on_grid(parts, wa, basis.width, basis.n_steps) for wa in ws]))
-        return out
+        return out, lds
 
-    def _search(self, objective: Objective, fly: Flyability, starts) -> tuple[SearchResult, float | None]:
+    def _search(self, objective: Objective, fly: Flyability, starts, n_iter=None) -> tuple[SearchResult, float | None]:
         """Exhaustive when the (single-axis) sequence space is small (gap 0), annealing otherwise."""
         K = objective.basis.n_steps
         limit = self.exhaustive_limit // max(objective.n_models, 1)
@@ -175,8 +200,13 @@ class SequenceDesign:
             raise DesignError(f"no flyable sequence: min pulse {self.min_pulse:g} s and max changes "
                               f"{self.max_changes} leave none in {self.duration:g} s")
         if n is not None:
-            return exhaustive(objective, fly, limit), 0.0
-        return anneal(objective, fly, self.n_iter, self.restarts, self.seed, starts, self.progress), None
+            return exhaustive(objective.exact(), fly, limit), 0.0
+        # anneal on peaks read every other sample, then polish on every sample
+        found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress)
+        exact = objective.exact()
+        found.levels, found.objective = polish(exact, fly, found.levels)
+        found.evaluations += exact.evaluations
+        return found, None
 
     def summary(self) -> str:
         """The design's levels, amplitude and peak responses against the limits."""
@@ -195,6 +225,11 @@ class SequenceDesign:
         how = ("exhaustive: exact optimum, gap 0" if self.gap_ == 0 else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
                f"of each other in the criterion (no upper bound computed)")
+        floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
+                 and self.amplitude is None else "")
+        if floor and self.nominal_gain_ < self.nominal_margin * (1 - 1e-6):
+            floor += " NOT REACHED: the search found no flyable sequence above it"
+        lines.append(f"on the a priori: D-efficiency {self.nominal_gain_:.3f}x the best tuned 3211/doublet{floor}")
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         return "\n".join(lines)

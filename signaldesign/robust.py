@@ -58,15 +58,18 @@ def model_set(model: LinearModel, frequencies=(0.6, 0.77, 1.0, 1.3, 1.6), draws:
     return models, labels
 
 
-def design_set(model: LinearModel, seed: int = 1, draws: int = 4) -> tuple[list[LinearModel], list[str]]:
-    """The designer's default robust set (5 + ``draws`` models): the a priori at frequency scales
-    0.6, 0.77, 1, 1.3, 1.6, and ``draws`` models with derivatives x U(0.7, 1.3) at log-uniform
-    random scales."""
+def design_set(model: LinearModel, seed: int = 1, draws: int = 2, extreme_draws: int = 3) -> tuple[list[LinearModel], list[str]]:
+    """The designer's default robust set (5 + ``draws`` + 2 ``extreme_draws`` models): the a priori
+    at frequency scales 0.6, 0.77, 1, 1.3, 1.6; ``extreme_draws`` models with derivatives
+    x U(0.7, 1.3) at each end of the frequency range (0.6 and 1.6, where the a priori error costs a
+    tuned input most) and ``draws`` more at log-uniform random scales. Drawn apart from the
+    :func:`evaluation_set` (another seed)."""
     models, labels = model_set(model)
     rng = np.random.default_rng(seed)
     lo, hi = np.log(FREQUENCY_RANGE)
-    for d in range(draws):
-        k = float(np.exp(rng.uniform(lo, hi)))
+    ks = [FREQUENCY_RANGE[0]] * extreme_draws + [FREQUENCY_RANGE[1]] * extreme_draws
+    for d in range(draws + 2 * extreme_draws):
+        k = ks[d] if d < len(ks) else float(np.exp(rng.uniform(lo, hi)))
         f = rng.uniform(1 - PERTURBATION, 1 + PERTURBATION, len(model.theta))
         base = frequency_scaled(model, k)
         models.append(base.with_theta(base.theta * f))

@@ -1,5 +1,6 @@
 """Searches over flyable sequences: exhaustive where the space is small, simulated annealing with
-restarts and a greedy local polish otherwise.
+restarts and a local search (:func:`polish`: blocks set, holds flipped and shifted, until no move
+improves) otherwise.
 
 The objective (see :mod:`signaldesign.quadform`) scores a candidate from the last accepted one by a
 low-rank update, so proposals change a few levels at a time: a block set to a level, a switch
@@ -177,27 +178,65 @@ def _feasible(levels, K, axes, fly) -> bool:
     return all(fly.feasible(levels[a * K:(a + 1) * K]) for a in range(axes))
 
 
+def polish(objective: Objective, fly: Flyability, levels) -> tuple[np.ndarray, float]:
+    """Local search from ``levels`` to a local optimum of ``objective`` (see :func:`_polish`)."""
+    K, axes = objective.basis.n_steps, len(objective.basis.inputs)
+    levels = [float(v) for v in levels]
+    objective.reset(levels)
+    value = objective(np.array(levels))
+    objective.commit()
+    levels, value = _polish(objective, levels, value, K, axes, fly.min_pulse, lambda c: _feasible(c, K, axes, fly))
+    objective.reset()
+    return np.array(levels), objective(np.array(levels))
+
+
 def _polish(score: Objective, levels, value, n_steps, axes, min_pulse, feasible):
-    """Greedy local search: set any block of 1..2 min_pulse steps of one axis to any level, and
-    shift any switch by one step, while that improves the objective."""
+    """Local search until no move improves the objective (first improvement): set any block of
+    1..2 min_pulse steps of one axis to any level (which also moves any switch), flip the sign of
+    any hold, and shift any hold by 1..min_pulse steps either way."""
     improved = True
     while improved:
         improved = False
-        for a in range(axes):
-            lo, hi = a * n_steps, (a + 1) * n_steps
-            for start in range(lo, hi):
-                for length in range(1, 2 * min_pulse + 1):
-                    for v in LEVELS:
-                        stop = min(start + length, hi)
-                        if all(levels[k] == v for k in range(start, stop)):
-                            continue
-                        cand = list(levels)
-                        cand[start:stop] = [float(v)] * (stop - start)
-                        if feasible(cand):
-                            f = score(cand)
-                            if f > value + 1e-12:
-                                levels, value, improved = cand, f, True
-                                score.commit()
+        for cand in _neighbours(levels, n_steps, axes, min_pulse):
+            if feasible(cand):
+                f = score(cand)
+                if f > value + 1e-12:
+                    levels, value, improved = cand, f, True
+                    score.commit()
+                    break
     return levels, value
 
 
+def _neighbours(levels, n_steps, axes, min_pulse):
+    """The polish's moves from ``levels`` (a generator: the caller stops at the first improvement)."""
+    for a in range(axes):
+        lo, hi = a * n_steps, (a + 1) * n_steps
+        for start in range(lo, hi):
+            for length in range(1, 2 * min_pulse + 1):
+                stop = min(start + length, hi)
+                for v in LEVELS:
+                    if any(levels[k] != v for k in range(start, stop)):
+                        cand = list(levels)
+                        cand[start:stop] = [float(v)] * (stop - start)
+                        yield cand
+        runs, k = [], lo
+        while k < hi:
+            e = k
+            while e < hi and levels[e] == levels[k]:
+                e += 1
+            runs.append((k, e))
+            k = e
+        for s, e in runs:
+            if levels[s] == 0:
+                continue
+            cand = list(levels)
+            cand[s:e] = [-levels[s]] * (e - s)
+            yield cand
+            for shift in range(1, min_pulse + 1):
+                for d in (shift, -shift):
+                    if not (lo <= s + d and e + d <= hi):
+                        continue
+                    cand = list(levels)
+                    cand[s:e] = [0.0] * (e - s)
+                    cand[s + d:e + d] = [levels[s]] * (e - s)
+                    yield cand
