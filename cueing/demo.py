@@ -235,9 +235,18 @@ def _refined_parameters(refiner: Refine, truth: LinearModel) -> list[str]:
     """Average error of the aircraft's derivatives before and after refinement (ML both)."""
     def err(result):
         est = dict(zip(result.names, result.theta))
-        return _avg_err(np.array([est[n] for n in truth.names]), truth.theta)
+        # a lag on an input moves that input's derivatives onto its lag state (X_u -> X_u_lag)
+        return _avg_err(np.array([est.get(n, est.get(f"{n}_lag")) for n in truth.names]), truth.theta)
     return ["", f"Average relative error of the {len(truth.names)} derivatives against the truth (ML): "
                 f"declared model {err(refiner.initial_result_)}, refined model {err(refiner.result_)}."]
+
+
+def _lag_as_delay(step) -> str:
+    """A lag's time constant 1/k ± its standard error (delta method), the delay it stands for."""
+    if step.effect != "lag":
+        return ""
+    (k,) = step.parameters.values()
+    return f"; time constant 1/k = {1 / k['value']:.4g} ± {k['std'] / k['value'] ** 2:.2g} s"
 
 
 def _refine_section(refiner: Refine, truth: LinearModel, out: Path) -> list[str]:
@@ -247,11 +256,13 @@ def _refine_section(refiner: Refine, truth: LinearModel, out: Path) -> list[str]
     for i, s in enumerate(refiner.steps_, start=1):
         params = ", ".join(f"`{k}` = {v['value']:.4g} ± {v['std']:.2g}" for k, v in s.parameters.items())
         lines.append(f"- step {i}: **{s.effect}** on `{s.target}`: {params} "
-                     f"(score {s.statistic:.4g} > threshold {s.threshold:.4g})")
+                     f"(score {s.statistic:.4g} > threshold {s.threshold:.4g})" + _lag_as_delay(s))
     for s in refiner.rejected_:
         lines.append(f"- rejected: {s.effect} on `{s.target}`: {s.reason}")
     lines += ["", f"The truth's delay is {DELAY:g} s on each cyclic (estimates within 3 standard errors of it "
-                  "confirm the step)."]
+                  "confirm the step). Where the signals excite only frequencies well below 1/delay, a delay "
+                  "and a first-order lag of the same time constant are indistinguishable (phase ωτ against "
+                  "atan ωτ); refine then keeps the likelier, and a lag's time constant 1/k stands for the delay."]
     lines += _refined_parameters(refiner, truth)
     lines += ["",
               "| error (normalised RMS, all outputs) | before | after |", "| --- | --- | --- |"]
