@@ -1,7 +1,7 @@
 """``python -m identify``: inspect models and identify them from runs."""
 from __future__ import annotations
 
-from .cliutil import Parser, run
+from .cliutil import Parser, add_threads_option, output_dir, output_file, positive_int, run
 from .errors import EstimationError
 from .model import LinearModel, format_modes, residualize
 from .profile import load_profile
@@ -27,6 +27,10 @@ def _print_model(model: LinearModel) -> None:
           f"\n  inputs:  {', '.join(f'{s} [{u}]' for s, u in p.inputs.items())}"
           f"\n  outputs: {', '.join(p.outputs)}"
           f"\n  {len(p.free)} free, {len(p.fixed)} fixed parameters")
+    for kind, values in (("free", p.free), ("fixed", p.fixed)):
+        if values:
+            print(f"\n{kind} parameters:")
+            print("\n".join(f"  {name:<16}{value:13.6g}" for name, value in values.items()))
     print("\nmodes:")
     print(format_modes(model.modes()))
 
@@ -37,10 +41,12 @@ def build_parser() -> Parser:
     p = sub.add_parser("model", help="print a profile's modes (frequency, damping)")
     p.add_argument("profile", help="profile TOML path or bundled profile name")
     p.add_argument("--reduce", metavar="STATES", help="comma-separated states to make instantaneous")
-    p.add_argument("--save-reduced", metavar="TOML", help="write the reduced profile here")
+    p.add_argument("--save-reduced", metavar="TOML", type=output_file, help="write the reduced profile here")
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
+    for p in sub.choices.values():
+        add_threads_option(p)
     return parser
 
 
@@ -52,6 +58,8 @@ def cmd_estimate(args) -> int:
     from .plots import save_plots
     from .preprocess import slice_run, smooth
 
+    if args.max_iter is not None and args.method == "ls":
+        raise EstimationError("--max-iter applies to the iterative methods (iv, ml); ls is one solution")
     profile = load_profile(args.profile)
     cmap = load_channel_map(args.channel_map) if args.channel_map else None
     runs = []
@@ -66,17 +74,18 @@ def cmd_estimate(args) -> int:
     def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
         print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
 
+    iterations = {} if args.max_iter is None else {"max_iter": args.max_iter}
     if args.method == "ml":
         from .ml import ML
-        est = ML(profile, progress=show)
+        est = ML(profile, progress=show, **iterations)
     elif args.method == "iv":
         from .equation_error import IV
-        est = IV(profile, progress=show, diff_cutoff_hz=args.diff_cutoff, max_iter=args.max_iter)
+        est = IV(profile, progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations)
     else:
         from .equation_error import LS
         est = LS(profile, diff_cutoff_hz=args.diff_cutoff)
     result = est.fit(runs).result_
-    print(result.summary())
+    print(result.summary(), flush=True)  # on screen before anything is written
     out = result.save(args.out)
     plots = save_plots(result, out)
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
@@ -88,13 +97,14 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("runs", nargs="+", help="run files (.csv, or .mat with --channel-map)")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
     p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--smooth", type=float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=float, metavar="HZ",
                    help="cut-off of the smoothed differentiator for states without measured derivatives")
     p.add_argument("--t-start", type=float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=float, metavar="S", help="use samples up to this time")
-    p.add_argument("--max-iter", type=int, default=30, help="IV iterations at most (default 30)")
+    p.add_argument("--max-iter", type=positive_int, metavar="N",
+                   help="iterations at most for iv (default 30) and ml (default 50)")
     p.add_argument("--channel-map", metavar="JSON",
                    help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
                         '"matrix": ..., "dt": ...} as a file or inline JSON')
@@ -115,7 +125,6 @@ def cmd_refine(args) -> int:
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max)
     refiner.fit([read_run(f) for f in args.runs], validate=[read_run(f) for f in args.validate or []])
-    out = write(refiner, args.out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
@@ -125,7 +134,8 @@ def cmd_refine(args) -> int:
         print(f"rejected: {s.effect} on {s.target}: {s.reason}")
     for where in refiner.error_before_:
         print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
-              f"{refiner.error_after_[where]['overall']:.4g}")
+              f"{refiner.error_after_[where]['overall']:.4g}", flush=True)
+    out = write(refiner, args.out)  # after the screen output: a failing write loses nothing shown
     print(f"written to {out}: refine.json, report.md, final_profile.toml")
     return 0
 
@@ -136,7 +146,7 @@ def _add_refine_parser(sub) -> None:
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
     p.add_argument("--method", choices=("ml", "ls", "iv"), default="ml", help="estimator (default ml)")
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
                    "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")

@@ -23,3 +23,8 @@ class SimulationError(PseudostepError):
 
 class EstimationError(PseudostepError):
     """An estimator cannot proceed (unidentifiable parameters, too few samples, divergence)."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative estimator stopped before convergence: its estimates are not final. The result
+    says so too (``info["converged"]`` False, the reason in ``info["stop"]`` and ``summary()``)."""
