@@ -1,7 +1,8 @@
 """``python -m identify``: inspect models and identify them from runs."""
 from __future__ import annotations
 
-from .cliutil import Parser, add_threads_option, output_dir, output_file, positive_int, run
+from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
+                      output_dir, output_file, positive_float, positive_int, run)
 from .errors import EstimationError
 from .model import LinearModel, format_modes, residualize
 from .profile import load_profile
@@ -98,11 +99,11 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
     p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
-    p.add_argument("--smooth", type=float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
-    p.add_argument("--diff-cutoff", type=float, metavar="HZ",
+    p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
+    p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
                    help="cut-off of the smoothed differentiator for states without measured derivatives")
-    p.add_argument("--t-start", type=float, metavar="S", help="use samples from this time on")
-    p.add_argument("--t-end", type=float, metavar="S", help="use samples up to this time")
+    p.add_argument("--t-start", type=finite_float, metavar="S", help="use samples from this time on")
+    p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
                    help="iterations at most for iv (default 30) and ml (default 50)")
     p.add_argument("--channel-map", metavar="JSON",
@@ -149,14 +150,14 @@ def _add_refine_parser(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
                    "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")
-    p.add_argument("--max-steps", type=int, default=6, help="effects added at most (default 6)")
+    p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    p.add_argument("--max-steps", type=nonnegative_int, default=6, help="effects added at most (default 6)")
     p.add_argument("--no-zero-shifts", action="store_true",
                    help="do not estimate per-run output zero shifts (then a common bias is a candidate)")
-    p.add_argument("--frequency", type=float, action="append", metavar="HZ",
+    p.add_argument("--frequency", type=positive_float, action="append", metavar="HZ",
                    help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
-    p.add_argument("--f-min", type=float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
-    p.add_argument("--tau-max", type=float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
+    p.add_argument("--f-min", type=nonnegative_float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
+    p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
     p.set_defaults(func=cmd_refine)
 
 

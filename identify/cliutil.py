@@ -61,6 +61,55 @@ def output_file(text: str) -> str:
     return text
 
 
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    return _number(text)
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def nonnegative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {text}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse type: a number within 0..1."""
+    value = _number(text)
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be within 0..1, got {text}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {value}")
+    return value
+
+
 def positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -80,12 +129,17 @@ class Parser(argparse.ArgumentParser):
     """ArgumentParser whose usage errors are one line on stderr and exit status 2."""
 
     def error(self, message):  # noqa: D401 - argparse API
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+        # the program's name alone, as for every other error line ("cueing: error: ...")
+        self.exit(EXIT_BAD_INPUT, f"{self.prog.split()[0]}: error: {' '.join(message.split())}\n")
 
 
 def run(parser: argparse.ArgumentParser, argv=None) -> int:
-    """Parse ``argv`` and call ``args.func(args)``; map input errors to one line, status 2."""
-    args = parser.parse_args(argv)
+    """Parse ``argv`` and call ``args.func(args)``; map input errors to one line, status 2.
+    Returns the exit status (also for usage errors and ``--help``, which argparse exits on)."""
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
     if not hasattr(args, "func"):
         parser.print_help()
         return EXIT_BAD_INPUT
@@ -95,6 +149,10 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
             return args.func(args) or 0
     except PseudostepError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except UnicodeDecodeError as exc:  # a binary file where text was expected (a reader that did not say which)
+        print(f"{parser.prog}: error: an input file is not UTF-8 text ({exc.reason} at byte {exc.start})",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:  # an output that cannot be written: a bad path, not a bug
         where = f"{exc.filename}: " if exc.filename else ""

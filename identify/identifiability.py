@@ -23,8 +23,8 @@ import numpy as np
 CORRELATION_LIMIT = 0.9
 REL_STD_LIMIT = 0.5
 MODE_SIGMAS = 2.0
-ADVICE = ("design an input that excites it: `signaldesign band` (the band the mode needs) and "
-          "`signaldesign design` (a sequence with information there)")
+ADVICE = ("fly an input that excites what is flagged: `signaldesign band` gives the frequency band "
+          "these parameters and modes need, `signaldesign design` a sequence with information there")
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:

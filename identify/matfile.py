@@ -15,6 +15,7 @@ variable or column.
 from __future__ import annotations
 
 import json
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -103,8 +104,9 @@ def _load(path: Path) -> dict:
         raise RunError(f"{path}: no such file")
     try:
         raw = loadmat(path, squeeze_me=False)
-    except (MatReadError, ValueError, OSError, TypeError) as exc:
-        raise RunError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
+    except (MatReadError, ValueError, OSError, TypeError, IndexError, KeyError, EOFError,
+            NotImplementedError, zlib.error) as exc:  # what scipy's reader raises on a damaged file
+        raise RunError(f"{path}: not a readable MATLAB .mat file ({' '.join(str(exc).split()) or type(exc).__name__})") from None
     return {k: v for k, v in raw.items() if not k.startswith("__")}
 
 

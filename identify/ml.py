@@ -177,6 +177,7 @@ class ML(Estimator):
             "log_det_R": sv.log_det_history,
             "damping": sv.lam,
             "rejected_steps": sv.rejected,
+            "max_relative_step": sv.max_rel_step,  # largest step taken, share of the parameter scale
             "gauss_newton_step_se": sv.step_history,  # length of the next undamped step, std errors
             "modelled": "simulated over each whole run" if form == "plain" else
             f"restarted at every multiple-shooting segment (every {segment:.3g} s) from its estimated initial state",
@@ -228,7 +229,7 @@ class _Solver:
         self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov)
         self.history, self.wls_history, self.log_det_history, self.step_history = [], [], [], []
         self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
-        self.rejected = 0
+        self.rejected, self.max_rel_step = 0, 0.0
         M, _ = prob.normal_equations(ev, self.Wh)
         d = np.diag(M)
         # a parameter no input excites has no influence at all: hold it, report std = inf
@@ -336,6 +337,7 @@ class _Solver:
             rho = (cost - c) / pred
             self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
             rel_step = float(np.max(np.abs(step[:P]) / self._scale(M)))
+            self.max_rel_step = max(self.max_rel_step, rel_step)
             self.ev, self.beta = ev, ev.beta.copy()
             r_change = 0.0
             if self.relax:

@@ -1,7 +1,8 @@
 """``python -m signaldesign``: frequency band, signal design, baselines, comparison, plots."""
 from __future__ import annotations
 
-from identify.cliutil import Parser, progress_bar, run
+from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, nonnegative_int, output_file,
+                               positive_float, positive_int, progress_bar, run)
 from identify.model import LinearModel
 from identify.profile import load_profile
 
@@ -139,11 +140,11 @@ def cmd_plot(args) -> int:
 
 
 def _record_options(p):
-    p.add_argument("--record", type=float, default=20.0, help="record length in s (default 20)")
-    p.add_argument("--dt", type=float, default=0.05, help="sample interval in s (default 0.05)")
-    p.add_argument("--perturbations", type=int, default=24,
+    p.add_argument("--record", type=positive_float, default=20.0, help="record length in s (default 20)")
+    p.add_argument("--dt", type=positive_float, default=0.05, help="sample interval in s (default 0.05)")
+    p.add_argument("--perturbations", type=nonnegative_int, default=24,
                    help="perturbed models for the robustness columns (default 24)")
-    p.add_argument("--spread", type=float, default=0.3, help="derivatives scaled by 1 -/+ this (default 0.3)")
+    p.add_argument("--spread", type=nonnegative_float, default=0.3, help="derivatives scaled by 1 -/+ this (default 0.3)")
     p.add_argument("--seed", type=int, default=0)
 
 
@@ -154,44 +155,44 @@ def build_parser() -> Parser:
     p = sub.add_parser("band", help="print the frequency band an input must excite")
     p.add_argument("--profile", required=True, help="profile TOML path or bundled profile name")
     p.add_argument("--input", required=True, help="control input (e.g. theta_s)")
-    p.add_argument("--level", type=float, default=0.5, help="fraction of each sensitivity's peak (default 0.5)")
-    p.add_argument("--plot", metavar="PNG", help="draw the sensitivities and the band")
+    p.add_argument("--level", type=fraction, default=0.5, help="fraction of each sensitivity's peak (default 0.5)")
+    p.add_argument("--plot", metavar="PNG", type=output_file, help="draw the sensitivities and the band")
     p.set_defaults(func=cmd_band)
 
     p = sub.add_parser("design", help="optimise a three-level pseudo-stochastic sequence and compare it")
     p.add_argument("--profile", required=True)
     p.add_argument("--input", required=True, help="control input, or two comma-separated for a multi-axis design")
-    p.add_argument("--duration", type=float, default=7.0, help="signal length in s (default 7)")
-    p.add_argument("--amplitude", type=float, default=0.02, help="amplitude in rad (default 0.02)")
-    p.add_argument("--min-width", type=float, default=0.3, help="smallest step width tried, s (default 0.3)")
-    p.add_argument("--max-width", type=float, default=1.0, help="largest step width tried, s (default 1)")
-    p.add_argument("--min-pulse", type=float, help="shortest hold in s (default one step)")
-    p.add_argument("--max-changes", type=int, help="most level changes (default unlimited)")
+    p.add_argument("--duration", type=positive_float, default=7.0, help="signal length in s (default 7)")
+    p.add_argument("--amplitude", type=positive_float, default=0.02, help="amplitude in rad (default 0.02)")
+    p.add_argument("--min-width", type=positive_float, default=0.3, help="smallest step width tried, s (default 0.3)")
+    p.add_argument("--max-width", type=positive_float, default=1.0, help="largest step width tried, s (default 1)")
+    p.add_argument("--min-pulse", type=positive_float, help="shortest hold in s (default one step)")
+    p.add_argument("--max-changes", type=positive_int, help="most level changes (default unlimited)")
     p.add_argument("--allow-double-jumps", action="store_true", help="allow +1 to -1 in one step")
     p.add_argument("--criterion", choices=("nominal", "worst", "mean"), default="nominal",
                    help="optimise the a priori model, or the worst/mean over perturbed models")
-    p.add_argument("--max-peak", type=float, help="cap each output's peak at this multiple of the best 3211's")
-    p.add_argument("--out", metavar="JSON", help="write the optimised signal here")
-    p.add_argument("--plot", metavar="PNG", help="draw it against the best 3211 with spectra")
+    p.add_argument("--max-peak", type=positive_float, help="cap each output's peak at this multiple of the best 3211's")
+    p.add_argument("--out", metavar="JSON", type=output_file, help="write the optimised signal here")
+    p.add_argument("--plot", metavar="PNG", type=output_file, help="draw it against the best 3211 with spectra")
     _record_options(p)
     p.set_defaults(func=cmd_design)
 
     p = sub.add_parser("make", help="write a baseline signal (doublet, 3211, multistep, steps, multisine, prts)")
     p.add_argument("kind", help="doublet, 3211 (or any digits, e.g. 2121), multistep, steps, multisine, prts")
-    p.add_argument("--width", type=float, help="pulse / step width in s")
-    p.add_argument("--amplitude", type=float, default=0.02, help="amplitude in rad (default 0.02)")
+    p.add_argument("--width", type=positive_float, help="pulse / step width in s")
+    p.add_argument("--amplitude", type=positive_float, default=0.02, help="amplitude in rad (default 0.02)")
     p.add_argument("--input", default="theta_s", help="control input (default theta_s)")
-    p.add_argument("--duration", type=float, default=7.0, help="multisine / PRTS length in s (default 7)")
+    p.add_argument("--duration", type=positive_float, default=7.0, help="multisine / PRTS length in s (default 7)")
     p.add_argument("--band", help="multisine band low,high in rad/s")
     p.add_argument("--pulses", help="multistep pulse counts, e.g. 3,2,1,1")
     p.add_argument("--levels", help="step levels, e.g. 1,1,0,-1,0")
-    p.add_argument("--order", type=int, default=3, help="PRTS order (period 3^order - 1, default 3)")
-    p.add_argument("--dt", type=float, default=0.05, help="multisine time step in s (default 0.05)")
-    p.add_argument("--delay", type=float, default=0.0, help="start time in s (default 0)")
-    p.add_argument("--out", required=True, metavar="JSON")
-    p.add_argument("--csv", metavar="CSV", help="also write a run-compatible CSV of the input")
-    p.add_argument("--csv-dt", type=float, default=0.01, help="CSV sample interval in s (default 0.01)")
-    p.add_argument("--record", type=float, default=0.0, help="CSV length in s (default: the signal's)")
+    p.add_argument("--order", type=positive_int, default=3, help="PRTS order (period 3^order - 1, default 3)")
+    p.add_argument("--dt", type=positive_float, default=0.05, help="multisine time step in s (default 0.05)")
+    p.add_argument("--delay", type=nonnegative_float, default=0.0, help="start time in s (default 0)")
+    p.add_argument("--out", required=True, metavar="JSON", type=output_file)
+    p.add_argument("--csv", metavar="CSV", type=output_file, help="also write a run-compatible CSV of the input")
+    p.add_argument("--csv-dt", type=positive_float, default=0.01, help="CSV sample interval in s (default 0.01)")
+    p.add_argument("--record", type=nonnegative_float, default=0.0, help="CSV length in s (default: the signal's)")
     p.set_defaults(func=cmd_make)
 
     p = sub.add_parser("compare", help="score signal files on a profile (first file is the reference)")
@@ -202,9 +203,11 @@ def build_parser() -> Parser:
 
     p = sub.add_parser("plot", help="draw signals and their power spectra (PNG)")
     p.add_argument("signals", nargs="+", metavar="JSON")
-    p.add_argument("--out", default="signals.png", metavar="PNG", help="output PNG (default signals.png)")
+    p.add_argument("--out", default="signals.png", metavar="PNG", type=output_file, help="output PNG (default signals.png)")
     p.add_argument("--profile", help="shade the required band of this profile")
     p.set_defaults(func=cmd_plot)
+    for p in sub.choices.values():
+        add_threads_option(p)
     return parser
 
 
