@@ -299,8 +299,9 @@ class OutputError:
             keep = idx >= 0
             i = idx[keep]
             Js = Jloc[s, :self.layout.length[s]][..., keep]  # (l, ny, k)
-            segs.append((i, keep, Js, np.fft.rfft(Js, n_fft, axis=0),
-                         np.conj(np.fft.rfft(Js @ cov[np.ix_(i, i)], n_fft, axis=0))))
+            FJ = np.fft.rfft(Js, n_fft, axis=0)
+            # the FFT is linear: rfft(J C) = rfft(J) C, a small matrix product instead of an FFT
+            segs.append((i, keep, Js, FJ, np.conj(FJ @ cov[np.ix_(i, i)])))
         k_loc = Jloc.shape[-1]
         rho = np.zeros_like(r)
         rho[0] = r[0]  # start: white noise of the residuals' variance
@@ -321,7 +322,7 @@ class OutputError:
             var_old = var
             corr = np.zeros((n_fft // 2 + 1, ny))
             for (i, keep, Js, FJ, FGc), TJ in zip(segs, TJs):
-                FC = np.conj(np.fft.rfft(Js @ cov_c[np.ix_(i, i)], n_fft, axis=0))
+                FC = np.conj(FJ @ cov_c[np.ix_(i, i)])
                 corr += np.sum(2 * FGc * np.fft.rfft(TJ, n_fft, axis=0) - FC * FJ, axis=-1).real
             rho = r + np.fft.irfft(corr / count, n_fft, axis=0)
         return B, rho[:L], passes
