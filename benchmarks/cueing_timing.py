@@ -3,9 +3,9 @@
 Measures, from the frame log the run wrote: achieved frame rate, frame-interval jitter (std, max),
 the command's timing error at every switch (time from the switch to the first frame showing the new
 level: bounded by one frame interval), signal drift (command vs the signal at each frame's own
-clock stamp, and the frame stamps' slope against the nominal grid) and the off-screen render time
-per frame. Baseline, measured in the same run: the naive loop (pygame.time.Clock.tick(60), signal
-evaluated from the frame count) with the same drawing.
+clock stamp, and the frame stamps' slope against the nominal grid), the off-screen render time
+per frame, and whether the low-frame-rate flag stays down. Baseline, measured in the same run: the
+naive loop (pygame.time.Clock.tick(60), signal evaluated from the frame count) with the same drawing.
 
 Targets: logged rate within 0.5 % of nominal, jitter std under 1 ms, zero signal drift.
 Run: ``python benchmarks/cueing_timing.py`` (about 25 s).
@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 import pygame  # noqa: E402
 
 from cueing.display import Display, FrameState  # noqa: E402
+from cueing.flightlog import LOW_RATE, SYNC_INTERVAL, FrameLogWriter, frame_rate_warning  # noqa: E402
 from cueing.runner import Runner  # noqa: E402
 from cueing.sources import PilotSource  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
@@ -62,11 +63,26 @@ def interval_stats(t: np.ndarray) -> tuple[float, float, float, float]:
     return rate, float(np.std(steps)), float(np.max(steps)), float(np.max(np.abs(steps - 1 / RATE)))
 
 
+def sync_period(folder: Path, seconds: float = 1.0) -> float:
+    """Mean time between the frame log's fsyncs while frames are written at the display rate [s]."""
+    w = FrameLogWriter(folder / "sync.frames.csv", ["theta_s"]).open({})
+    start, k = time.perf_counter(), 0
+    while time.perf_counter() - start < seconds:
+        w.frame(k, k / RATE, k / RATE, False, [0.0], [0.0])
+        k += 1
+        time.sleep(1 / RATE)
+    n = w.fsyncs - 1  # the one at open is not periodic
+    elapsed = time.perf_counter() - start
+    w.close()
+    return elapsed / max(n, 1)
+
+
 def main() -> int:
     pygame.display.init()
     signal = m3211(1.0, amplitude=0.02, delay=0.5)  # 7 s of signal
     with tempfile.TemporaryDirectory() as tmp:
         log, render = cueing_run(signal, Path(tmp))
+        synced = sync_period(Path(tmp))
     t, ts, cmd = log.columns["time"], log.columns["t_signal"], log.columns["theta_s_cmd"]
     seq = t >= 0
     rate, jit_std, jit_max, dev_max = interval_stats(t[seq])
@@ -105,6 +121,10 @@ def main() -> int:
     print(f"command vs signal at each frame's own stamp: max |error| {mismatch:.3g} (control units)")
     print(f"command timing at {errors.size} switches: mean {1e3 * errors.mean():.2f} ms, "
           f"max {1e3 * errors.max():.2f} ms (one frame = {1e3 / RATE:.2f} ms), wrong level shown: {wrong}")
+    stats = log.frame_stats()
+    print(f"lowest rate over any 1 s: {stats['rate_lowest_1s']:.2f} Hz; low-frame-rate flag "
+          f"(< {100 * LOW_RATE:g} % of target): {frame_rate_warning(stats) or 'not raised'}")
+    print(f"frame log fsync: every {1e3 * synced:.1f} ms on average (target {1e3 * SYNC_INTERVAL:g} ms)")
     print(f"off-screen render time per frame: mean {1e3 * render.mean():.3f} ms, "
           f"p95 {1e3 * np.percentile(render, 95):.3f} ms, max {1e3 * render.max():.3f} ms")
     ok_rate = abs(rate / RATE - 1) < 0.005

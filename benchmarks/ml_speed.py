@@ -23,8 +23,7 @@ from dataclasses import replace  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from identify import LinearModel, SimulationError, load_profile, simulate_run  # noqa: E402
-from identify.ml import ML  # noqa: E402
+from identify import ML, LinearModel, SimulationError, load_profile, simulate_run  # noqa: E402
 
 KINEMATIC = {"theta_q", "phi_p", "theta_R_q", "phi_R_p"}
 

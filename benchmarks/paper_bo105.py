@@ -31,7 +31,7 @@ no single-run M_theta_s either). ML uses the same structure on the same smoothed
 its instrument simulation at its default interval (reinit='auto').
 
 Processing of the main table: every channel smoothed alike, inputs included (the recommended
-practice for equation error, see ``identify.preprocess.smooth``); the paper's processing
+practice for equation error, see ``identify.data.preprocess.smooth``); the paper's processing
 (accelerations and rates only) is summarised for the same seed and repeated in the Monte Carlo.
 Standard errors: LS/IV coloured-residual asymptotic, ML Cramér-Rao corrected for coloured
 residuals (Morelli & Klein); the Monte Carlo checks them, and the plain white-residual ones, over
@@ -70,7 +70,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from identify import IV, LS, ML, EstimationError, LinearModel, Run, format_modes, load_profile, simulate_run  # noqa: E402
-from identify.preprocess import (add_derivatives, central_difference, lowpass, slice_run, smooth,  # noqa: E402
+from identify.data.preprocess import (add_derivatives, central_difference, lowpass, slice_run, smooth,  # noqa: E402
                                  smooth_derivative)
 from signaldesign.baselines import m3211  # noqa: E402
 

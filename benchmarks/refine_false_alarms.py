@@ -15,7 +15,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import LinearModel, simulate_run  # noqa: E402
 from identify.refine import Refine  # noqa: E402
-from tests.test_refine import DT, PROFILE  # noqa: E402
+from tests.identify.refine.test_refine import DT, PROFILE  # noqa: E402
 
 
 def main(n: int = 20) -> None:

@@ -2,14 +2,17 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, output_dir, output_file,
                                positive_float, positive_int, run)
 
-from .errors import CueingError
+from .errors import CueingError, RunAborted
 
+DEFAULT_LEAD_IN = 2.0  # s of quiet logged before the signal: the trim the response starts from
 UNATTENDED = ("pilot", "replay", "external")  # sources that need no human: may run on a fake clock
+EXIT_ABORTED = 3  # the pilot ended the run early (Escape, closed window): data kept, marked aborted
 
 
 def cmd_demo(args) -> int:
@@ -32,8 +35,11 @@ def _signals(path):
 def _fly_options(args) -> dict:
     if args.headless:
         os.environ["SDL_VIDEODRIVER"] = "dummy"  # off-screen even where a display exists
-    if args.rate <= 0 or args.countdown < 0 or args.tail < 0 or args.preview < 0:
-        raise CueingError("--rate must be positive; --countdown, --tail and --preview must not be negative")
+    if args.rate <= 0 or min(args.countdown, args.tail, args.preview, args.lead_in) < 0:
+        raise CueingError("--rate must be positive; --countdown, --lead-in, --tail and --preview must not be "
+                          "negative")
+    if args.record is not None and not args.record > 0:
+        raise CueingError(f"--record must be a positive number of seconds, got {args.record:g}")
     if not 0 <= args.skill <= 1:
         raise CueingError(f"--skill must be between 0 and 1, got {args.skill:g}")
     if args.noise < 0 or (args.screenshot_every is not None and args.screenshot_every <= 0):
@@ -46,8 +52,9 @@ def _fly_options(args) -> dict:
         from identify import LinearModel, load_profile
         model = LinearModel(load_profile(args.profile))
     return dict(simulate=args.simulate, noise_fraction=args.noise, seed=args.seed, model=model, fast=args.fast,
-                rate=args.rate, countdown=args.countdown, tail=args.tail, preview=args.preview,
-                display="headless" if args.headless else "window", audio=not args.no_audio,
+                rate=args.rate, countdown=args.countdown, lead_in=args.lead_in, record=args.record, tail=args.tail,
+                preview=args.preview, display="headless" if args.headless else "window",
+                fullscreen=args.fullscreen, audio=not args.no_audio,
                 screenshot_dir=args.screenshots, screenshot_every=args.screenshot_every,
                 end_screen=0.0 if args.headless else 5.0)
 
@@ -70,10 +77,30 @@ def cmd_fly(args) -> int:
     signals = _signals(args.signal)
     options = _fly_options(args)
     source = _source(args, args.skill, args.seed)
-    flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
+    try:
+        if args.live:
+            from .live import cmd_fly_live
+            return _aborted(cmd_fly_live(args, signals, options, source))
+        flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
+    except RunAborted as exc:
+        return _aborted(exc)
     print("\n".join(flight.score.lines()[1:]))
-    print(f"run written to {flight.path} ({flight.log.status}); frame log {flight.log.path}")
-    return 0
+    runner = flight.runner
+    print(f"run written to {flight.path} ({flight.log.status}; {flight.run.duration:.2f} s: {runner.lead_in:g} s "
+          f"lead-in, then the signal's {runner.t_end - runner.lead_in:g} s record); frame log {flight.log.path}")
+    return _aborted(flight)
+
+
+def _aborted(flight) -> int:
+    """Exit status of a flown run (a Flight, or the RunAborted of one that wrote nothing): 0, or
+    EXIT_ABORTED with one line when the pilot ended it early."""
+    if isinstance(flight, RunAborted):
+        print(f"cueing: {flight}", file=sys.stderr)
+    elif flight.log.aborted:
+        print(f"cueing: run {flight.log.status}: the data up to then is kept in {flight.path}", file=sys.stderr)
+    else:
+        return 0
+    return EXIT_ABORTED
 
 
 def cmd_practice(args) -> int:
@@ -90,14 +117,22 @@ def cmd_practice(args) -> int:
         skill = 1 - (1 - args.skill) * (1 - args.learn) ** i  # the simulated pilot learns towards 1
         source = _source(args, skill, None if args.seed is None else args.seed + i)
         opts = dict(options, seed=None if args.seed is None else args.seed + i)
-        flight = fly(signals, source, out_dir / f"{args.pilot}_attempt{i + 1:02d}.csv", pilot=args.pilot, **opts)
+        try:
+            flight = fly(signals, source, out_dir / f"{args.pilot}_attempt{i + 1:02d}.csv", pilot=args.pilot,
+                         **opts)
+        except RunAborted as exc:
+            flight = exc
+            break
         record = {k: v for k, v in flight.score.to_dict().items() if k != "per_axis"}
         record.update(signal=flight.run.meta.get("signal", ""), source=source.describe(), run=str(flight.path),
                       status=flight.log.status)
         append_attempt(args.pilot, record, args.history_dir)
         first = first if first is not None else len(load_history(args.pilot, args.history_dir)) - 1
-    print(format_history(load_history(args.pilot, args.history_dir)[first:]))
-    return 0
+        if flight.log.aborted:  # the pilot stopped: no more attempts
+            break
+    if first is not None:  # at least one attempt was recorded
+        print(format_history(load_history(args.pilot, args.history_dir)[first:]))
+    return _aborted(flight)
 
 
 def cmd_history(args) -> int:
@@ -129,6 +164,7 @@ def _add_fly_arguments(p) -> None:
     p.add_argument("--preview", type=nonnegative_float, nargs="?", const=3.0, default=0.0, metavar="SECONDS",
                    help="show the next SECONDS of the sequence (default 3 when given)")
     p.add_argument("--headless", action="store_true", help="off-screen display (no window)")
+    p.add_argument("--fullscreen", action="store_true", help="fill the screen (the window is resizable otherwise)")
     p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input")
     p.add_argument("--noise", type=nonnegative_float, default=0.02, help="measurement noise fraction for --simulate (0.02)")
     p.add_argument("--profile", metavar="PROFILE", help="model for the information score (default: --simulate's)")
@@ -143,10 +179,15 @@ def _add_fly_arguments(p) -> None:
     p.add_argument("--calibrate", type=nonnegative_float, default=0.0, metavar="S",
                    help="measure the stick's centre and dead zone at rest for S seconds first")
     p.add_argument("--rate", type=positive_float, default=60.0, help="frame rate in Hz (60)")
-    p.add_argument("--countdown", type=nonnegative_float, default=3.0, help="seconds of countdown (3)")
-    p.add_argument("--tail", type=nonnegative_float, default=1.0, help="seconds logged after the sequence (1)")
+    p.add_argument("--countdown", type=nonnegative_float, default=3.0, help="seconds of countdown before logging starts (3)")
+    p.add_argument("--lead-in", type=nonnegative_float, default=DEFAULT_LEAD_IN, metavar="S",
+                   help=f"seconds logged, quiet, before the signal starts ({DEFAULT_LEAD_IN:g})")
+    p.add_argument("--record", type=positive_float, metavar="S",
+                   help="seconds logged from the signal's start (default: the record it was designed for)")
+    p.add_argument("--tail", type=nonnegative_float, default=1.0,
+                   help="seconds logged at least after the sequence (1), when the record is shorter")
     p.add_argument("--no-audio", action="store_true", help="no ticks at level changes")
-    p.add_argument("--screenshots", metavar="DIR", type=output_dir, help="save PNG screenshots here")
+    p.add_argument("--screenshots", type=output_dir, metavar="DIR", help="save PNG screenshots here")
     p.add_argument("--screenshot-every", type=positive_float, metavar="S", help="seconds between screenshots")
     p.add_argument("--fast", action="store_true", help="no waiting (fake clock): simulated or replayed sources only")
 
@@ -160,9 +201,17 @@ def build_parser() -> Parser:
     p.add_argument("--quick", action="store_true", help="reduced size (shorter runs, shorter search)")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("fly", help="fly one run on the two-needle display")
+    p = sub.add_parser("fly", help="fly one run on the two-needle display",
+                       description="Fly one run on the two-needle display. Escape or closing the window ends it "
+                                   f"early: the data so far is kept, marked aborted, exit status {EXIT_ABORTED}.")
     _add_fly_arguments(p)
     p.add_argument("--out", required=True, type=output_file, help="run file to write (the frame log grows beside it)")
+    p.add_argument("--live", metavar="PROFILE", help="identify this profile while flying (recursive "
+                   "frequency-domain equation error; response from --simulate or --live-response)")
+    p.add_argument("--targets", metavar="LIST", help="--live: parameters and Cramér-Rao %% targets, e.g. "
+                   "M_q:10,L_p:15 (default: each moment equation's damping and control derivative at 20 %%)")
+    p.add_argument("--live-response", metavar="MODULE:FUNCTION",
+                   help="--live: f(t, stick) -> measured states, e.g. from a flight simulator")
     p.set_defaults(func=cmd_fly)
 
     p = sub.add_parser("practice", help="fly a signal several times, score each attempt, keep the history")
@@ -171,13 +220,13 @@ def build_parser() -> Parser:
     p.add_argument("--learn", type=fraction, default=0.3,
                    help="simulated pilot: fraction of the remaining skill gap closed per attempt (0.3)")
     p.add_argument("--history-dir", help="practice history folder (default $PSEUDOSTEP_HISTORY or ~/.pseudostep/practice)")
-    p.add_argument("--out-dir", default="practice", type=output_dir, help="folder for the attempts' run files (practice)")
+    p.add_argument("--out-dir", type=output_dir, default="practice", help="folder for the attempts' run files (practice)")
     p.set_defaults(func=cmd_practice)
 
     p = sub.add_parser("history", help="show a pilot's learning curve")
     p.add_argument("pilot", help="pilot name")
     p.add_argument("--history-dir", help="practice history folder")
-    p.add_argument("--plot", metavar="PNG", type=output_file, help="learning-curve image (default PILOT_learning_curve.png)")
+    p.add_argument("--plot", type=output_file, metavar="PNG", help="learning-curve image (default PILOT_learning_curve.png)")
     p.set_defaults(func=cmd_history)
 
     p = sub.add_parser("recover", help="turn a frame log (also of a killed run) into a run file")

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, simulate_run
-from identify.plots import plot_residuals, plot_time_histories
+from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, perturbed_model, simulate_run
+from identify.estimators.plots import plot_residuals, plot_time_histories
 from identify.refine import Refine
-from identify.refine_report import write as write_refine
+from identify.refine.report import write as write_refine
 from signaldesign import save_signals
 from signaldesign.baselines import m3211
 from signaldesign.design import SequenceDesign
@@ -30,7 +30,7 @@ from .session import fly
 from .sources import PilotSource
 
 DEFAULT_PROFILE = "s61_hover_8state"
-AMPLITUDE = 0.01  # rad of cyclic: keeps the unstable S 61 within small perturbations over 20 s
+AMPLITUDE = 0.01  # rad of cyclic of the validation run's 3211s (the designs take theirs from the limits)
 DELAY = 0.10  # s: the truth's control-system delay, not in the a priori profile
 NOISE = 0.03  # measurement noise, fraction of each response channel's standard deviation
 PERTURBATION = 0.15  # the real aircraft's derivatives differ from the a priori ones by up to this
@@ -42,11 +42,11 @@ class Size:
 
     record: float = 20.0  # s per run
     duration: float = 7.0  # s of designed input
-    n_iter: int = 3000  # annealing iterations per width
+    n_iter: int = 1000  # annealing iterations per restart
     frame_rate: float = 50.0  # Hz display and log rate
 
 
-FULL, QUICK = Size(), Size(record=12.0, duration=5.0, n_iter=400, frame_rate=30.0)
+FULL, QUICK = Size(), Size(record=12.0, duration=5.0, n_iter=300, frame_rate=30.0)
 
 
 def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = False, seed: int = 1,
@@ -105,8 +105,7 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
 # -- the truth ------------------------------------------------------------------------------------
 def _real_aircraft(apriori: LinearModel, seed: int) -> LinearModel:
     """The aircraft flown: every free derivative off its a priori value by up to PERTURBATION."""
-    rng = np.random.default_rng(seed)
-    return apriori.with_theta(apriori.theta * rng.uniform(1 - PERTURBATION, 1 + PERTURBATION, apriori.theta.size))
+    return perturbed_model(apriori, PERTURBATION, np.random.default_rng(seed))
 
 
 def _response(truth: LinearModel, flown: Run, seed: int) -> Run:
@@ -115,13 +114,8 @@ def _response(truth: LinearModel, flown: Run, seed: int) -> Run:
     State derivatives are not measured (no such sensors): LS and IV differentiate the rates.
     """
     p = truth.profile
-    dt = flown.dt
     stick = np.column_stack([flown.channels.get(name, np.zeros(len(flown))) for name in p.input_names])
-    shift = int(round(DELAY / dt))
-    if abs(shift * dt - DELAY) > 1e-6 * DELAY:  # the truth's delay must be what the report says
-        raise ValueError(f"the {DELAY} s delay is not a whole number of {dt:g} s samples")
-    delayed = np.vstack([np.zeros((shift, stick.shape[1])), stick[:-shift]])
-    sim = simulate_run(truth, flown.time, delayed, noise_fraction=NOISE, seed=seed)
+    sim = simulate_run(truth, flown.time, stick, input_delay=DELAY, noise_fraction=NOISE, seed=seed)
     channels = {name: stick[:, j] for j, name in enumerate(p.input_names)}
     channels.update({y: sim[y] for y in p.outputs})
     channels.update({k: v for k, v in flown.channels.items() if k.endswith("_cmd")})
@@ -145,8 +139,9 @@ def _validation_run(truth: LinearModel, size: Size, seed: int) -> Run:
 
 # -- stages -------------------------------------------------------------------------------------
 def _design(apriori: LinearModel, size: Size, seed: int) -> list[SequenceDesign]:
-    return [SequenceDesign(inputs=name, duration=size.duration, record=size.record, amplitude=AMPLITUDE,
-                           delay=1.0, n_iter=size.n_iter, seed=seed).fit(apriori)
+    # the default design: amplitude an outcome, every output's peak within the profile's [limits]
+    return [SequenceDesign(inputs=name, duration=size.duration, record=size.record, delay=1.0,
+                           n_iter=size.n_iter, seed=seed).fit(apriori)
             for name in apriori.profile.input_names]
 
 
@@ -164,13 +159,25 @@ def _design_section(designs: list[SequenceDesign], out: Path) -> list[str]:
     save_signals(signals, out / "signals.json")
     plot_signals(signals, out / "signals.png", title="designed inputs and their energy spectra")
     lines = ["", "## 1. Design", "",
-             "Optimised three-level sequences (D-optimal for the a priori model, 20 s record), one per "
-             "cyclic: [`signals.json`](signals.json).", "",
-             "| input | step width [s] | steps | half-power band [rad/s] | design time [s] |",
-             "| --- | --- | --- | --- | --- |"]
+             f"The default design, one per cyclic ({designs[0].record:g} s record): three-level sequences with "
+             "the most information per unit of peak response, robust to the a priori model's errors, flown at "
+             "the largest amplitude that keeps every output within the profile's limits: "
+             "[`signals.json`](signals.json).", "",
+             "| input | grid [s] | level changes | amplitude [rad] | binding limit | half-power band [rad/s] "
+             "| design time [s] |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for d, s in zip(designs, signals):
         lo, hi, _ = half_power_band(s)
-        lines.append(f"| {s.input} | {d.width_:.2f} | {s.levels.size} | {lo:.2f} – {hi:.2f} | {d.seconds_:.1f} |")
+        changes = int(np.count_nonzero(np.diff(np.concatenate([[0], s.levels, [0]]))))
+        lines.append(f"| {s.input} | {d.width_:.2f} | {changes} | {s.amplitude:.4f} | {d.binding_} | "
+                     f"{lo:.2f} – {hi:.2f} | {d.seconds_:.1f} |")
+    outputs = designs[0].evaluator_.model.profile.outputs
+    lines += ["", "Peak response on the a priori model against the limits:", "",
+              "| output | limit | " + " | ".join(f"peak, {s.input} design" for s in signals) + " |",
+              "| --- | --- | " + " | ".join("---" for _ in signals) + " |"]
+    for j, y in enumerate(outputs):
+        lines.append(f"| {y} | {designs[0].limits_[j]:.3g} | "
+                     + " | ".join(f"{d.peaks_[j]:.3g}" + (" (binds)" if d.binding_ == y else "") for d in designs)
+                     + " |")
     return lines + ["", "![designed signals](signals.png)"]
 
 

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.runs import Run
+from identify import Run
+from identify.errors import read_text
 from signaldesign.signal import Signal
 
 from .errors import CueingError
@@ -30,6 +31,9 @@ from .errors import CueingError
 FORMAT = "pseudostep-frame-log/1"
 SYNC_INTERVAL = 0.1  # s between fsyncs: the most a power loss can cost
 CMD = "_cmd"
+LOW_RATE = 0.9  # a frame rate under this fraction of the target is flagged (on screen, log, run, score)
+RATE_WINDOW = 1.0  # s over which the lowest frame rate is measured
+BASE_COLUMNS = ["frame", "time", "t_signal", "paused"]
 
 
 def frame_log_path(out: str | Path) -> Path:
@@ -39,7 +43,7 @@ def frame_log_path(out: str | Path) -> Path:
 
 
 def log_columns(inputs: list[str]) -> list[str]:
-    cols = ["frame", "time", "t_signal", "paused"]
+    cols = list(BASE_COLUMNS)
     for name in inputs:
         cols += [name + CMD, name]
     return cols
@@ -61,6 +65,7 @@ class FrameLogWriter:
         self._lock = threading.Lock()
         self._thread = None
         self.fsyncs = 0
+        self.frames = 0
         self.closed_status: str | None = None
 
     def open(self, meta: dict) -> "FrameLogWriter":
@@ -86,6 +91,7 @@ class FrameLogWriter:
         with self._lock:
             self._file.write(",".join(cells) + "\n")
             self._file.flush()
+        self.frames += 1
 
     def event(self, t: float, text: str) -> None:
         with self._lock:
@@ -148,32 +154,54 @@ class FrameLog:
         except (KeyError, json.JSONDecodeError):
             raise CueingError(f"{self.path}: frame log lacks its signals (signals_json)") from None
 
+    @property
+    def nominal_rate(self) -> float:
+        """The target frame rate (Hz) the log was flown at (60 when the log does not say)."""
+        try:
+            rate = float(self.meta.get("frame_rate", 60))
+        except ValueError:
+            rate = np.nan
+        if not (np.isfinite(rate) and rate > 0):
+            raise CueingError(f"{self.path}: frame_rate '{self.meta.get('frame_rate')}' is not a rate in Hz")
+        return rate
+
     def frame_stats(self, rate: float | None = None) -> dict[str, float]:
-        """Frame count, achieved rate (Hz) and frame-interval statistics (s) over the whole log."""
-        rate = rate or float(self.meta.get("frame_rate", 60))
-        steps = np.diff(self.time)
+        """Frame count, target and achieved rate (Hz) over the whole log, the lowest rate over any
+        ``RATE_WINDOW`` s (Hz) and frame-interval statistics (s)."""
+        rate = rate or self.nominal_rate
+        t = self.time
+        steps = np.diff(t)
         if steps.size == 0:
-            return {"frames": float(self.time.size)}
-        return {"frames": float(self.time.size), "rate_nominal": rate,
-                "rate_achieved": float(steps.size / (self.time[-1] - self.time[0])),
-                "interval_std": float(np.std(steps)), "interval_max": float(np.max(steps)),
-                "late_frames": float(np.sum(steps > 1.5 / rate))}
+            return {"frames": float(t.size)}
+        achieved = float(steps.size / (t[-1] - t[0]))
+        start = np.searchsorted(t, t - RATE_WINDOW, side="left")  # first frame within the window ending here
+        full = (t - t[0] >= RATE_WINDOW) & (t > t[start])
+        lowest = float(np.min((np.arange(t.size) - start)[full] / (t - t[start])[full])) if full.any() else achieved
+        return {"frames": float(t.size), "rate_nominal": rate, "rate_achieved": achieved,
+                "rate_lowest_1s": lowest, "interval_std": float(np.std(steps)),
+                "interval_max": float(np.max(steps)), "late_frames": float(np.sum(steps > 1.5 / rate))}
+
+
+def frame_rate_warning(stats: dict) -> str | None:
+    """One line when the frame rate fell under ``LOW_RATE`` of the target (``frame_stats``), else None."""
+    target = stats.get("rate_nominal")
+    if target is None or min(stats["rate_achieved"], stats["rate_lowest_1s"]) >= LOW_RATE * target:
+        return None
+    return (f"frame rate low: {stats['rate_achieved']:.1f} Hz (worst second {stats['rate_lowest_1s']:.1f} Hz) "
+            f"of {target:g} Hz target")
 
 
 def read_frame_log(path: str | Path) -> FrameLog:
     """Read a frame log, even one cut off mid-line by a kill; one CueingError if it is unusable."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise CueingError(f"{path}: cannot read frame log ({exc.strerror or exc})") from None
+    text = read_text(path, CueingError, "pseudostep frame log")
     meta, events, rows, header, status = {}, [], [], None, None
     lines = text.split("\n")
     complete = lines[:-1]  # the part after the last newline is a row the kill cut short
-    for line in complete:
+    for n, line in enumerate(complete, start=1):
         if line.startswith("# event:"):
             t, _, what = line[len("# event:"):].strip().partition(": ")
-            events.append((float(t), what))
+            events.append((_number(t, path, n), what))
         elif line.startswith("# end:"):
             status = line[len("# end:"):].strip()
         elif line.startswith("#"):
@@ -183,16 +211,40 @@ def read_frame_log(path: str | Path) -> FrameLog:
         elif header is None:
             header = line.strip().split(",")
         elif line.strip():
-            rows.append(line)
+            rows.append((n, line))
     if meta.get("format") != FORMAT or header is None:
         raise CueingError(f"{path}: not a pseudostep frame log")
+    _check_header(header, path)
+    bad = [n for n, r in rows if r.count(",") != len(header) - 1]
+    if bad:  # a kill cuts only the last line, which is not among the complete ones
+        raise CueingError(f"{path}: line {bad[0]}: {len(header)} columns expected")
     if not rows:
         raise CueingError(f"{path}: frame log holds no frames")
-    data = np.array([r.split(",") for r in rows if r.count(",") == len(header) - 1], dtype=float)
+    data = np.array([[_number(c, path, n) for c in r.split(",")] for n, r in rows], dtype=float)
+    if not np.all(np.isfinite(data)):
+        n = rows[int(np.flatnonzero(~np.all(np.isfinite(data), axis=1))[0])][0]
+        raise CueingError(f"{path}: line {n}: a frame holds a non-finite number")
     columns = {name: data[:, j] for j, name in enumerate(header)}
+    if np.any(np.diff(columns["time"]) <= 0):
+        raise CueingError(f"{path}: frame times are not increasing")
     if status is None:
         status = "aborted (log ends without an end line: the process was killed)"
     return FrameLog(path, meta, columns, events, status)
+
+
+def _check_header(header: list[str], path: Path) -> None:
+    missing = [c for c in BASE_COLUMNS if c not in header]
+    axes = [c[:-len(CMD)] for c in header if c.endswith(CMD)]
+    if missing or not axes or any(a not in header for a in axes) or len(set(header)) != len(header):
+        raise CueingError(f"{path}: frame log header must hold {', '.join(BASE_COLUMNS)} and per axis "
+                          f"<input>_cmd and <input> once each, got {','.join(header)[:120]}")
+
+
+def _number(text: str, path: Path, line: int) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise CueingError(f"{path}: line {line}: '{text[:40]}' is not a number") from None
 
 
 def log_to_run(log: FrameLog, sample_rate: float | None = None, signals: list[Signal] | None = None) -> Run:
@@ -204,7 +256,7 @@ def log_to_run(log: FrameLog, sample_rate: float | None = None, signals: list[Si
     channel (signal time, s), since its time axis then runs ahead of the signal.
     """
     signals = signals or log.signals()
-    rate = sample_rate or float(log.meta.get("frame_rate", 60))
+    rate = sample_rate or log.nominal_rate
     t, ts = log.columns["time"], log.columns["t_signal"]
     keep = t >= 0
     if keep.sum() < 2:
@@ -213,7 +265,9 @@ def log_to_run(log: FrameLog, sample_rate: float | None = None, signals: list[Si
     grid = np.arange(int(np.floor(t_end * rate + 1e-9)) + 1) / rate
     if grid.size < 2:
         raise CueingError(f"{log.path}: the flown part is shorter than one sample")
-    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)
+    # times are logged to the microsecond: a frame stamped up to 1 us after a grid instant is that
+    # instant's frame (without the tolerance two thirds of a 60 Hz log's inputs came one frame late)
+    idx = np.clip(np.searchsorted(t, grid + 1e-6, side="right") - 1, 0, t.size - 1)
     t_sig = np.interp(grid, t, ts)
     channels: dict[str, np.ndarray] = {}
     for name in log.inputs:
@@ -226,6 +280,8 @@ def log_to_run(log: FrameLog, sample_rate: float | None = None, signals: list[Si
     meta.update({"status": log.status, "sample_rate": f"{rate:g} Hz",
                  "frame_stats": ", ".join(f"{k} {v:.6g}" for k, v in stats.items()),
                  "signals_json": log.meta.get("signals_json", "")})
+    if frame_rate_warning(stats):
+        meta["frame_rate_warning"] = frame_rate_warning(stats)
     if log.events:
         meta["events"] = "; ".join(f"{t:.3f} s {what}" for t, what in log.events)
     return Run(grid, channels, meta, source=str(log.path))

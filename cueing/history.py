@@ -9,10 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+from identify.errors import read_text
+
 from .errors import CueingError
 
 ENV = "PSEUDOSTEP_HISTORY"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+SCORES = ("rms", "timing_mean", "timing_std", "lag", "level_error_pos", "level_error_neg", "spectral_fidelity",
+          "d_efficiency")
+OVER_100 = "info % over 100: flown with more energy than designed (overshoot), not better flying"
 
 
 def history_dir(directory=None) -> Path:
@@ -40,11 +45,12 @@ def load_history(pilot: str, directory=None) -> list[dict]:
     path = history_path(pilot, directory)
     if not path.is_file():
         raise CueingError(f"no practice history for pilot '{pilot}' ({path} does not exist)")
+    text = read_text(path, CueingError, "practice history")
     records = []
-    for n, line in enumerate(path.read_text().splitlines(), start=1):
+    for n, line in enumerate(text.splitlines(), start=1):
         if line.strip():
             try:
-                records.append(json.loads(line))
+                records.append(_checked(json.loads(line), path, n))
             except json.JSONDecodeError:
                 raise CueingError(f"{path}: line {n}: not a JSON record") from None
     if not records:
@@ -52,34 +58,58 @@ def load_history(pilot: str, directory=None) -> list[dict]:
     return records
 
 
+def _checked(record, path: Path, n: int) -> dict:
+    """A history record: a JSON object whose scores are numbers (null or NaN where undefined)."""
+    if not isinstance(record, dict) or "rms" not in record:
+        raise CueingError(f"{path}: line {n}: not a practice record (a JSON object with the scores)")
+    for key in SCORES:
+        value = record.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise CueingError(f"{path}: line {n}: '{key}' is not a number")
+    return record
+
+
 def format_history(records: list[dict]) -> str:
-    rows = [f"{'#':>3}  {'when':19}  {'RMS %':>6}  {'timing ms':>9}  {'level+ %':>8}  {'level- %':>8}  "
+    """One row per attempt; timing is the mean switch timing ('missed' when no switch was followed),
+    lag the cross-correlation delay; info over 100 % is explained below the table."""
+    rows = [f"{'#':>3}  {'when':19}  {'RMS %':>6}  {'timing ms':>9}  {'lag ms':>6}  {'level+ %':>8}  {'level- %':>8}  "
             f"{'fidelity':>8}  {'info %':>6}  signal"]
     for i, r in enumerate(records, start=1):
-        d = r.get("d_efficiency")
-        rows.append(f"{i:3d}  {r.get('when', ''):19}  {100 * r['rms']:6.1f}  {1000 * _num(r['timing_mean']):+9.0f}  "
-                    f"{100 * _num(r['level_error_pos']):+8.1f}  {100 * _num(r['level_error_neg']):+8.1f}  "
-                    f"{_num(r['spectral_fidelity']):8.3f}  {'' if d is None else f'{100 * d:6.1f}':>6}  "
-                    f"{r.get('signal', '')}")
+        d, timing = _num(r.get("d_efficiency")), _num(r.get("timing_mean"))
+        rows.append(f"{i:3d}  {str(r.get('when', '')):19}  {100 * _num(r['rms']):6.1f}  "
+                    f"{f'{1000 * timing:+9.0f}' if np.isfinite(timing) else 'missed':>9}  "
+                    f"{_ms(r.get('lag')):>6}  {100 * _num(r.get('level_error_pos')):+8.1f}  "
+                    f"{100 * _num(r.get('level_error_neg')):+8.1f}  {_num(r.get('spectral_fidelity')):8.3f}  "
+                    f"{f'{100 * d:6.1f}' if np.isfinite(d) else '':>6}  {r.get('signal', '')}")
+    if any((r.get("d_efficiency") or 0) > 1 for r in records):
+        rows.append(OVER_100)
     return "\n".join(rows)
 
 
 def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
-    """Learning curve PNG: RMS error, switch timing error and information retained per attempt."""
+    """Learning curve PNG: RMS error, switch timing and lag, and information retained per attempt."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = np.arange(1, len(records) + 1)
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 7))
-    axes[0].plot(n, [100 * r["rms"] for r in records], "o-")
+    axes[0].plot(n, [100 * _num(r["rms"]) for r in records], "o-")
     axes[0].set_ylabel("RMS error [% amp.]")
-    axes[1].plot(n, [1000 * abs(_num(r["timing_mean"])) for r in records], "o-", label="|mean|")
-    axes[1].plot(n, [1000 * _num(r["timing_std"]) for r in records], "s--", label="std")
-    axes[1].set_ylabel("switch timing [ms]")
-    axes[1].legend()
-    d = [r.get("d_efficiency") for r in records]
-    axes[2].plot(n, [np.nan if v is None else 100 * v for v in d], "o-")
+    axes[1].plot(n, [1000 * abs(_num(r.get("timing_mean"))) for r in records], "o-", label="switch timing |mean|")
+    axes[1].plot(n, [1000 * _num(r.get("timing_std")) for r in records], "s--", label="switch timing std")
+    axes[1].plot(n, [1000 * _num(r.get("lag")) for r in records], "^:", label="lag (cross-correlation)")
+    missed = [i for i, r in zip(n, records) if not np.isfinite(_num(r.get("timing_mean")))]
+    if missed:
+        axes[1].set_title(f"no switch followed within the window in attempt(s) {', '.join(map(str, missed))}",
+                          fontsize=8)
+    axes[1].set_ylabel("timing [ms]")
+    axes[1].legend(fontsize=8)
+    d = [_num(r.get("d_efficiency")) for r in records]
+    axes[2].plot(n, [100 * v for v in d], "o-", label="D-efficiency (raw)")
+    axes[2].axhline(100, color="0.5", ls=":", lw=1)
+    if any(v > 1 for v in d):
+        axes[2].legend(title="over 100 %: more energy than designed", fontsize=8, title_fontsize=8)
     axes[2].set_ylabel("information [%]")
     axes[2].set_xlabel("attempt")
     axes[0].set_title(f"practice history: {pilot}")
@@ -94,6 +124,10 @@ def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
 
 def _num(v) -> float:
     return np.nan if v is None else float(v)
+
+
+def _ms(v) -> str:
+    return f"{1000 * _num(v):+6.0f}" if np.isfinite(_num(v)) else "-"
 
 
 def _jsonable(v):

@@ -5,23 +5,31 @@ time spent paused), never from a frame count. Frames are scheduled on a grid anc
 sequence start; a late frame is shown late but with the command due at its own time stamp, and
 missed grid slots are skipped, not made up. Every frame is appended to the crash-safe log before
 it is drawn.
+
+The run file spans the design's whole record: a quiet ``lead_in`` (logged, the signal not yet
+started) and then the signal's ``record`` (the record it was designed for, from the signal file),
+at least the sequence plus ``tail``. A frame rate under ``LOW_RATE`` of the target over any second is
+shown on screen and logged as an event.
 """
 from __future__ import annotations
 
 import json
 import platform
+from collections import deque
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from .audio import Ticker
 from .clock import MonotonicClock
-from .display import Display, FrameState
-from .errors import CueingError
-from .flightlog import FrameLogWriter, read_frame_log
+from .display import BASE_SIZE, Display, FrameState
+from .errors import CueingError, RunAborted
+from .flightlog import LOW_RATE, FrameLogWriter, read_frame_log
 from .sources import InputSource, MouseSource
 
 DEFAULT_RATE = 60.0  # Hz
+RECOVERY_MARGIN = 0.05  # a low frame rate counts as recovered at LOW_RATE + this fraction of the target
 WINDOW = "window"
 HEADLESS = "headless"
 
@@ -30,20 +38,27 @@ class Runner:
     """Flies ``signals`` with ``source``, logging every frame to ``log_path``.
 
     ``clock``: object with ``now()``, ``sleep_until(t)``, ``unix_offset()`` (default: the monotonic
-    clock); ``rate``: frame rate (Hz); ``countdown``: s before the sequence starts; ``tail``: s
-    logged after the sequence ends; ``preview``: s of preview strip (0: none); ``display``: None
-    (no drawing), ``"headless"`` (off-screen Surface) or ``"window"``; ``events``: callable
-    returning pending pygame events (default ``pygame.event.get`` whenever pygame's display is
-    up); ``screenshot_every``: s between PNG screenshots written to ``screenshot_dir``.
-    After :meth:`fly`, ``log_`` is the frame log read back and ``render_times_`` the per-frame
-    drawing times (s).
+    clock); ``rate``: frame rate (Hz); ``countdown``: s before the logging starts; ``lead_in``: s
+    logged before the signal starts (the pilot holds still; the signals are flown delayed by it,
+    and ``signals`` holds them so); ``record``: s logged from the signal's start (default: the
+    signals' own ``record``), at least the sequence plus ``tail`` s; ``preview``: s of preview strip
+    (0: none); ``display``: None (no drawing), ``"headless"`` (off-screen Surface) or ``"window"``
+    (resizable; ``fullscreen`` fills the screen); ``units`` {input: unit} labels the scales;
+    ``events``: callable returning pending pygame events (default ``pygame.event.get`` whenever
+    pygame's display is up); ``screenshot_every``: s between PNG screenshots written to
+    ``screenshot_dir``; ``live``: a :class:`~cueing.live.LiveIdentification` fed every frame, its
+    panel drawn right of the needles. After :meth:`fly`, ``log_`` is the frame log read back and
+    ``render_times_`` the per-frame drawing times (s).
     """
 
     def __init__(self, signals, source: InputSource, log_path, *, clock=None, rate: float = DEFAULT_RATE,
-                 countdown: float = 3.0, tail: float = 1.0, preview: float = 0.0, display: str | None = None,
-                 audio: bool = True, events=None, meta: dict | None = None, size=(800, 480),
-                 screenshot_dir=None, screenshot_every: float | None = None, end_screen: float = 0.0):
-        self.signals = list(signals)
+                 countdown: float = 3.0, lead_in: float = 0.0, record: float | None = None, tail: float = 1.0,
+                 preview: float = 0.0, display: str | None = None, audio: bool = True, events=None,
+                 meta: dict | None = None, size=BASE_SIZE, fullscreen: bool = False, units: dict | None = None,
+                 screenshot_dir=None, screenshot_every: float | None = None, end_screen: float = 0.0,
+                 live=None):
+        self.lead_in = float(lead_in)
+        self.signals = [replace(s, delay=s.delay + self.lead_in) for s in signals]
         self.source = source
         self.log_path = Path(log_path)
         self.clock = clock or MonotonicClock()
@@ -56,11 +71,15 @@ class Runner:
         self.events = events
         self.meta = dict(meta or {})
         self.size = size
+        self.fullscreen = fullscreen
+        self.units = units
         self.screenshot_dir = Path(screenshot_dir) if screenshot_dir else None
         self.screenshot_every = screenshot_every
         self.end_screen = end_screen
+        self.live = live
         self.inputs = [s.input for s in self.signals]
-        self.t_end = max(s.end_time for s in self.signals) + self.tail
+        self.record = float(record) if record is not None else max(s.record for s in signals)
+        self.t_end = self.lead_in + max(self.record, max(s.end_time for s in signals) + self.tail)
 
     # -- setup ----------------------------------------------------------------------------------
     def _setup_display(self):
@@ -74,17 +93,37 @@ class Runner:
             pygame.display.init()
             pygame.font.init()
             if self.display_mode == WINDOW:
-                self.window = pygame.display.set_mode(self.size)
+                self.window = pygame.display.set_mode((0, 0) if self.fullscreen else self.size,
+                                                      pygame.FULLSCREEN if self.fullscreen else pygame.RESIZABLE)
         except pygame.error as exc:
             raise CueingError(f"cannot open a display window ({exc}): use --headless") from None
-        self.display = Display(self.signals, self.size, self.preview)
         if self.display_mode == WINDOW:
             pygame.display.set_caption("pseudostep cueing")
             self.surface = self.window
         else:
             self.surface = pygame.Surface(self.size)
-        if isinstance(self.source, MouseSource) and self.source.value_of_x is None:
-            self.source.value_of_x = self.display.value_of_x
+        self.needle_surface = self._needles()
+        self.display = Display(self.signals, self.needle_surface.get_size(), self.preview, self.units)
+        if isinstance(self.source, MouseSource) and self.source.value_of is None:
+            self.source.value_of = self.display.value_of_pointer
+
+    def _resize(self, size) -> None:
+        """Follow a resized window (the display re-lays itself out from the surface's size)."""
+        import pygame
+        if self.window is not None:
+            self.window = self.surface = pygame.display.get_surface()
+        else:
+            self.surface = pygame.Surface(size)
+        self.needle_surface = self._needles()
+        self.display.layout(self.needle_surface.get_size())  # now, not at the next render: the mouse maps through it
+
+    def _needles(self):
+        """The surface the needles are drawn on: all of it, or left of the live panel."""
+        if self.live is None:
+            return self.surface
+        from .live import PANEL_WIDTH
+        w, h = self.surface.get_size()
+        return self.surface.subsurface((0, 0, max(w - PANEL_WIDTH, 1), h))
 
     def _pending_events(self):
         if self.events is not None:
@@ -96,7 +135,9 @@ class Runner:
         meta = {"signal": ", ".join(f"{s.kind} on {s.input} (step {s.dt:g} s, amplitude {s.amplitude:g})"
                                     for s in self.signals),
                 "source": self.source.describe(), "frame_rate": f"{self.rate:g}",
-                "countdown": f"{self.countdown:g}", "preview": f"{self.preview:g}",
+                "countdown": f"{self.countdown:g}", "lead_in": f"{self.lead_in:g} s (quiet, before the signal)",
+                "record": f"{self.record:g} s from the signal's start, run {self.t_end:g} s",
+                "preview": f"{self.preview:g}",
                 "clock_epoch_unix": f"{t0 + self.clock.unix_offset():.6f}", "host": platform.node()}
         meta["pilot"] = "(unnamed)"
         meta.update(self.meta)
@@ -124,15 +165,21 @@ class Runner:
             writer.close(f"aborted (error: {exc})")
             raise
         writer.close(status)
-        self.log_ = read_frame_log(self.log_path)
-        if self.display is not None:
-            self._show_end(score_lines(self.log_) if score_lines else [f"run {status}"])
-        self.source.close()
+        try:
+            if writer.frames == 0:  # ended before its first frame: the log is kept, but holds nothing to read
+                raise RunAborted(f"run {status} before the recording started: no run file written "
+                                 f"(frame log {self.log_path})")
+            self.log_ = read_frame_log(self.log_path)
+            if self.display is not None:
+                self._show_end(score_lines(self.log_) if score_lines else [f"run {status}"])
+        finally:
+            self.source.close()
         return self.log_
 
     def _loop(self, writer: FrameLogWriter, t0: float) -> str:
         k, paused_total, pause_start, last_levels = 0, 0.0, None, None
         next_shot = 0.0
+        monitor = FrameRateMonitor(self.rate)
         while True:
             now = self.clock.now()
             t = now - t0
@@ -141,9 +188,15 @@ class Runner:
                 if quit_reason:
                     writer.event(t, quit_reason)
                     return f"aborted ({quit_reason})"
+                if _resized(event) and self.display is not None:
+                    self._resize(event.size)
+                    writer.event(t, f"window resized to {self.surface.get_width()} x {self.surface.get_height()} px")
                 message = self.source.handle_event(event)
                 if message:
                     writer.event(t, message)
+            change = monitor.add(now)
+            if change:
+                writer.event(t, change)
             paused = self.source.paused_reason is not None
             if paused and pause_start is None:
                 pause_start = t
@@ -158,11 +211,18 @@ class Runner:
                 self.ticker.tick()
             last_levels = levels
             writer.frame(k, t, t_signal, paused, command, flown)
+            if self.live is not None:
+                self.live.frame(k, t, t_signal, flown, paused)
             if self.display is not None:
-                state = FrameState(t, t_signal, command, flown, countdown=-t if t < 0 else None,
-                                   message=self.source.paused_reason)
+                state = FrameState(t, t_signal, command, flown,
+                                   countdown=self.lead_in - t if t < self.lead_in else None,
+                                   message=self.source.paused_reason, warning=monitor.warning, lead_in=t >= 0)
                 r0 = self.clock.now()
-                self.display.render(self.surface, state)
+                self.display.render(self.needle_surface, state)
+                if self.live is not None:
+                    w, h = self.surface.get_size()
+                    self.live.draw(self.surface, (self.needle_surface.get_width(), 0,
+                                                  w - self.needle_surface.get_width(), h))
                 if self.window is not None:
                     import pygame
                     pygame.display.flip()
@@ -194,7 +254,7 @@ class Runner:
         state = FrameState(float(log.time[-1]), float(last["t_signal"][-1]),
                            np.array([last[i + "_cmd"][-1] for i in self.inputs]).reshape(n),
                            np.array([last[i][-1] for i in self.inputs]).reshape(n), end_lines=lines)
-        self.display.render(self.surface, state)
+        self.display.render(self.needle_surface, state)
         if self.screenshot_dir is not None:
             self.screenshot("end.png")
         if self.window is not None:
@@ -205,6 +265,43 @@ class Runner:
                 if any(e.type in (pygame.QUIT, pygame.KEYDOWN) for e in self._pending_events()):
                     break
                 self.clock.sleep_until(self.clock.now() + 0.05)
+
+
+class FrameRateMonitor:
+    """The frame rate achieved over the last ``window`` s against ``target`` (Hz).
+
+    :meth:`add` takes each frame's clock time and returns a line for the log when the rate falls
+    under ``LOW_RATE`` of the target or recovers; ``warning`` is the on-screen text while low.
+    """
+
+    def __init__(self, target: float, window: float = 1.0):
+        self.target, self.window = float(target), float(window)
+        self.times: deque[float] = deque()
+        self.start = None
+        self.warning: str | None = None
+
+    def add(self, now: float) -> str | None:
+        self.start = now if self.start is None else self.start
+        self.times.append(now)
+        while self.times[0] < now - self.window:
+            self.times.popleft()
+        if now - self.start < self.window or len(self.times) < 2:
+            return None
+        rate = (len(self.times) - 1) / (self.times[-1] - self.times[0])
+        # a little hysteresis: a rate hovering at the limit does not flood the log with events
+        low = rate < (LOW_RATE if self.warning is None else LOW_RATE + RECOVERY_MARGIN) * self.target
+        change = None
+        if low and self.warning is None:
+            change = f"frame rate low: {rate:.1f} Hz of {self.target:g} Hz target"
+        elif not low and self.warning is not None:
+            change = f"frame rate recovered: {rate:.1f} Hz"
+        self.warning = f"frame rate {rate:.0f} Hz of {self.target:g} Hz" if low else None
+        return change
+
+
+def _resized(event) -> bool:
+    import pygame
+    return event.type == pygame.VIDEORESIZE
 
 
 def _quit_reason(event) -> str | None:

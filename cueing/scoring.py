@@ -4,8 +4,11 @@ All measures work on a uniform run holding ``<input>_cmd`` (designed) and ``<inp
 
 - ``rms``: RMS tracking error per axis, as a fraction of the amplitude;
 - per-switch timing error (s): when the flown input crosses halfway between the old and the new
-  level, minus the switch time (positive: late), searched from half a step before the switch to
-  one step after it; a switch not crossed in that window counts as missed;
+  level, minus the switch time (positive: late), searched from half the preceding hold before the
+  switch to ``MAX_LAG`` s after it (a human's lag, not the step width, sizes the window) or to the
+  next switch asking for the same crossing; a switch not crossed in that window counts as missed;
+- lag (s): the delay of the flown input behind the designed one that lines them up best (the
+  peak of their cross-correlation within +/- ``MAX_LAG``): defined even when every switch is missed;
 - level error (fractions of the amplitude): magnitude of the mean flown level over the settled
   second half of each hold minus the commanded magnitude (positive: overshoot), separately for +
   and - holds, and their asymmetry (+ error minus - error);
@@ -13,7 +16,11 @@ All measures work on a uniform run holding ``<input>_cmd`` (designed) and ``<inp
   signal was designed for (``params['band']`` in rad/s, else up to 1/(2 dt)): 1 is the designed
   amplitude spectrum exactly; pure delay does not count against it;
 - information retained: D-efficiency of the flown input relative to the designed one for a model
-  (signaldesign's Fisher information), over the parameters the design excites.
+  (signaldesign's Fisher information), over the parameters the design excites. It exceeds 1 when
+  the flown input carries more energy than the designed one (overshoot, levels flown too large):
+  more information bought with a larger input than the design allowed, not better flying. The
+  raw value is kept (``d_efficiency``); what is shown is capped at 100 % with the raw value beside.
+- frame rate: achieved and worst-second rate against the target, flagged under 90 %.
 """
 from __future__ import annotations
 
@@ -21,14 +28,18 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from identify.runs import Run
+from scipy.signal import correlate, correlation_lags
+
+from identify import Run
 from signaldesign.information import d_efficiency, fisher_information
 
-from .flightlog import CMD
+from .flightlog import CMD, LOW_RATE, frame_rate_warning
+
+MAX_LAG = 1.5  # s: the latest a pilot's answer to a switch still counts as one
 
 
 @dataclass
-class Score:
+class PracticeScore:
     """Scores of one run (see the module doc); ``per_axis`` holds the per-axis details."""
 
     rms: float
@@ -41,46 +52,105 @@ class Score:
     level_error_neg: float
     asymmetry: float
     spectral_fidelity: float
+    lag: float = np.nan
     d_efficiency: float | None = None
+    frame_rate: float | None = None
+    frame_rate_lowest: float | None = None
+    frame_rate_target: float | None = None
     per_axis: list[dict] = field(default_factory=list)
 
+    @property
+    def information_retained(self) -> float | None:
+        """D-efficiency capped at 1 (the raw value stays in ``d_efficiency``)."""
+        return None if self.d_efficiency is None else min(self.d_efficiency, 1.0)
+
+    @property
+    def frame_rate_low(self) -> bool:
+        return self.frame_rate_target is not None and \
+            min(self.frame_rate, self.frame_rate_lowest) < LOW_RATE * self.frame_rate_target
+
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**asdict(self), "information_retained": self.information_retained,
+                "frame_rate_low": self.frame_rate_low}
 
     def lines(self) -> list[str]:
-        """Short lines for the end-of-run screen and the console."""
+        """Short lines for the end-of-run screen and the console; warnings start with ``!``."""
+        if self.switches == self.missed:
+            timing = f"switch timing        none of {self.switches} followed within {MAX_LAG:g} s"
+        else:
+            timing = (f"switch timing        {1000 * self.timing_mean:+5.0f} ms mean, {1000 * self.timing_std:4.0f} ms"
+                      f" std ({self.missed} of {self.switches} missed)")
         out = ["Run score",
-               f"RMS tracking error   {100 * self.rms:5.1f} % of amplitude",
-               f"switch timing        {1000 * self.timing_mean:+5.0f} ms mean, {1000 * self.timing_std:4.0f} ms std"
-               f" ({self.missed} of {self.switches} missed)",
+               f"RMS tracking error   {100 * self.rms:5.1f} % of amplitude", timing,
+               f"lag (cross-corr.)    {1000 * self.lag:+5.0f} ms" if np.isfinite(self.lag) else
+               "lag (cross-corr.)    - (the flown input never moved)",
                f"level error (+ / -)  {100 * self.level_error_pos:+5.1f} % / {100 * self.level_error_neg:+5.1f} %"
                f"  (asymmetry {100 * self.asymmetry:+5.1f} %)",
                f"spectral fidelity    {self.spectral_fidelity:5.3f}"]
-        if self.d_efficiency is not None:
+        if self.d_efficiency is not None and self.d_efficiency > 1:
+            out += [f"information retained 100.0 % (capped; raw D-efficiency {100 * self.d_efficiency:.1f} %)",
+                    "  over 100 %: flown with more energy than designed (overshoot), not better"]
+        elif self.d_efficiency is not None:
             out.append(f"information retained {100 * self.d_efficiency:5.1f} % (D-efficiency)")
+        if self.frame_rate_low:
+            out.append("! " + frame_rate_warning({"rate_nominal": self.frame_rate_target,
+                                                   "rate_achieved": self.frame_rate,
+                                                   "rate_lowest_1s": self.frame_rate_lowest}))
         return out
 
 
-def switch_timing(t: np.ndarray, flown: np.ndarray, signal, t_signal: np.ndarray | None = None) -> np.ndarray:
-    """Timing error (s) at each switch of ``signal``; NaN where the flown input never got halfway."""
+def switch_timing(t: np.ndarray, flown: np.ndarray, signal, t_signal: np.ndarray | None = None,
+                  max_lag: float = MAX_LAG) -> np.ndarray:
+    """Timing error (s) at each switch of ``signal``; NaN where the flown input did not get halfway
+    from the old level to the new one within ``max_lag`` s (see the module doc)."""
     ts = t if t_signal is None else t_signal
     sw = signal.switch_times()
+    before = signal(sw - 1e-6)
+    after = signal(sw + 1e-6)
+    half, direction = 0.5 * (before + after), np.sign(after - before)
     errors = np.full(sw.size, np.nan)
-    window = signal.dt
+    used = {}  # crossing (direction, halfway level) -> when an earlier switch's answer made it
     for i, s in enumerate(sw):
-        before = signal.level_at(s - 1e-6) * signal.amplitude
-        after = signal.level_at(s + 1e-6) * signal.amplitude
-        half = 0.5 * (before + after)
-        sel = np.flatnonzero((ts >= s - 0.5 * window) & (ts <= s + window))
+        key = (direction[i], round(half[i] / (abs(signal.amplitude) or 1.0), 9))
+        hold = s - sw[i - 1] if i else max_lag
+        end = s + max_lag
+        # a later switch asking for the same crossing takes over: its crossing is not this one's,
+        # nor is the one an earlier switch asking for the same crossing already had
+        same = np.flatnonzero((direction[i + 1:] == direction[i]) & np.isclose(half[i + 1:], half[i]))
+        if same.size:
+            end = min(end, sw[i + 1 + same[0]])
+        sel = np.flatnonzero((ts >= s - 0.5 * min(hold, max_lag)) & (ts > used.get(key, -np.inf)) & (ts <= end))
         if sel.size == 0:
             continue
-        crossed = (flown[sel] - half) * np.sign(after - before) > 0
+        side = np.sign((flown[sel] - half[i]) * direction[i])  # -1 old side, +1 new side
         # only a crossing from the old side counts: sitting on the new side all along (a pilot who
-        # never followed the previous level) is a miss, not a perfectly timed switch
-        cross = np.flatnonzero(crossed[1:] & ~crossed[:-1]) + 1
+        # never followed the previous level) is a miss, not a perfectly timed switch; nor does
+        # leaving the halfway line itself (an answer to an earlier switch towards it)
+        last_side = side[np.maximum.accumulate(np.where(side != 0, np.arange(side.size), 0))]  # 0: none yet
+        cross = np.flatnonzero((side[1:] > 0) & (last_side[:-1] < 0)) + 1
         if cross.size:
             errors[i] = ts[sel[cross[0]]] - s
+            used[key] = ts[sel[cross[0]]]
     return errors
+
+
+def tracking_lag(designed: np.ndarray, flown: np.ndarray, dt: float, max_lag: float = MAX_LAG) -> float:
+    """Delay (s) of ``flown`` behind ``designed`` (both (N,), sampled every ``dt`` s): the peak of
+    their cross-correlation within +/- ``max_lag``, refined between samples by a parabola; NaN only
+    when either input is constant (nothing to line up)."""
+    d, f = designed - np.mean(designed), flown - np.mean(flown)
+    if not (np.any(d) and np.any(f)):
+        return np.nan
+    c = correlate(f, d, mode="full")
+    lags = correlation_lags(f.size, d.size, mode="full")
+    keep = np.abs(lags) <= max_lag / dt
+    c, lags = c[keep], lags[keep]
+    k = int(np.argmax(c))
+    shift = 0.0
+    if 0 < k < c.size - 1:
+        curv = c[k - 1] - 2 * c[k] + c[k + 1]
+        shift = 0.5 * (c[k - 1] - c[k + 1]) / curv if curv < 0 else 0.0
+    return float((lags[k] + shift) * dt)
 
 
 def level_errors(ts: np.ndarray, flown: np.ndarray, signal) -> tuple[float, float, float]:
@@ -138,8 +208,9 @@ def information_retained(model, run: Run, signals) -> float:
     return d_efficiency(M_f[np.ix_(keep, keep)], M_d[np.ix_(keep, keep)])
 
 
-def score_run(run: Run, signals, model=None) -> Score:
-    """Score a flown run against ``signals``; with ``model`` also the information retained."""
+def score_run(run: Run, signals, model=None, frame_stats: dict | None = None) -> PracticeScore:
+    """Score a flown run against ``signals``; with ``model`` also the information retained, with
+    ``frame_stats`` (:meth:`FrameLog.frame_stats`) the frame rate achieved."""
     t = run.time
     ts = run["t_signal"] if "t_signal" in run.channels else t
     axes = []
@@ -150,16 +221,28 @@ def score_run(run: Run, signals, model=None) -> Score:
         e_pos, e_neg, asym = level_errors(ts, flown, s)
         axes.append({"input": s.input, "rms": float(np.sqrt(np.mean((flown - designed) ** 2)) / a),
                      "timing": timing.tolist(), "level_error_pos": e_pos, "level_error_neg": e_neg,
-                     "asymmetry": asym,
+                     "asymmetry": asym, "lag": tracking_lag(designed, flown, run.dt),
                      "spectral_fidelity": spectral_fidelity(designed, flown, run.dt, signal_band(s))})
     timing = np.concatenate([np.asarray(ax["timing"], float) for ax in axes])
     hit = timing[np.isfinite(timing)]
-    mean = lambda key: float(np.nanmean([ax[key] for ax in axes]))  # noqa: E731
-    return Score(rms=mean("rms"), timing_mean=float(np.mean(hit)) if hit.size else np.nan,
+    mean = lambda key: _nanmean([ax[key] for ax in axes])  # noqa: E731
+    return PracticeScore(rms=mean("rms"), timing_mean=float(np.mean(hit)) if hit.size else np.nan,
                  timing_std=float(np.std(hit)) if hit.size else np.nan,
                  timing_max=float(np.max(np.abs(hit))) if hit.size else np.nan,
                  switches=int(timing.size), missed=int(np.sum(~np.isfinite(timing))),
                  level_error_pos=mean("level_error_pos"), level_error_neg=mean("level_error_neg"),
-                 asymmetry=mean("asymmetry"), spectral_fidelity=mean("spectral_fidelity"),
+                 asymmetry=mean("asymmetry"), spectral_fidelity=mean("spectral_fidelity"), lag=mean("lag"),
                  d_efficiency=information_retained(model, run, signals) if model is not None else None,
-                 per_axis=axes)
+                 per_axis=axes, **_frame_rates(frame_stats))
+
+
+def _nanmean(values) -> float:
+    values = np.asarray(values, float)
+    return float(np.mean(values[np.isfinite(values)])) if np.isfinite(values).any() else np.nan
+
+
+def _frame_rates(stats: dict | None) -> dict:
+    if not stats or "rate_nominal" not in stats:
+        return {}
+    return {"frame_rate": stats["rate_achieved"], "frame_rate_lowest": stats["rate_lowest_1s"],
+            "frame_rate_target": stats["rate_nominal"]}

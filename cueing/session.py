@@ -6,14 +6,14 @@ from pathlib import Path
 
 import numpy as np
 
-from identify import LinearModel, load_profile, simulate_run
-from identify.runs import Run
+from identify import LinearModel, Run, load_profile, simulate_run
 
 from .clock import FakeClock
-from .errors import CueingError
+from .display import signal_units
+from .errors import CueingError, RunAborted
 from .flightlog import CMD, FrameLog, frame_log_path, log_to_run
 from .runner import Runner
-from .scoring import Score, score_run
+from .scoring import PracticeScore, score_run
 
 
 @dataclass
@@ -24,7 +24,7 @@ class Flight:
     log: FrameLog
     run: Run
     path: Path
-    score: Score
+    score: PracticeScore
     runner: Runner | None = None
 
 
@@ -53,8 +53,9 @@ def fly(signals, source, out, *, simulate=None, noise_fraction: float = 0.02, se
     """Fly ``signals`` with ``source``; write the run file ``out`` (frame log beside it).
 
     ``simulate``: profile (name, path or LinearModel) whose response is added; ``model``: model for
-    the information-retained score (default: the simulated one); ``fast``: fake clock, no waiting
-    (only for sources that need no human).
+    the information-retained score (default: the simulated one), whose profile also gives the
+    scale's units; ``fast``: fake clock, no waiting (only for sources that need no human);
+    ``runner_options`` go to :class:`Runner` (``lead_in``, ``record``, ``rate`` ...).
     """
     out = Path(out)
     sim_model = None
@@ -63,8 +64,11 @@ def fly(signals, source, out, *, simulate=None, noise_fraction: float = 0.02, se
     model = model if model is not None else sim_model
     if fast:
         runner_options["clock"] = FakeClock()
+    if model is not None:
+        runner_options.setdefault("units", signal_units(signals, model.profile))
     runner = Runner(signals, source, frame_log_path(out), meta={"pilot": pilot or "(unnamed)"},
                     **runner_options)
+    signals = runner.signals  # as flown: delayed by the lead-in
     holder = {}
 
     def end_lines(log):
@@ -82,12 +86,19 @@ def fly(signals, source, out, *, simulate=None, noise_fraction: float = 0.02, se
 
 
 def _finish(log, signals, out, sim_model, noise_fraction, seed, model) -> Flight:
+    if log.aborted and np.sum(log.time >= 0) < 2:
+        raise RunAborted(f"run {log.status} before the recording started: no run file written "
+                         f"(frame log {log.path})")
     run = log_to_run(log, signals=signals)
     if sim_model is not None:
         run = simulate_test_point(run, sim_model, noise_fraction, seed)
-    score = score_run(run, signals, model)
+    score = score_run(run, signals, model, log.frame_stats())
+    notes = {}
+    if score.d_efficiency is not None and score.d_efficiency > 1:
+        notes["information_note"] = (f"D-efficiency {score.d_efficiency:.4g} > 1: the flown input carried more "
+                                     "energy than designed (overshoot); shown capped at 100 %")
     run = run.with_channels({}, score=", ".join(f"{k} {v:.4g}" for k, v in score.to_dict().items()
-                                                if isinstance(v, (int, float)) and v is not None))
+                                                if isinstance(v, (int, float)) and v is not None), **notes)
     out.parent.mkdir(parents=True, exist_ok=True)
     run.to_csv(out)
     return Flight(log, run, out, score)

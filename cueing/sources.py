@@ -107,7 +107,7 @@ class ReplaySource(InputSource):
 
     def __init__(self, path: str | Path):
         from identify.errors import RunError
-        from identify.runs import read_run
+        from identify.data.io import read_run_file
         from .flightlog import FORMAT, read_frame_log
         self.path = Path(path)
         try:
@@ -120,7 +120,7 @@ class ReplaySource(InputSource):
             self.time, self.channels = log.columns["t_signal"], log.columns
         else:
             try:
-                run = read_run(self.path)
+                run = read_run_file(self.path)
             except RunError as exc:
                 raise CueingError(f"replay source: {exc}") from None
             self.time, self.channels = run.time, run.channels
@@ -141,7 +141,8 @@ class ReplaySource(InputSource):
 
 
 class KeyboardSource(InputSource):
-    """Arrow keys: held left/right (axis 1) or down/up (axis 2) give the -/+ level, none gives 0."""
+    """Arrow keys: held left/right (axis 1) or down/up (axis 2) give the -/+ level, none gives 0;
+    a third axis on a/d. More axes are refused."""
 
     name = "keyboard"
 
@@ -149,6 +150,10 @@ class KeyboardSource(InputSource):
         import pygame
         self._keys = key_state or pygame.key.get_pressed
         self.pairs = [(pygame.K_LEFT, pygame.K_RIGHT), (pygame.K_DOWN, pygame.K_UP), (pygame.K_a, pygame.K_d)]
+
+    def start(self, signals, preview: bool = False) -> None:
+        super().start(signals, preview)
+        _check_axes(self, len(self.pairs), "left/right, down/up, a/d")
 
     def read(self, t_signal: float) -> np.ndarray:
         keys = self._keys()
@@ -159,24 +164,37 @@ class KeyboardSource(InputSource):
 
 
 class MouseSource(InputSource):
-    """Mouse x on the first axis, mapped through the display's scale (the pilot puts the pilot
-    needle where the pointer is); holds the last value while the window has no mouse focus."""
+    """The pointer: x flies the first axis, y (up: +) the second, mapped through the display's
+    scales (``value_of(pos) -> (n_axes,)``, set by the runner); holds the last values while the
+    window has no mouse focus. More than two axes are refused."""
 
     name = "mouse"
 
-    def __init__(self, value_of_x=None, position=None, focused=None):
+    def __init__(self, value_of=None, position=None, focused=None):
         import pygame
         self._pos = position or pygame.mouse.get_pos
         self._focused = focused or pygame.mouse.get_focused
-        self.value_of_x = value_of_x  # set by the runner from the display's scale
-        self.last = 0.0
+        self.value_of = value_of  # set by the runner from the display's scales
+        self.last = None
+
+    def start(self, signals, preview: bool = False) -> None:
+        super().start(signals, preview)
+        _check_axes(self, 2, "x, y")
+        self.last = np.zeros(len(self.signals))
 
     def read(self, t_signal: float) -> np.ndarray:
-        out = np.zeros(len(self.signals))
-        if self.value_of_x is not None and self._focused():
-            self.last = self.value_of_x(self._pos()[0], 0)
-        out[0] = self.last
-        return out
+        if self.value_of is not None and self._focused():
+            self.last = np.asarray(self.value_of(self._pos()), float)[:len(self.signals)]
+        return self.last.copy()
+
+    def describe(self) -> str:
+        return "mouse (x: first axis" + (", y: second axis)" if len(getattr(self, "signals", [])) > 1 else ")")
+
+
+def _check_axes(source: InputSource, most: int, how: str) -> None:
+    if len(source.signals) > most:
+        raise CueingError(f"the {source.name} source flies at most {most} axes ({how}), the signal has "
+                          f"{len(source.signals)}: use a joystick or split the signal file")
 
 
 @dataclass

@@ -4,8 +4,8 @@ from __future__ import annotations
 from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
                       output_dir, output_file, positive_float, positive_int, run)
 from .errors import EstimationError
-from .model import LinearModel, format_modes, residualize
-from .profile import load_profile
+from .model.linear import LinearModel, format_modes, residualize
+from .model.profile import load_profile
 
 
 def cmd_model(args) -> int:
@@ -46,6 +46,7 @@ def build_parser() -> Parser:
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
+    _add_freq_parser(sub)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser
@@ -55,38 +56,40 @@ def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     import sys
 
-    from .matfile import load_channel_map, read_run_file
-    from .plots import save_plots
-    from .preprocess import slice_run, smooth
+    from .data.preprocess import slice_run, smooth
+    from .estimators.plots import save_plots
+    from .estimators.registry import estimator_class
 
-    if args.max_iter is not None and args.method == "ls":
-        raise EstimationError("--max-iter applies to the iterative methods (iv, ml); ls is one solution")
+    if args.max_iter is not None and args.method not in ("iv", "ml"):
+        raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
     profile = load_profile(args.profile)
-    cmap = load_channel_map(args.channel_map) if args.channel_map else None
     runs = []
-    for path in args.runs:
-        r = read_run_file(path, cmap)
+    for r in _read_runs(args.runs, args.channel_map, profile):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
+            if "segment" in r.meta and not _overlaps(r, args.t_start, args.t_end):
+                print(f"note: {r.source} lies outside --t-start/--t-end: not used", file=sys.stderr)
+                continue
             r = slice_run(r, args.t_start, args.t_end)
         runs.append(r)
+    if not runs:
+        raise EstimationError("no run has samples between --t-start and --t-end")
 
     def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
         print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
 
     iterations = {} if args.max_iter is None else {"max_iter": args.max_iter}
-    if args.method == "ml":
-        from .ml import ML
-        est = ML(profile, progress=show, **iterations)
-    elif args.method == "iv":
-        from .equation_error import IV
-        est = IV(profile, progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations)
-    else:
-        from .equation_error import LS
-        est = LS(profile, diff_cutoff_hz=args.diff_cutoff)
+    options = {"ml": dict(progress=show, **iterations),
+               "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
+               "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
+    est = estimator_class(args.method)(profile, **options)
     result = est.fit(runs).result_
     print(result.summary(), flush=True)  # on screen before anything is written
+    from .frequency import cost_report
+    text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
+                                                              "a priori": LinearModel(profile)})
+    print("\n" + text, flush=True)
     out = result.save(args.out)
     plots = save_plots(result, out)
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
@@ -95,10 +98,7 @@ def cmd_estimate(args) -> int:
 
 def _add_estimate_parser(sub) -> None:
     p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
-    p.add_argument("runs", nargs="+", help="run files (.csv, or .mat with --channel-map)")
-    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ls", "iv", "ml"), default="iv", help="estimator (default iv)")
-    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
                    help="cut-off of the smoothed differentiator for states without measured derivatives")
@@ -106,26 +106,53 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
                    help="iterations at most for iv (default 30) and ml (default 50)")
-    p.add_argument("--channel-map", metavar="JSON",
-                   help='for .mat runs: {"channels": {channel: variable or column}, "time": ..., '
-                        '"matrix": ..., "dt": ...} as a file or inline JSON')
     p.set_defaults(func=cmd_estimate)
+
+
+def _read_runs(paths, channel_map, profile):
+    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units."""
+    from .data.io import load_channel_map, read_run_files
+
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+
+
+def _overlaps(run, t_start, t_end) -> bool:
+    """Whether a run has two or more samples in the window (a gap's segment may have none)."""
+    lo = -float("inf") if t_start is None else t_start
+    hi = float("inf") if t_end is None else t_end
+    return int(((run.time >= lo) & (run.time <= hi)).sum()) >= 2
+
+
+def _add_common_options(p, runs_help: str, default_method: str) -> None:
+    """Options of every command that reads runs (through :mod:`identify.data.io`) and estimates."""
+    from .estimators.registry import METHODS
+
+    p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv or .mat)")
+    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
+    p.add_argument("--method", choices=tuple(METHODS), default=default_method,
+                   help=f"estimator (default {default_method})")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--channel-map", metavar="JSON",
+                   help='{"channels": {channel: column, variable, matrix column or expression such as '
+                        '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
+                        'as a file or inline JSON (required for .mat data matrices)')
 
 
 def cmd_refine(args) -> int:
     """Fit, find what the residuals say the model lacks, add it, re-identify; write the evidence."""
-    from .candidates import KINDS
-    from .refine import Refine
-    from .refine_report import write
-    from .runs import read_run
+    from .refine.candidates import KINDS
+    from .refine.loop import Refine
+    from .refine.report import write
 
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
-    refiner = Refine(args.profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
+    profile = load_profile(args.profile)
+    refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max)
-    refiner.fit([read_run(f) for f in args.runs], validate=[read_run(f) for f in args.validate or []])
+    refiner.fit(_read_runs(args.runs, args.channel_map, profile),
+                validate=_read_runs(args.validate or [], args.channel_map, profile))
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
@@ -143,11 +170,8 @@ def cmd_refine(args) -> int:
 
 def _add_refine_parser(sub) -> None:
     p = sub.add_parser("refine", help="find unmodelled effects in the residuals, add them, re-identify")
-    p.add_argument("runs", nargs="+", help="run files (.csv) to fit")
-    p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=("ml", "ls", "iv"), default="ml", help="estimator (default ml)")
+    _add_common_options(p, "run files to fit", default_method="ml")
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
-    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
                    "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
     p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
@@ -159,6 +183,41 @@ def _add_refine_parser(sub) -> None:
     p.add_argument("--f-min", type=nonnegative_float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
     p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
     p.set_defaults(func=cmd_refine)
+
+
+def cmd_freq(args) -> int:
+    """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
+    from pathlib import Path
+
+    from .data.runs import read_run
+    from .frequency import cost_report, frequency_response, plot_bode
+
+    profile = load_profile(args.profile)
+    runs = [read_run(f) for f in args.runs]
+    f_range = None if args.f_min is None and args.f_max is None else (args.f_min or 0.05, args.f_max or 5.0)
+    fr = frequency_response(runs, profile.input_names, list(profile.outputs), f_range=f_range)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    models = {"a priori": LinearModel(profile)}
+    if args.identified:  # e.g. identified_profile.toml from identify estimate
+        models["identified"] = LinearModel(load_profile(args.identified))
+    plots = plot_bode(fr, models, out)
+    fr.to_csv(out / "frequency_response.csv")
+    print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
+    print(cost_report(runs, models)[0])
+    print(f"written to {out}: frequency_response.csv, {', '.join(p.name for p in plots)}")
+    return 0
+
+
+def _add_freq_parser(sub) -> None:
+    p = sub.add_parser("freq", help="frequency responses with coherence (Bode plots, CSV, fit cost J)")
+    p.add_argument("runs", nargs="+", help="run files (.csv)")
+    p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--identified", metavar="TOML", help="an identified profile to overlay and judge (J) too")
+    p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
+    p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
+    p.set_defaults(func=cmd_freq)
 
 
 def main(argv=None) -> int:

@@ -17,14 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identify.errors import PseudostepError
-from identify.model import LinearModel, Mode
+from identify import LinearModel, Mode
+from identify.errors import BandError
 
 from .information import default_noise
-
-
-class BandError(PseudostepError):
-    """The required band cannot be computed (no input of that name, nothing excited)."""
 
 
 def input_index(model: LinearModel, input: str) -> int:

@@ -1,16 +1,16 @@
 """``python -m signaldesign``: frequency band, signal design, baselines, comparison, plots."""
 from __future__ import annotations
 
-from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, nonnegative_int, output_file,
-                               positive_float, positive_int, progress_bar, run)
-from identify.model import LinearModel
-from identify.profile import load_profile
+from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, output_file, positive_float,
+                               positive_int, progress_bar, run)
+from identify import LinearModel, load_profile
 
 from .band import plot_band, required_band
 from .baselines import make_signal
-from .compare import reference_of, tuned_baselines
-from .design import SequenceDesign
-from .evaluate import Evaluator, format_scores, perturbed_models
+from .compare import MIN_WIDTH, default_limits, information_per_second, reference_of, tuned_baselines, yardsticks
+from .design import CRITERIA, SequenceDesign
+from .evaluate import Evaluator, band_coverage, check_record, format_scores
+from .robust import evaluation_set
 from .information import default_noise, format_noise
 from .signal import SignalError, load_signals, save_signals, signals_to_run
 from .spectrum import half_power_band, plot_signals
@@ -24,6 +24,8 @@ def _floats(text: str, what: str) -> list[float]:
 
 
 def _model(args) -> LinearModel:
+    if hasattr(args, "dt"):
+        check_record(args.record, args.dt)  # --dt 0 is one line, before any work
     return LinearModel(load_profile(args.profile))
 
 
@@ -42,43 +44,62 @@ def _inputs(args) -> list[str]:
     return [s.strip() for s in args.input.split(",") if s.strip()]
 
 
+def _evaluator(model, inputs, args, amplitude) -> Evaluator:
+    """Evaluator on the model set, with the required band per input, limits (the profile's, else
+    the best-width 3211's peaks at ``amplitude``) and each model's correctly tuned 3211."""
+    bands = {i: required_band(model, i) for i in inputs}
+    models, labels = evaluation_set(model, seed=args.seed + 101)
+    ev = Evaluator(model, inputs, args.record, args.dt, band={i: (b.low, b.high) for i, b in bands.items()},
+                   models=models, model_labels=labels)
+    default_limits(ev, args.duration, amplitude, args.min_pulse)
+    yardsticks(ev, args.duration, args.min_pulse)
+    return ev
+
+
+def _designer(inputs, args, progress=None) -> SequenceDesign:
+    return SequenceDesign(inputs, args.duration, args.record, args.amplitude, args.dt, args.grid, args.min_pulse,
+                          args.max_changes, not args.no_double_jumps, args.criterion,
+                          reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress)
+
+
 def cmd_design(args) -> int:
     model = _model(args)
     inputs = _inputs(args)
-    designer = SequenceDesign(inputs, args.duration, args.record, args.amplitude, args.dt,
-                              args.min_width, args.max_width, min_pulse=args.min_pulse,
-                              max_changes=args.max_changes, allow_double_jumps=args.allow_double_jumps,
-                              criterion=args.criterion,
-                              perturbations=args.perturbations if args.criterion != "nominal" else 0,
-                              spread=args.spread, max_peak=args.max_peak,
-                              seed=args.seed, progress=progress_bar("designing"))
-    designer.candidate_widths()  # an impossible duration is reported before any work
-    band = required_band(model, inputs[0])
-    ev = Evaluator(model, inputs, args.record, args.dt, band=(band.low, band.high),
-                   models=perturbed_models(model, args.perturbations, args.spread, args.seed))
-    baselines = tuned_baselines(ev, args.duration, args.amplitude, band.high)
+    designer = _designer(inputs, args, progress_bar("designing"))
+    designer.n_steps()  # an impossible timing is reported before any work
+    ev = _evaluator(model, inputs, args, args.amplitude if args.amplitude is not None else args.reference_amplitude)
+    baselines = tuned_baselines(ev, args.duration, 1.0, max(b[1] for b in ev.bands.values()),
+                                min_width=args.min_pulse)
     reference = reference_of(baselines)
-    designer.reference = reference
-    designer.fit(model)
     ev.set_reference(reference)
+    designer.limits = dict(zip(model.profile.outputs, ev.limits))
+    designer.fit(model)
     scores = [ev.score(s, label) for label, s in baselines]
-    res = designer.result_
-    scores.append(ev.score(designer.signals_, f"optimised ({res.method}), width {designer.width_:g} s"))
-    print(f"{model.profile.name}: {', '.join(inputs)}, {args.duration:g} s input in a {args.record:g} s record, "
-          f"amplitude {args.amplitude:g} rad; required band {band.low:.3f}..{band.high:.3f} rad/s")
+    scores.append(ev.score(designer.signals_, f"optimised ({designer.criterion})"))
+    print(f"{model.profile.name}: {', '.join(inputs)}, {args.duration:g} s input in a {args.record:g} s record; "
+          + "; ".join(f"required band ({i}) {lo:.3f}..{hi:.3f} rad/s" for i, (lo, hi) in ev.bands.items()))
     print(format_noise(model.profile, ev.noise_std))
-    print(f"{ev.p} parameters scored; perturbed models: {len(ev.models)} (derivatives x 1 -/+ {args.spread:g})")
-    print(format_scores(scores, "the best 3211"))
-    for s in designer.signals_:
-        print(f"optimised levels on {s.input}: {' '.join(f'{int(v):+d}' for v in s.levels)}")
-    print(f"design took {designer.seconds_:.1f} s ({res.evaluations} candidates scored at the best width)")
+    print(f"{ev.p} parameters scored; limits: {ev.limits_source}; model set: {len(ev.models)} models "
+          f"(frequencies x 0.6..1.6, derivatives x 0.7..1.3)")
+    print(format_scores(scores, "the best-width 3211"))
+    print(designer.summary())
+    if len(inputs) > 1:
+        singles = []
+        for i in inputs:  # each axis in its own run, within the same limits
+            single = _designer([i], args)
+            single.limits = designer.limits
+            singles.append(single.fit(model).signals_)
+        joint, separate = information_per_second(ev, designer.signals_, singles, args.record)
+        print(f"information per second of flight (det M^(1/p) / s): {joint:.4g} with the axes in one run, "
+              f"{separate:.4g} with one run per axis (x{joint / separate:.2f})")
     if args.out:
         save_signals(designer.signals_, args.out)
         print(f"signal written to {args.out}")
     if args.plot:
         sigs = [reference[0], designer.signals_[0]]
-        plot_signals(sigs, args.plot, band=(band.low, band.high), labels=["best 3211", "optimised"])
-        print(f"plot written to {args.plot}")
+        band = ev.bands[sigs[0].input]
+        plot_signals(sigs, args.plot, band=band, labels=["best 3211", "optimised"])
+        print(f"plot written to {args.plot} (required band shaded)")
     return 0
 
 
@@ -106,16 +127,16 @@ def cmd_make(args) -> int:
 def cmd_compare(args) -> int:
     model = _model(args)
     sets = [load_signals(path) for path in args.signals]
-    inputs = sorted({s.input for sig in sets for s in sig}, key=model.profile.input_names.index
-                    if all(s.input in model.profile.input_names for sig in sets for s in sig) else str)
-    band = required_band(model, inputs[0])
-    ev = Evaluator(model, inputs, args.record, args.dt, band=(band.low, band.high),
-                   models=perturbed_models(model, args.perturbations, args.spread, args.seed))
+    names = model.profile.input_names
+    inputs = sorted({s.input for sig in sets for s in sig}, key=lambda i: names.index(i) if i in names else len(names))
+    args.duration = max(s.duration for sig in sets for s in sig)
+    ev = _evaluator(model, inputs, args, args.reference_amplitude)
     ev.set_reference(sets[0])
     scores = [ev.score(sig, str(path)) for sig, path in zip(sets, args.signals)]
-    print(f"{model.profile.name}: {args.record:g} s record; required band ({inputs[0]}) "
-          f"{band.low:.3f}..{band.high:.3f} rad/s")
+    print(f"{model.profile.name}: {args.record:g} s record; "
+          + "; ".join(f"required band ({i}) {lo:.3f}..{hi:.3f} rad/s" for i, (lo, hi) in ev.bands.items()))
     print(format_noise(model.profile, ev.noise_std))
+    print(f"limits: {ev.limits_source}")
     print(format_scores(scores, args.signals[0]))
     return 0
 
@@ -133,7 +154,8 @@ def cmd_plot(args) -> int:
         band = (b.low, b.high)
     for s, label in zip(signals, labels):
         lo, hi, peak = half_power_band(s)
-        print(f"{label}: half-power band {lo:.3f}..{hi:.3f} rad/s (peak {peak:.3f} rad/s)")
+        covered = f"; {100 * band_coverage(s, band):.0f}% of the required band inside it" if band else ""
+        print(f"{label}: half-power band {lo:.3f}..{hi:.3f} rad/s (peak {peak:.3f} rad/s){covered}")
     plot_signals(signals, args.out, band=band, labels=labels)
     print(f"plot written to {args.out}")
     return 0
@@ -142,9 +164,11 @@ def cmd_plot(args) -> int:
 def _record_options(p):
     p.add_argument("--record", type=positive_float, default=20.0, help="record length in s (default 20)")
     p.add_argument("--dt", type=positive_float, default=0.05, help="sample interval in s (default 0.05)")
-    p.add_argument("--perturbations", type=nonnegative_int, default=24,
-                   help="perturbed models for the robustness columns (default 24)")
-    p.add_argument("--spread", type=nonnegative_float, default=0.3, help="derivatives scaled by 1 -/+ this (default 0.3)")
+    p.add_argument("--min-pulse", type=positive_float, default=MIN_WIDTH,
+                   help=f"shortest hold in s, also the baselines' shortest pulse (default {MIN_WIDTH:g})")
+    p.add_argument("--reference-amplitude", type=positive_float, default=0.02,
+                   help="without [limits] in the profile, the limits are the best-width 3211's peaks at "
+                        "this amplitude (default 0.02)")
     p.add_argument("--seed", type=int, default=0)
 
 
@@ -156,24 +180,23 @@ def build_parser() -> Parser:
     p.add_argument("--profile", required=True, help="profile TOML path or bundled profile name")
     p.add_argument("--input", required=True, help="control input (e.g. theta_s)")
     p.add_argument("--level", type=fraction, default=0.5, help="fraction of each sensitivity's peak (default 0.5)")
-    p.add_argument("--plot", metavar="PNG", type=output_file, help="draw the sensitivities and the band")
+    p.add_argument("--plot", type=output_file, metavar="PNG", help="draw the sensitivities and the band")
     p.set_defaults(func=cmd_band)
 
-    p = sub.add_parser("design", help="optimise a three-level pseudo-stochastic sequence and compare it")
+    p = sub.add_parser("design", help="optimise a three-level sequence within the response limits and compare it")
     p.add_argument("--profile", required=True)
-    p.add_argument("--input", required=True, help="control input, or two comma-separated for a multi-axis design")
+    p.add_argument("--input", required=True, help="control input, or several comma-separated for one multi-axis run")
     p.add_argument("--duration", type=positive_float, default=7.0, help="signal length in s (default 7)")
-    p.add_argument("--amplitude", type=positive_float, default=0.02, help="amplitude in rad (default 0.02)")
-    p.add_argument("--min-width", type=positive_float, default=0.3, help="smallest step width tried, s (default 0.3)")
-    p.add_argument("--max-width", type=positive_float, default=1.0, help="largest step width tried, s (default 1)")
-    p.add_argument("--min-pulse", type=positive_float, help="shortest hold in s (default one step)")
-    p.add_argument("--max-changes", type=positive_int, help="most level changes (default unlimited)")
-    p.add_argument("--allow-double-jumps", action="store_true", help="allow +1 to -1 in one step")
-    p.add_argument("--criterion", choices=("nominal", "worst", "mean"), default="nominal",
-                   help="optimise the a priori model, or the worst/mean over perturbed models")
-    p.add_argument("--max-peak", type=positive_float, help="cap each output's peak at this multiple of the best 3211's")
-    p.add_argument("--out", metavar="JSON", type=output_file, help="write the optimised signal here")
-    p.add_argument("--plot", metavar="PNG", type=output_file, help="draw it against the best 3211 with spectra")
+    p.add_argument("--amplitude", type=positive_float,
+                   help="fixed amplitude in rad (default: an outcome, the largest within the limits)")
+    p.add_argument("--grid", type=positive_float, default=0.1, help="level changes on this grid, s (default 0.1)")
+    p.add_argument("--max-changes", type=positive_int, default=12, help="most level changes per axis (default 12)")
+    p.add_argument("--no-double-jumps", action="store_true", help="forbid +1 to -1 without a hold at 0")
+    p.add_argument("--criterion", choices=CRITERIA, default="mean",
+                   help="mean: expected log det over models around the a priori (default); worst: worst "
+                        "D-efficiency over them; nominal: the a priori only")
+    p.add_argument("--out", type=output_file, metavar="JSON", help="write the optimised signal here")
+    p.add_argument("--plot", type=output_file, metavar="PNG", help="draw it against the best 3211 with spectra and the band")
     _record_options(p)
     p.set_defaults(func=cmd_design)
 
@@ -189,8 +212,8 @@ def build_parser() -> Parser:
     p.add_argument("--order", type=positive_int, default=3, help="PRTS order (period 3^order - 1, default 3)")
     p.add_argument("--dt", type=positive_float, default=0.05, help="multisine time step in s (default 0.05)")
     p.add_argument("--delay", type=nonnegative_float, default=0.0, help="start time in s (default 0)")
-    p.add_argument("--out", required=True, metavar="JSON", type=output_file)
-    p.add_argument("--csv", metavar="CSV", type=output_file, help="also write a run-compatible CSV of the input")
+    p.add_argument("--out", type=output_file, required=True, metavar="JSON")
+    p.add_argument("--csv", type=output_file, metavar="CSV", help="also write a run-compatible CSV of the input")
     p.add_argument("--csv-dt", type=positive_float, default=0.01, help="CSV sample interval in s (default 0.01)")
     p.add_argument("--record", type=nonnegative_float, default=0.0, help="CSV length in s (default: the signal's)")
     p.set_defaults(func=cmd_make)
@@ -203,7 +226,7 @@ def build_parser() -> Parser:
 
     p = sub.add_parser("plot", help="draw signals and their power spectra (PNG)")
     p.add_argument("signals", nargs="+", metavar="JSON")
-    p.add_argument("--out", default="signals.png", metavar="PNG", type=output_file, help="output PNG (default signals.png)")
+    p.add_argument("--out", type=output_file, default="signals.png", metavar="PNG", help="output PNG (default signals.png)")
     p.add_argument("--profile", help="shade the required band of this profile")
     p.set_defaults(func=cmd_plot)
     for p in sub.choices.values():

@@ -1,9 +1,10 @@
-"""Tuned baseline signals at a given duration and amplitude, and the comparison table the
-``design`` and ``compare`` commands and the benchmark print.
+"""Tuned baseline signals, the response limits they set when a profile has none, the per-model
+yardsticks of the robust columns, and information per second of flight.
 
 Baselines are tuned on the a priori model the same way the optimised sequence is: the pulse
-width of each doublet, 3211 and PRTS is the one (on the time-step grid, within the duration)
-that maximises log det of the Fisher information. The multisine spans the harmonics of
+width of each doublet, 3211 and PRTS is the one (on the time-step grid, within the duration, no
+pulse under the pilot's minimum) that maximises log det of the Fisher information at equal peak
+response. The multisine spans the harmonics of
 2 pi / duration up to twice the required band's top (at least three). Several axes get the same
 signal type at once (the paper's "combined input"): doublets and 3211s with their widths tuned
 jointly per axis (identical signals on two axes cannot separate the axes' control derivatives),
@@ -17,6 +18,9 @@ import numpy as np
 
 from .baselines import doublet, m3211, multisine, orthogonal_multisines, prts
 from .evaluate import DesignError, Evaluator, tune_width
+
+
+MIN_WIDTH = 0.3  # s: the shortest pulse a pilot flies accurately (the designer's default min pulse)
 
 
 def _grid(lo: float, hi: float, dt: float) -> np.ndarray:
@@ -34,32 +38,34 @@ def _on_axes(factory, inputs, amplitude):
     return build
 
 
-def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400):
+def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400, model=None):
     """Best widths: one per axis tuned jointly on a coarsened grid when there are several axes
     (identical signals on two axes cannot tell their control derivatives apart), else the grid."""
     build = _on_axes(factory, inputs, amplitude)
     if len(inputs) == 1:
-        sigs, w = tune_width(build, widths, ev)
-        return sigs, f"{w:g}"
+        sigs, w, ld = tune_width(build, widths, ev, model)
+        return sigs, f"{w:g}", ld
     step = max(1, int(np.ceil(widths.size / max_pairs ** (1 / len(inputs)))))
     coarse = widths[::step]
     combos = [tuple(c) for c in itertools.product(coarse, repeat=len(inputs))]
-    sigs, w = tune_width(build, combos, ev)
-    return sigs, "/".join(f"{x:g}" for x in w)
+    sigs, w, ld = tune_width(build, combos, ev, model)
+    return sigs, "/".join(f"{x:g}" for x in w), ld
 
 
 def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float | None = None,
-                    prts_order: int = 3) -> list[tuple[str, list]]:
-    """[(label, signals)] for the best doublet, best 3211, the multisine and the best PRTS."""
+                    prts_order: int | None = None, min_width: float = MIN_WIDTH) -> list[tuple[str, list]]:
+    """[(label, signals)] for the best doublet, best 3211, the multisine and the best PRTS; no
+    pulse shorter than ``min_width`` s (the pilot's shortest pulse, as for the optimised sequence).
+    The PRTS has 26 steps (order 3) when they fit in the duration at that width, else 8."""
     dt, inputs = ev.dt, ev.inputs
     out = []
-    widths = _grid(min(0.1, duration / 2), duration / 2, dt)
+    widths = _grid(min_width, duration / 2, dt)
     if widths.size:
-        sigs, w = _tune(doublet, widths, ev, inputs, amplitude)
+        sigs, w, _ = _tune(doublet, widths, ev, inputs, amplitude)
         out.append((f"doublet, best width {w} s", sigs))
-    widths = _grid(min(0.1, duration / 7), duration / 7, dt)
+    widths = _grid(min_width, duration / 7, dt)
     if widths.size:
-        sigs, w = _tune(m3211, widths, ev, inputs, amplitude)
+        sigs, w, _ = _tune(m3211, widths, ev, inputs, amplitude)
         out.append((f"3211, best width {w} s", sigs))
     w0 = 2 * np.pi / duration
     top = max(3.05 * w0, 2 * band_high if band_high else 0.0)
@@ -68,8 +74,10 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
     else:
         ms = orthogonal_multisines(inputs, duration, (0.0, max(top, (len(inputs) * 3 + 0.05) * w0)), amplitude, dt)
     out.append((f"multisine {len(ms[0].params['harmonics'])} harmonics", ms))
+    if prts_order is None:
+        prts_order = 3 if 26 * min_width <= duration + 1e-9 else 2
     period = 3 ** prts_order - 1
-    widths = _grid(dt, duration / period, dt)
+    widths = _grid(min_width, duration / period, dt)
     if widths.size:
         def factory(w, a, name):
             return prts(period * w, prts_order, a, name)
@@ -81,13 +89,61 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
             for k, s in enumerate(sigs[1:], start=1):
                 s.levels = np.roll(s.levels, k * (period // 3))
             return sigs
-        sigs, w = tune_width(on_axes, widths, ev)
+        sigs, w, _ = tune_width(on_axes, widths, ev)
         out.append((f"PRTS {period} steps, best width {w:g} s", sigs))
     if not any(label.startswith("3211") for label, _ in out):
-        raise DesignError(f"duration {duration:g} s is too short for a 3211 on a {dt:g} s grid")
+        raise DesignError(f"duration {duration:g} s is too short for a 3211 of {min_width:g} s pulses")
     return out
+
+
+def widths_3211(duration: float, min_width: float, dt: float) -> np.ndarray:
+    """Pulse widths of a 3211 that fits in ``duration`` s, none under ``min_width`` s."""
+    widths = _grid(min_width, duration / 7, dt)
+    if not widths.size:
+        raise DesignError(f"duration {duration:g} s is too short for a 3211 of {min_width:g} s pulses "
+                          f"(at least {7 * min_width:g} s)")
+    return widths
+
+
+def default_limits(ev: Evaluator, duration: float, amplitude, min_width: float = MIN_WIDTH) -> Evaluator:
+    """Without response limits, the peaks of the best-width 3211 (tuned on the a priori by log
+    det at ``amplitude``) become the limits: every comparison is then at the 3211's response."""
+    if ev.has_limits:
+        return ev
+    sigs, w, _ = _tune(m3211, widths_3211(duration, min_width, ev.dt), ev, ev.inputs, amplitude)
+    peaks = ev.peaks(sigs)
+    limits = {y: float(v) for y, v in zip(ev.model.profile.outputs, peaks) if v > 0}
+    amps = "/".join(f"{a:g}" for a in np.broadcast_to(np.asarray(amplitude, float), (len(ev.inputs),)))
+    return ev.set_limits(limits, f"peak response of the best-width 3211 ({w} s) at amplitude {amps}")
+
+
+def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH) -> Evaluator:
+    """For every model of the evaluator's set, the equal-peak log det of the best-width 3211 tuned
+    on that model (the correctly tuned 3211: what a signal loses against it is a priori error)."""
+    widths = widths_3211(duration, min_width, ev.dt)
+    lds = [_tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=m)[2] for m in ev.models]
+    return ev.set_yardsticks(lds)
 
 
 def reference_of(baselines) -> list:
     """The best 3211: the reference every D-efficiency and peak ratio is relative to."""
     return next(s for label, s in baselines if label.startswith("3211"))
+
+
+def equal_peak_information(ev: Evaluator, signals) -> np.ndarray:
+    """Fisher information (p, p) of one run flown at equal peak response (largest peak/limit = 1)."""
+    r, _ = ev.response(signals)
+    return ev.information(signals) / r ** 2
+
+
+def information_per_second(ev: Evaluator, joint, separate, record: float) -> tuple[float, float]:
+    """D-optimal information per second of flight, det(M)^(1/p) / time: the ``joint`` signals
+    flown in one run of ``record`` s, against each of ``separate`` (one signal list per run) flown
+    in its own run (their informations add; the time is one record per run). Every run is at
+    equal peak response, so the limits are shared within a run."""
+    from .information import log_det
+
+    p = ev.p
+    joint_rate = np.exp(log_det(equal_peak_information(ev, joint)) / p) / record
+    M = sum(equal_peak_information(ev, s) for s in separate)
+    return float(joint_rate), float(np.exp(log_det(M) / p) / (record * len(separate)))

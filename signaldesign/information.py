@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.model import LinearModel
-from identify.sensitivity import output_sensitivities
+from identify import LinearModel, output_sensitivities, output_units
 
 
 def fisher_information(model: LinearModel, u: np.ndarray, dt: float, noise_std=None, x0=None) -> np.ndarray:
@@ -55,24 +54,6 @@ DEFAULT_NOISE_BY_UNIT = {
 _FALLBACK_NOISE = 0.01
 
 
-def output_units(profile) -> dict[str, str]:
-    """Unit of every output: a state's unit, ``<unit>/s`` for a state derivative (``rad/s/s`` is
-    written ``rad/s^2``), and for a defined output the unit of its first derivative or state term."""
-    units = {}
-    for y in profile.outputs:
-        terms = [t for t, c in profile.output_terms(y).items() if c and t not in profile.inputs]
-        derivs = [t for t in terms if t.endswith("_dot") and t[:-4] in profile.states]
-        term = (derivs or terms or [y])[0]
-        if term in profile.states:
-            units[y] = profile.states[term]
-        elif term.endswith("_dot") and term[:-4] in profile.states:
-            base = profile.states[term[:-4]]
-            units[y] = base[:-2] + "/s^2" if base.endswith("/s") else base + "/s"
-        else:
-            units[y] = "?"
-    return units
-
-
 def default_noise(profile, overrides: dict[str, float] | None = None) -> np.ndarray:
     """Measurement noise standard deviation (ny,) per output from :data:`DEFAULT_NOISE_BY_UNIT`."""
     units = output_units(profile)
@@ -85,7 +66,7 @@ def format_noise(profile, noise_std) -> str:
     """One line listing the assumed noise per output, for printing alongside results."""
     units = output_units(profile)
     return "assumed noise (1 sigma): " + ", ".join(
-        f"{y} {s:g} {units[y]}" for y, s in zip(profile.outputs, noise_std))
+        f"{y} {s:g} {units[y] or '?'}" for y, s in zip(profile.outputs, noise_std))
 
 
 def relative_cramer_rao(M: np.ndarray, theta: np.ndarray) -> np.ndarray:

@@ -15,15 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from identify.errors import PseudostepError
-from identify.runs import Run
+from identify import Run
+from identify.errors import SignalError
 
 FORMAT = "pseudostep-signal/1"
 _EDGE = 1e-9  # evaluation at a switch time belongs to the new level despite rounding
-
-
-class SignalError(PseudostepError):
-    """A signal file or a signal's definition is invalid."""
 
 
 @dataclass
@@ -57,6 +53,16 @@ class Signal:
     @property
     def end_time(self) -> float:
         return self.delay + self.duration
+
+    @property
+    def record(self) -> float:
+        """Length (s) of the record the signal was designed for: ``params['record']`` where a design
+        set it, never shorter than the signal itself (``end_time``)."""
+        try:
+            designed = float(self.params.get("record", 0.0)) if isinstance(self.params, dict) else 0.0
+        except (TypeError, ValueError):
+            designed = 0.0
+        return max(designed, self.end_time) if np.isfinite(designed) else self.end_time
 
     @property
     def is_step_sequence(self) -> bool:

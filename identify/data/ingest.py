@@ -1,0 +1,362 @@
+"""From a file's raw columns to runs: units to SI, derived channels, time jitter and gaps.
+
+A reader (CSV or MATLAB) hands over the raw time vector and a lookup of the file's columns; the
+steps every format shares happen here, in this order:
+
+1. **Units.** A channel's declared unit (``# units:`` metadata, a header ``q [deg/s]``, or the
+   channel map's ``"units"``) converts it to SI units and radians (:mod:`identify.data.units`).
+2. **Channels.** The channel map names each run channel's source: a file column or variable, a
+   data-matrix column (int), or an expression of them (``"da": "(dar - dal)/2"``), evaluated by a
+   safe arithmetic evaluator (``+ - * /``, unary minus, parentheses, numbers, names; nothing else).
+3. **Checks.** Missing or non-finite values name the channel and row (a column the profile does
+   not use is left out instead, and said); an angular channel taken as radians
+   (declared ``rad`` or, undeclared, ``rad`` in the profile) whose values exceed what radians can
+   physically reach gives a warning (:data:`identify.data.units.DEGREE_LIMITS`).
+4. **Time.** A step longer than :data:`GAP_FACTOR` times the median step is a gap: the file splits
+   into several runs. Within a run, time stamps off the uniform grid by up to :data:`JITTER_MAX` of
+   a step are accepted and every channel is resampled onto the grid by linear interpolation (the
+   jitter is recorded in the run's metadata); larger irregularity is an error.
+
+Warnings and notes go to stderr and into the run's ``warnings`` / ``notes`` metadata.
+"""
+from __future__ import annotations
+
+import ast
+import re
+import sys
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..errors import RunError
+from . import units as U
+from .runs import TIME, Run, _check_time, uneven_steps
+
+GAP_FACTOR = 1.5
+JITTER_MAX = 0.05
+_DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
+                  "speed": "acceleration"}
+
+
+@dataclass
+class Raw:
+    """A file's content before units, mapping and time checks.
+
+    ``column(name_or_index, channel)`` returns raw values (N,) or raises RunError naming
+    ``channel``; ``names`` are the file's column/variable names; ``units`` declared units keyed by
+    column, variable or channel name; ``row(i)`` names sample i in errors (``line 12`` for CSV,
+    ``sample 13`` for .mat).
+    """
+
+    source: str
+    time: np.ndarray
+    column: Callable[[object, str], np.ndarray]
+    names: list[str]
+    units: dict[str, str] = field(default_factory=dict)
+    meta: dict[str, str] = field(default_factory=dict)
+    row: Callable[[int], str] = lambda i: f"sample {i + 1}"
+    time_name: str = TIME
+
+
+def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested":
+    """Runs from ``raw``: ``channels`` maps each run channel to its source (a column name or index,
+    or an expression string). One run, or several when time gaps split the file."""
+    notes, warnings = [], []
+    t = _si_time(raw)
+    values, described = {}, {}
+    resolver = _Resolver(raw, channels)
+    used = profile_channels(profile) if profile is not None else set(channels)
+    for name in channels:
+        v, how = resolver.get(name)
+        bad = int(np.sum(~np.isfinite(v)))
+        if bad and name not in used:  # e.g. an empty spare column of a data logger
+            notes.append(f"{raw.source}: channel '{name}' has {bad} missing or non-finite value(s): left out "
+                         "(the profile does not use it)")
+            continue
+        _finite(v, raw, name)
+        values[name], described[name] = v, how
+    warnings += _unit_checks(raw.source, values, described, profile)
+    meta = _meta(raw, described, resolver.derived)
+    segments = _split_gaps(t, raw, meta, notes)
+    runs = []
+    for k, (lo, hi) in enumerate(segments):
+        seg_t = t[lo:hi]
+        seg = {n: v[lo:hi] for n, v in values.items()}
+        seg_meta = dict(meta)
+        seg_t, seg = _regularise(seg_t, seg, raw, lo, seg_meta, notes)
+        source = raw.source
+        if len(segments) > 1:
+            source = f"{raw.source} [segment {k + 1}/{len(segments)}]"
+            seg_meta["segment"] = f"{k + 1} of {len(segments)}: t = {seg_t[0]:g}..{seg_t[-1]:g} s"
+        if notes:
+            seg_meta["notes"] = "; ".join(notes)
+        if warnings:
+            seg_meta["warnings"] = "; ".join(warnings)
+        runs.append(Run(seg_t, seg, seg_meta, source))
+    return Ingested(runs, [f"note: {n}" for n in notes] + [f"warning: {w}" for w in warnings])
+
+
+def _meta(raw: Raw, described: dict, derived: dict) -> dict[str, str]:
+    """The file's metadata, ``units`` replaced by what was converted (the run is SI now: written
+    again, it must not be converted twice) and the derived channels' expressions."""
+    meta = {k: v for k, v in raw.meta.items() if k != "units"}
+    converted = [f"{n} from {u}" for n, (how, u) in described.items()
+                 if how == "declared" and u != "SI" and U.UNITS[U.canonical(u)][0] != 1.0]
+    if converted:
+        meta["converted_to_si"] = ", ".join(converted)
+    if derived:
+        meta["derived"] = ", ".join(f"{n} = {e}" for n, e in derived.items())
+    return meta
+
+
+@dataclass
+class Ingested:
+    """A file's runs and the notes and warnings reading it raised (also in each run's metadata)."""
+
+    runs: list[Run]
+    messages: list[str]
+
+    def all(self) -> list[Run]:
+        """Every run, the messages said on stderr."""
+        for line in self.messages:
+            print(line, file=sys.stderr)
+        return self.runs
+
+    def one(self, reader: str) -> Run:
+        """The only run; a file that time gaps split gives an error pointing to ``reader``."""
+        if len(self.runs) > 1:
+            raise RunError(f"{self.runs[0].meta['time_gaps']}; read it with {reader}, which returns every "
+                           "segment as a run")
+        return self.all()[0]
+
+
+# -- time ------------------------------------------------------------------------------------------
+def _si_time(raw: Raw) -> np.ndarray:
+    t = np.asarray(raw.time, dtype=float).ravel()
+    unit = raw.units.get(raw.time_name, raw.units.get(TIME))
+    if unit is not None:
+        _, factor, kind = U.unit_info(unit, f"{raw.source}: channel '{raw.time_name}'")
+        if kind != "time":
+            raise RunError(f"{raw.source}: channel '{raw.time_name}': unit '{unit}' is not a time unit")
+        t = t * factor
+    _check_time(t, raw.source, raw.row, uniform=False)
+    return t
+
+
+def _split_gaps(t: np.ndarray, raw: Raw, meta: dict, notes: list) -> list[tuple[int, int]]:
+    """Index ranges [lo, hi) between gaps (steps over GAP_FACTOR x the median step)."""
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    gaps = np.flatnonzero(steps > GAP_FACTOR * dt)
+    if not gaps.size:
+        return [(0, len(t))]
+    bounds = [0, *(gaps + 1).tolist(), len(t)]
+    pieces = list(zip(bounds[:-1], bounds[1:]))
+    kept = [(lo, hi) for lo, hi in pieces if hi - lo >= 2]
+    listing = ", ".join(f"{raw.row(i + 1)} ({t[i]:g} -> {t[i + 1]:g} s)" for i in gaps[:5])
+    more = f" and {gaps.size - 5} more" if gaps.size > 5 else ""
+    dropped = len(pieces) - len(kept)
+    meta["time_gaps"] = (f"{raw.source}: {gaps.size} time gap(s) longer than {GAP_FACTOR:g} x the {dt:.6g} s step "
+                         f"at {listing}{more} split the file into {len(kept)} runs"
+                         + (f" ({dropped} lone sample(s) between gaps dropped)" if dropped else ""))
+    notes.append(meta["time_gaps"])
+    if not kept:
+        raise RunError(f"{raw.source}: time gaps leave no stretch of two or more samples")
+    return kept
+
+
+def _regularise(t: np.ndarray, channels: dict, raw: Raw, offset: int, meta: dict, notes: list):
+    """Accept jitter up to JITTER_MAX of a step (resampling onto the uniform grid); refuse more."""
+    if t.size < 3 or not uneven_steps(np.diff(t)).size:
+        return t, channels
+    n = t.size
+    dt = (t[-1] - t[0]) / (n - 1)
+    grid = t[0] + np.arange(n) * dt
+    grid[-1] = t[-1]
+    off = np.abs(t - grid) / dt
+    worst = int(np.argmax(off))
+    if off[worst] > JITTER_MAX:
+        raise RunError(f"{raw.source}: {raw.row(offset + worst)}, channel '{TIME}': time stamp {t[worst]:.6g} s "
+                       f"is {100 * off[worst]:.3g}% of a step off the uniform {dt:.6g} s grid (irregular "
+                       f"sampling; up to {100 * JITTER_MAX:g}% jitter is resampled, a step over "
+                       f"{GAP_FACTOR:g} x the median splits the run)")
+    text = (f"time jitter up to {100 * off[worst]:.3g}% of the {dt:.6g} s step: resampled onto the uniform "
+            "grid by linear interpolation")
+    meta["time_jitter"] = f"{off[worst]:.3g}"
+    meta["resampled"] = text
+    notes.append(f"{raw.source}: {text}")
+    return grid, {k: np.interp(grid, t, v) for k, v in channels.items()}
+
+
+# -- channels --------------------------------------------------------------------------------------
+class _Resolver:
+    """Each run channel's SI values from its source; ``(values, (how, unit))`` per channel where how
+    is ``declared`` (a unit given) or ``undeclared``."""
+
+    def __init__(self, raw: Raw, channels: dict):
+        self.raw, self.channels = raw, channels
+        self.done: dict[str, tuple] = {}
+        self.busy: set[str] = set()
+        self.derived: dict[str, str] = {}
+
+    def get(self, name: str):
+        if name in self.done:
+            return self.done[name]
+        if name in self.busy:
+            raise RunError(f"{self.raw.source}: channel map: derived channel '{name}' refers to itself")
+        self.busy.add(name)
+        spec = self.channels[name]
+        if isinstance(spec, str) and not _is_name(spec):
+            out = self._derived(name, spec)
+        else:
+            out = self._plain(name, spec)
+        self.busy.discard(name)
+        self.done[name] = out
+        return out
+
+    def _unit(self, *keys) -> str | None:
+        found = {k: self.raw.units[k] for k in keys if k is not None and k in self.raw.units}
+        if len({U.canonical(u) for u in found.values()}) > 1:
+            raise RunError(f"{self.raw.source}: conflicting units declared for "
+                           + ", ".join(f"'{k}' ({u})" for k, u in found.items()))
+        return next(iter(found.values()), None)
+
+    def _plain(self, name: str, spec):
+        raw_values = np.asarray(self.raw.column(spec, name), dtype=float).ravel()
+        unit = self._unit(name, spec if isinstance(spec, str) else None)
+        if unit is None:
+            return raw_values, ("undeclared", None)
+        return U.to_si(raw_values, unit, f"{self.raw.source}: channel '{name}'"), ("declared", unit)
+
+    def _operand(self, ref: str):
+        """An expression's operand: another channel of the map, else a file column/variable."""
+        if ref in self.channels:
+            return self.get(ref)
+        if ref not in self.raw.names:
+            return None
+        return self._plain(ref, ref)
+
+    def _derived(self, name: str, expr: str):
+        where = f"{self.raw.source}: channel map: '{name}' = '{expr}'"
+        declared = []
+
+        def lookup(ref):
+            found = self._operand(ref)
+            if found is None:
+                raise RunError(f"{where}: no column or channel '{ref}'")
+            if found[1][0] == "declared":
+                declared.append(ref)
+            return found[0]
+
+        values = np.broadcast_to(evaluate(expr, lookup, where), self.raw.time.shape).astype(float)
+        self.derived[name] = expr
+        unit = self.raw.units.get(name)
+        if unit is None:
+            return values, ("declared" if declared else "undeclared", "SI" if declared else None)
+        if declared:
+            raise RunError(f"{where}: a unit is declared both for '{name}' ({unit}) and for its operand(s) "
+                           f"{', '.join(declared)}; declare one")
+        return U.to_si(values, unit, f"{self.raw.source}: channel '{name}'"), ("declared", unit)
+
+
+def _is_name(spec: str) -> bool:
+    return all(part.isidentifier() for part in spec.split("."))
+
+
+# a number (kept) or a channel name, dotted for struct fields (replaced by a placeholder)
+_TOKEN = re.compile(r"(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)|[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*")
+_BINARY = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide}
+
+
+def evaluate(expr: str, lookup: Callable[[str], np.ndarray], where: str):
+    """Value of an arithmetic expression over named channels: ``+ - * /``, unary ``+ -``,
+    parentheses, numbers and names (dotted names for MATLAB struct fields, Python keywords allowed).
+    Walks the syntax tree; anything else (calls, powers, comparisons, subscripts) is refused with
+    RunError."""
+    names: dict[str, str] = {}
+
+    def placeholder(m):  # channel names may be Python keywords (``del``, ``in``): parse placeholders
+        if m.group("num"):
+            return m.group(0)
+        return names.setdefault(m.group(0), f"_ch{len(names)}_")
+
+    try:
+        tree = ast.parse(_TOKEN.sub(placeholder, expr.strip()), mode="eval")
+    except SyntaxError:
+        raise RunError(f"{where}: not an arithmetic expression") from None
+    real = {v: k for k, v in names.items()}
+
+    def text(node) -> str:
+        return re.sub(r"_ch\d+_", lambda m: real.get(m.group(0), m.group(0)), ast.unparse(node))
+
+    def walk(node):
+        if isinstance(node, ast.Expression):
+            return walk(node.body)
+        if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return _BINARY[type(node.op)](walk(node.left), walk(node.right))
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+            value = walk(node.operand)
+            return -value if isinstance(node.op, ast.USub) else value
+        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
+            return float(node.value)
+        if isinstance(node, ast.Name) and node.id in real:
+            return lookup(real[node.id])
+        raise RunError(f"{where}: '{text(node)}' is not allowed (only + - * / ( ), numbers and channel names)")
+
+    return walk(tree)
+
+
+def _finite(values: np.ndarray, raw: Raw, name: str) -> None:
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise RunError(f"{raw.source}: {raw.row(bad[0])}, channel '{name}': {values[bad[0]]} value "
+                       f"({bad.size} missing or non-finite value(s))")
+
+
+# -- plausibility ----------------------------------------------------------------------------------
+def profile_channels(profile) -> set[str]:
+    """Every channel a profile can use: inputs, states, their derivatives and outputs."""
+    return {*profile.inputs, *profile.states, *(f"{s}_dot" for s in profile.states), *profile.outputs}
+
+
+def profile_quantities(profile) -> dict[str, str]:
+    """The quantity (angle, angular rate, speed ...) of each channel a profile's units imply: its
+    states, inputs and state derivatives ``<state>_dot``."""
+    out = {}
+    for name, unit in {**profile.states, **profile.inputs}.items():
+        u = U.canonical(unit)
+        if u is not None and U.UNITS[u][0] == 1.0:  # a profile in other than SI units is not checked
+            out[name] = U.UNITS[u][1]
+    for name in profile.states:
+        if out.get(name) in _DERIVATIVE_OF:
+            out[f"{name}_dot"] = _DERIVATIVE_OF[out[name]]
+    return out
+
+
+def _unit_checks(source: str, values: dict, described: dict, profile) -> list[str]:
+    """Warnings: radian channels holding degree-like values; declared units of another quantity
+    than the profile's."""
+    expected = profile_quantities(profile) if profile is not None else {}
+    controls = set(profile.inputs) if profile is not None else set()
+    out = []
+    for name, v in values.items():
+        how, unit = described[name]
+        if how == "declared" and unit != "SI":
+            kind = U.quantity(unit)
+            if name in expected and kind != expected[name]:
+                out.append(f"{source}: channel '{name}' is declared in {unit} ({kind}) but the profile "
+                           f"expects {expected[name]}")
+            if U.canonical(unit) not in ("rad", "rad/s", "rad/s^2"):
+                continue
+            how = f"declared {unit}"
+        elif how == "undeclared" and name in expected:
+            kind, how = expected[name], "no unit declared; the profile's unit is SI"
+        else:
+            continue
+        kind = "control angle" if kind == "angle" and name in controls else kind
+        peak = U.looks_like_degrees(v, kind)
+        if peak is not None:
+            out.append(U.degree_warning(source, name, peak, kind, how))
+    return out

@@ -1,0 +1,78 @@
+"""The one door through which every command reads runs: CSV run files and MATLAB ``.mat`` files.
+
+``identify estimate`` and ``identify refine`` read through :func:`read_run_files`, the cueing
+replay source through :func:`read_run_file`. A channel map (:func:`load_channel_map`) names each
+channel's source (a column, a variable, a data-matrix column or an arithmetic expression of them)
+and the units to convert from; both readers then apply the same steps (:mod:`identify.data.ingest`:
+units to SI, derived channels, degree check, time jitter and gaps). A file that time gaps split
+gives several runs.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..errors import RunError, read_text
+from .matfile import mat_runs
+from .runs import Run, csv_runs
+from .units import unit_info
+
+
+def load_channel_map(spec: str | Path) -> dict:
+    """A channel map from a JSON file or JSON text.
+
+    Form: ``{"channels": {channel: variable, column or expression}, "units": {name: unit},
+    "time": variable or column, "matrix": name, "dt": seconds}``; a flat ``{channel: variable or
+    column}`` is read as ``{"channels": ...}``.
+    """
+    text = str(spec)
+    path = Path(text)
+    source = text
+    if not text.lstrip().startswith("{"):
+        text = read_text(path, RunError, "channel map")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RunError(f"{source}: channel map is not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise RunError(f"{source}: channel map must be a JSON object")
+    if "channels" not in data:
+        data = {"channels": data}
+    unknown = set(data) - {"channels", "time", "matrix", "dt", "units"}
+    if unknown:
+        raise RunError(f"{source}: channel map has unknown key(s) {', '.join(sorted(unknown))}")
+    if not isinstance(data["channels"], dict) or not data["channels"]:
+        raise RunError(f"{source}: channel map 'channels' must be a non-empty object")
+    units = data.get("units", {})
+    if not isinstance(units, dict) or not all(isinstance(u, str) for u in units.values()):
+        raise RunError(f"{source}: channel map 'units' must be an object of {{name: unit}} strings")
+    for name, unit in units.items():
+        unit_info(unit, f"{source}: channel map: units of '{name}'")
+    return data
+
+
+def read_run_file(path: str | Path, channel_map: dict | None = None, profile=None) -> Run:
+    """The run of a CSV run file or, with ``.mat`` suffix, a MATLAB file (v5 or v7.3) read through
+    ``channel_map`` (without one every vector variable is read). ``profile`` lets channels without
+    a declared unit be checked against the profile's. A file that time gaps split is an error
+    here: use :func:`read_run_files`."""
+    return _ingest(path, channel_map, profile).one("read_run_files")
+
+
+def read_file_runs(path: str | Path, channel_map: dict | None = None, profile=None) -> list[Run]:
+    """Every run of one CSV or ``.mat`` file (several when time gaps split it)."""
+    return _ingest(path, channel_map, profile).all()
+
+
+def read_run_files(paths, channel_map: dict | None = None, profile=None) -> list[Run]:
+    """Runs from several files (CSV or ``.mat``), in order, each file's segments in turn."""
+    return [r for p in paths for r in read_file_runs(p, channel_map, profile)]
+
+
+def _ingest(path, channel_map, profile):
+    path = Path(path)
+    if path.suffix.lower() != ".mat":
+        return csv_runs(path, channel_map, profile)
+    cmap = channel_map or {}
+    return mat_runs(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
+                    dt=cmap.get("dt"), units=cmap.get("units"), meta=None, profile=profile)

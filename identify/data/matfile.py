@@ -1,0 +1,229 @@
+"""Runs from MATLAB ``.mat`` files, the way most flight-test data arrives.
+
+Two layouts are read (the SIDPAC / FVSysID conventions):
+
+* named variables — one vector per channel (``t``, ``q``, ``theta_s`` ...); the channel map is
+  ``{channel: variable name}``;
+* a data matrix — one variable (``data``, ``Z`` or ``fdata``) with one column per channel; the map
+  is ``{channel: column index}``, 0-based as in Python (MATLAB column 1 is index 0).
+
+Time comes from a named variable or matrix column (``time=``), else from the variables ``t`` /
+``time`` if present, else from a sample interval ``dt`` in s. Every problem (unreadable file, missing
+variable, wrong length, NaN) raises one :class:`~identify.errors.RunError` naming the file and the
+variable or column.
+"""
+from __future__ import annotations
+
+import json
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import RunError
+from .ingest import Raw, build_runs
+from .runs import Run
+
+MATRIX_NAMES = ("data", "Z", "fdata")
+TIME_NAMES = ("t", "time")
+
+
+def read_mat(path: str | Path, channels: dict[str, str | int] | None = None, *, time: str | int | None = None,
+             matrix: str | None = None, dt: float | None = None, units: dict[str, str] | None = None,
+             meta: dict | None = None, profile=None) -> Run:
+    """Read a run from a ``.mat`` file (MATLAB v5 through scipy, v7.3 through h5py).
+
+    ``channels`` maps run channel names to variable names (str; ``s.q`` for a struct field),
+    data-matrix columns (int) or arithmetic expressions of them (``"(dar - dal)/2"``). If ``None``,
+    every numeric vector variable as long as the time vector becomes a channel of its own name.
+    ``time`` names the time variable or column; ``matrix`` the data-matrix variable (default: the
+    first of ``data``, ``Z``, ``fdata`` present); ``dt`` the sample interval in s when the file
+    holds no time; ``units`` declared units by channel or variable name (converted to SI).
+    A file that time gaps split into several runs is an error here: use :func:`read_mat_runs`.
+    """
+    return mat_runs(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta,
+                profile=profile).one("read_mat_runs")
+
+
+def read_mat_runs(path: str | Path, channels: dict[str, str | int] | None = None, *,
+                  time: str | int | None = None, matrix: str | None = None, dt: float | None = None,
+                  units: dict[str, str] | None = None, meta: dict | None = None, profile=None) -> list[Run]:
+    """Every run of a ``.mat`` file (several when time gaps split it); arguments as :func:`read_mat`."""
+    return mat_runs(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta, profile=profile).all()
+
+
+def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None, meta=None, profile=None):
+    """A ``.mat`` file's runs with the notes and warnings of reading it, not yet said
+    (an :class:`~identify.data.ingest.Ingested`); arguments as :func:`read_mat`."""
+    path = Path(path)
+    source = str(path)
+    variables, version = _load(path)
+    channels = dict(channels) if channels is not None else None
+    uses_columns = any(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+                       for v in (channels or {}).values()) or isinstance(time, int)
+    data = _matrix(variables, matrix, source) if uses_columns or matrix else None
+
+    t = _time(variables, data, time, dt, source)
+    n = len(t)
+    time_name = time if isinstance(time, str) else (_time_name(variables) or "time")
+    if channels is None:
+        channels = {k: k for k, v in variables.items()
+                    if k not in (*TIME_NAMES, time_name) and _is_vector(v) and np.asarray(v).size == n}
+        if not channels:
+            raise RunError(f"{source}: no vector variables of {n} samples to read as channels")
+
+    def column(where, name):
+        values = _column(variables, data, where, source, f"channel '{name}'")
+        if values.size != n:
+            raise RunError(f"{source}: channel '{name}' ({_describe(where)}) has {values.size} samples, "
+                           f"time has {n}")
+        return values
+
+    info = {"source_format": f"MATLAB .mat {version}", "channel_map": json.dumps(channels, separators=(",", ":"))}
+    info.update(meta or {})
+    raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
+              time_name=time_name)
+    return build_runs(raw, channels, profile)
+
+
+def _load(path: Path) -> tuple[dict, str]:
+    """The file's variables (struct fields flattened to ``struct.field``) and its format version."""
+    from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError
+
+    if not path.is_file():
+        raise RunError(f"{path}: no such file")
+    if _is_hdf5(path):
+        return load_mat73(path), "v7.3"
+    try:
+        raw = loadmat(path, simplify_cells=True)
+    except NotImplementedError as exc:  # a v7.3 file whose HDF5 signature was not found
+        raise RunError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
+    except (MatReadError, ValueError, OSError, TypeError, IndexError, KeyError, EOFError,
+            zlib.error) as exc:  # what scipy's reader raises on a damaged file
+        raise RunError(f"{path}: not a readable MATLAB .mat file "
+                       f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+    return _flatten({k: v for k, v in raw.items() if not k.startswith("__")}), "v5"
+
+
+# -- MATLAB v7.3 ------------------------------------------------------------------------------------
+_NUMERIC_CLASSES = {"double", "single", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32",
+                    "uint64", "logical"}
+
+
+def load_mat73(path) -> dict[str, np.ndarray]:
+    """Numeric variables of a MATLAB v7.3 file (HDF5, read with h5py), struct fields as
+    ``struct.field``. MATLAB stores arrays column-major, so h5py sees each one transposed; the
+    transpose restores MATLAB's shape. Strings, cells and empty arrays are left out."""
+    import h5py
+
+    out = {}
+
+    def visit(name, obj):
+        if not isinstance(obj, h5py.Dataset) or name.startswith("#"):
+            return
+        cls = obj.attrs.get("MATLAB_class", b"double")
+        cls = cls.decode() if isinstance(cls, bytes) else str(cls)
+        if cls in _NUMERIC_CLASSES and "MATLAB_empty" not in obj.attrs and obj.dtype.kind in "fiub":
+            out[name.replace("/", ".")] = np.asarray(obj[()]).T
+
+    try:
+        with h5py.File(path, "r") as f:
+            f.visititems(visit)
+    except (OSError, KeyError, ValueError) as exc:
+        raise RunError(f"{path}: not a readable MATLAB v7.3 (HDF5) file ({exc})") from None
+    return out
+
+
+def _is_hdf5(path: Path) -> bool:
+    import h5py
+
+    try:
+        return bool(h5py.is_hdf5(path))
+    except OSError:
+        return False
+
+
+def _flatten(variables: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in variables.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        elif isinstance(value, (np.ndarray, int, float)):  # cells and struct arrays are no channels
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _is_vector(v) -> bool:
+    a = np.asarray(v)
+    return a.dtype.kind in "fiu" and a.ndim <= 2 and sum(s > 1 for s in a.shape) == 1
+
+
+def _matrix(variables: dict, name: str | None, source: str) -> np.ndarray:
+    names = [name] if name else [m for m in MATRIX_NAMES if m in variables]
+    if not names or names[0] not in variables:
+        wanted = name or " / ".join(MATRIX_NAMES)
+        raise RunError(f"{source}: no data-matrix variable '{wanted}' (variables: {', '.join(sorted(variables))})")
+    m = np.asarray(variables[names[0]])
+    m = m[:, None] if m.ndim == 1 else m  # one column, squeezed on loading
+    if m.dtype.kind not in "fiu" or m.ndim != 2:
+        raise RunError(f"{source}: variable '{names[0]}' is not a numeric 2-D data matrix")
+    return m.astype(float)
+
+
+def _column(variables: dict, data, where, source: str, what: str) -> np.ndarray:
+    if isinstance(where, (int, np.integer)) and not isinstance(where, bool):
+        if data is None:
+            raise RunError(f"{source}: {what} names column {where} but no data matrix was read")
+        if not -data.shape[1] <= where < data.shape[1]:
+            raise RunError(f"{source}: {what}: column {where} out of range (the data matrix has "
+                           f"{data.shape[1]} columns, 0-based)")
+        return data[:, where]
+    if not isinstance(where, str):
+        raise RunError(f"{source}: {what}: expected a variable name or a column index, got {where!r}")
+    if where not in variables:
+        raise RunError(f"{source}: {what}: no variable '{where}' in the file")
+    v = variables[where]
+    if not _is_vector(v):
+        raise RunError(f"{source}: {what}: variable '{where}' is not a numeric vector "
+                       f"(shape {np.shape(v)})")
+    return np.asarray(v, dtype=float).ravel()
+
+
+def _time_name(variables: dict) -> str | None:
+    """``t`` or ``time``, else the one struct field so named (``flight.t``)."""
+    top = next((k for k in TIME_NAMES if k in variables), None)
+    fields = [k for k in variables if k.rpartition(".")[2] in TIME_NAMES]
+    return top or (fields[0] if len(fields) == 1 else None)
+
+
+def _time(variables: dict, data, time, dt, source: str) -> np.ndarray:
+    if time is None:
+        time = _time_name(variables)
+    if time is not None:
+        t = _column(variables, data, time, source, "time")
+        _finite(t, source, f"time ({_describe(time)})")
+        return t
+    if dt is None:
+        raise RunError(f"{source}: no time variable ('t' or 'time') and no sample interval (dt) given")
+    if not (np.isfinite(dt) and dt > 0):
+        raise RunError(f"{source}: sample interval dt must be positive, got {dt}")
+    if data is not None:
+        n = data.shape[0]
+    else:
+        lengths = {np.asarray(v).size for v in variables.values() if _is_vector(v)}
+        if not lengths:
+            raise RunError(f"{source}: no numeric vector variables")
+        n = max(lengths)
+    return np.arange(n) * float(dt)
+
+
+def _finite(values: np.ndarray, source: str, what: str) -> None:
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise RunError(f"{source}: {what}: {values[bad[0]]} value at sample {bad[0] + 1} "
+                       f"({bad.size} non-finite value(s))")
+
+
+def _describe(where) -> str:
+    return f"column {where}" if isinstance(where, (int, np.integer)) else f"variable '{where}'"

@@ -1,0 +1,458 @@
+"""Output-error maximum likelihood (ML): the paper's modified Newton-Raphson method.
+
+The model's outputs, simulated from the measured inputs, are fitted to the measured outputs by
+minimising the negative log-likelihood for white Gaussian measurement noise of covariance R::
+
+    J(theta, x0, b) = 1/2 sum_k e_k^T R^-1 e_k + N/2 log det R,   e_k = z_k - y_k
+
+Newton-Raphson with the Gauss-Newton approximation of the Hessian (``M = J^T R^-1 J``, the Fisher
+information) moves the derivatives ``theta``, the initial states ``x0`` and the output zero shifts
+``b`` together; a Levenberg-Marquardt damping takes over when a step does not lower the cost. R is
+estimated by *relaxation*: after each step, R = diag(mean residual^2), the R that minimises J for
+the current residuals. The Cramér-Rao bounds are the square roots of the diagonal of M^-1 (the
+full matrix, initial states and zero shifts included as nuisance parameters).
+
+Coloured residuals: M^-1 holds only for white residuals. Flight data are never quite white
+(smoothing, unmodelled dynamics, turbulence), and the bounds then come out too small (2.3x in the
+BO 105 study with smoothed data). With ``coloured=True`` (default) the standard errors follow
+Morelli & Klein's correction for coloured residuals in output error::
+
+    Cov = M^-1 [ sum over outputs y and segments s of J_ys^T T_y J_ys ] M^-1
+
+``J_ys`` the whitened sensitivities of output y over segment s, ``T_y`` the Toeplitz matrix of the
+autocorrelation of output y's whitened noise, pooled over all runs and segments (segments and
+outputs taken as independent of each other), estimated from the residuals' autocorrelation with
+the part the fit itself removes added back (it matters for short segments with many unknowns;
+:meth:`identify.estimators.output_error.OutputError.coloured_information`). Computed once, after convergence, by
+FFT (:mod:`identify.estimators.colour`, as the equation-error estimators do); the iteration itself is the
+same. For white residuals ``T_y`` ~ I and both bounds agree (within the estimation scatter of the
+autocorrelation, a few %); both are reported (``info["std_white"]``, ``info["std_coloured"]``).
+``coloured=False`` skips the correction (it costs about as much as the fit).
+
+Unstable models (most helicopters) diverge when simulated over a long run, and the cost of an
+unstable model over 20 s is far from quadratic in its parameters. ML then uses multiple shooting
+(:mod:`identify.estimators.output_error`): each run is cut into segments of a few seconds, each simulated from
+its own estimated initial state. This is chosen automatically from the a priori model's modes.
+"""
+from __future__ import annotations
+
+import math
+import time as _time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+
+from ..data.runs import Run
+from ..errors import ConvergenceWarning, EstimationError, SimulationError
+from ..model.linear import LinearModel
+from ..model.profile import Profile
+from .base import Estimator
+from .output_error import OutputError, auto_segment
+from .result import IdentificationResult, fit_metrics
+
+R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
+MAX_DAMPING = 1e10
+INITIAL_DAMPING = 1e-3  # LM's tau: the first damping, relative to the scaled information's diagonal
+MIN_GAIN_RATIO = 1e-3  # a step is taken when it achieves this share of its predicted decrease
+MAX_REL_STEP = 0.5  # no step moves a parameter by more than this share of its scale
+STEP_TOL_SE = 1e-3  # converged: the next Gauss-Newton step moves no unknown by this many std errors
+RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
+
+
+class ML(Estimator):
+    """Output-error maximum-likelihood estimator.
+
+    ``segment``: None (automatic: plain output error for a stable model, multiple shooting for an
+    unstable one), a segment length in s, or ``math.inf``/``"plain"`` (one segment per run).
+    ``max_iter``: Gauss-Newton iterations; ``tol``: convergence on the relative parameter step or
+    the relative cost decrease. ``estimate_x0``/``estimate_bias``: estimate initial states (of
+    every segment) and per-run output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the
+    measurement-noise covariance, (ny,) variances or (ny, ny), in output units squared.
+    ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
+    negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
+
+    After ``fit(runs)``: ``result_`` (an IdentificationResult with per-run ``time``,
+    ``measured``, ``modelled``; with multiple shooting the modelled outputs restart at every
+    segment's estimated initial state), ``covariance_`` (p, p) Cramér-Rao covariance of theta,
+    ``problem_`` (the :class:`~identify.estimators.output_error.OutputError` solved) and ``beta_`` (all unknowns).
+    ``result_.info`` holds the form used, segments with their initial states, per-run zero shifts,
+    the noise covariance, iterations, convergence and the cost history. A parameter that no input
+    excites (zero sensitivity, e.g. the derivatives of a cyclic not flown) stays at its a priori
+    value with std = inf and is listed in ``info["not_excited"]``.
+
+    ``coloured``: standard errors (``result_.std``, ``covariance_``, the x0 and zero-shift stds)
+    corrected for coloured residuals (Morelli & Klein, see the module notes; default True) or the
+    plain Cramér-Rao bounds ``M^-1`` (False, which skips the correction's cost). With True both
+    are in ``info["std_coloured"]`` and ``info["std_white"]`` (theta only);
+    ``info["noise_autocorrelation"]`` (L, ny) is the pooled whitened noise autocorrelation per
+    output behind the correction, lag 0 first.
+    """
+
+    method = "ml"
+
+    def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
+                 max_iter: int = 50, tol: float = 1e-8, estimate_x0: bool = True,
+                 estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
+                 verbose: bool = False):
+        super().__init__(profile)
+        self.segment, self.max_iter, self.tol = segment, max_iter, tol
+        self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
+        self.noise_cov, self.coloured = noise_cov, coloured
+        self.progress, self.verbose = progress, verbose
+        self.covariance_ = self.problem_ = self.beta_ = None
+
+    def _validate(self) -> None:
+        super()._validate()
+        self.segment_ = _check_segment(self.segment)
+        if not (isinstance(self.max_iter, (int, np.integer)) and self.max_iter >= 1):
+            raise EstimationError(f"ML: max_iter must be a positive integer, got {self.max_iter!r}")
+        if not (np.isfinite(self.tol) and self.tol > 0):
+            raise EstimationError(f"ML: tol must be positive, got {self.tol!r}")
+        self.noise_cov_ = _check_noise_cov(self.noise_cov, len(self.profile_.outputs))
+
+    # -- fitting ---------------------------------------------------------------------------------
+    def _fit(self, runs: list[Run]) -> IdentificationResult:
+        started = _time.perf_counter()
+        p = self.profile_
+        dt = _common_dt(runs)
+        u = [_finite(run, p.input_names) for run in runs]
+        z = [_finite(run, list(p.outputs)) for run in runs]
+        model0 = LinearModel(p)
+        segment = self.segment_
+        if segment is None:
+            segment = auto_segment(model0, max(run.duration for run in runs))
+        if not self.estimate_x0 and math.isfinite(segment) and any(r.duration > segment for r in runs):
+            raise EstimationError("ML: multiple shooting needs the segment initial states: "
+                                  "use estimate_x0=True or segment='plain'")
+        prob = OutputError(p, u, z, dt, segment, bool(self.estimate_x0), bool(self.estimate_bias))
+        beta = prob.initial_beta(model0.theta)
+        form = "plain" if prob.layout.n_segments == len(runs) else "multiple shooting"
+        try:
+            ev = prob.evaluate(beta)
+        except SimulationError as exc:
+            hint = "shorter segments (ML(segment=<s>))" if form == "multiple shooting" \
+                else "multiple shooting (ML(segment=<s>))"
+            raise EstimationError(f"ML ({form}): the a priori model diverges: {exc}; "
+                                  f"use {hint} or better a priori values") from None
+        solver = _Solver(self, prob, ev, z)
+        solver.run()
+        if not solver.converged:
+            warnings.warn(f"ML ({form}) did not converge: {solver.stop}; the estimates are not final "
+                          f"(raise max_iter, or start from better a priori values)", ConvergenceWarning,
+                          stacklevel=3)
+        self.problem_, self.beta_ = prob, solver.beta
+        return self._result(runs, prob, solver, form, segment, _time.perf_counter() - started)
+
+    def _result(self, runs, prob: OutputError, sv: "_Solver", form: str, segment: float,
+                wall: float) -> IdentificationResult:
+        p, P = self.profile_, prob.p
+        cov_white, ill = _covariance(sv.M, sv.active)
+        std_white, std_col, acf, passes = _std(cov_white, sv.active), None, None, 0
+        cov, std = cov_white, std_white
+        if self.coloured:  # once, after convergence; it costs about as much as the fit itself
+            B, acf, passes = prob.coloured_information(sv.ev, sv.Wh, cov_white)
+            cov = cov_white @ B @ cov_white
+            std = std_col = _std(cov, sv.active)
+        self.covariance_ = cov[:P, :P]
+        theta, x0, b = prob.unpack(sv.beta)
+        _, x0_std, b_std = prob.unpack(std)
+        lay = prob.layout
+        measured = [zr.copy() for zr in prob.per_run(prob.Z)]
+        modelled = prob.per_run(sv.ev.y)
+        segments = [{"run": int(lay.run[s]), "t_start": float(runs[lay.run[s]].time[lay.start[s]]),
+                     "samples": int(lay.length[s]),
+                     "x0": dict(zip(p.state_names, map(float, x0[:, s]))),
+                     "x0_std": dict(zip(p.state_names, map(float, x0_std[:, s]))) if self.estimate_x0 else None}
+                    for s in range(lay.n_segments)]
+        first = [next(s for s in segments if s["run"] == r) for r in range(len(runs))]
+        R = np.linalg.inv(sv.Wh.T @ sv.Wh)
+        info = {
+            "form": form,
+            "segment_length": segment if math.isfinite(segment) else None,
+            "n_segments": lay.n_segments,
+            "iterations": sv.iterations,
+            "converged": sv.converged,
+            "stop": sv.stop,
+            "cost": sv.history,  # negative log-likelihood per iteration
+            "weighted_cost": sv.wls_history,  # 1/2 sum e^T R^-1 e with that iteration's R
+            "log_det_R": sv.log_det_history,
+            "damping": sv.lam,
+            "rejected_steps": sv.rejected,
+            "max_relative_step": sv.max_rel_step,  # largest step taken, share of the parameter scale
+            "gauss_newton_step_se": sv.step_history,  # length of the next undamped step, std errors
+            "modelled": "simulated over each whole run" if form == "plain" else
+            f"restarted at every multiple-shooting segment (every {segment:.3g} s) from its estimated initial state",
+            "initial_states": [s["x0"] for s in first],
+            "segments": segments,
+            "zero_shifts": [dict(zip(p.outputs, map(float, b[:, r]))) for r in range(len(runs))],
+            "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, r]))) for r in range(len(runs))]
+            if self.estimate_bias else None,
+            "noise_cov": R,
+            "noise_std": dict(zip(p.outputs, map(float, np.sqrt(np.diag(R))))),
+            "noise_cov_estimated": self.noise_cov_ is None,
+            "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
+            "ill_conditioned": ill,
+            "standard_errors": "coloured-residual correction (Morelli & Klein)" if self.coloured
+            else "white residuals (Cramér-Rao)",
+            "std_white": std_white[:P],
+            "std_coloured": None if std_col is None else std_col[:P],
+            "noise_autocorrelation": acf,
+            "colour_passes": passes,
+            "wall_time": wall,
+        }
+        return IdentificationResult(
+            method=self.method, profile=p, theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
+            covariance=cov[:P, :P].copy(),
+            fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
+            time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
+
+
+class _Solver:
+    """Levenberg-Marquardt on the Gauss-Newton normal equations, with noise-covariance relaxation.
+
+    Trust-region control (Madsen, Nielsen & Tingleff's LM, on Marquardt's scaled system):
+    the damping starts at ``INITIAL_DAMPING`` times the largest diagonal of the scaled information
+    matrix; a trial step is taken only when the ratio of the actual to the predicted (quadratic
+    model) decrease of the cost exceeds ``MIN_GAIN_RATIO``, and the damping then falls (good
+    agreement) or rises (poor); no step may move a parameter by more than ``MAX_REL_STEP`` of its
+    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma its white Cramér-Rao bound at the
+    current point), so a far a priori model cannot throw the iteration into another basin.
+    Convergence is judged on the undamped Gauss-Newton step: it must move no unknown by more
+    than ``STEP_TOL_SE`` of its standard error (or no parameter by more than ``tol`` relative),
+    with the relaxed noise covariance settled. Anything else is not convergence: ``max_iter``
+    reached, or no step lowering the cost while the gradient still predicts a decrease.
+    """
+
+    def __init__(self, ml: ML, prob: OutputError, ev, z):
+        self.ml, self.prob, self.ev, self.beta = ml, prob, ev, ev.beta.copy()
+        self.relax = ml.noise_cov_ is None
+        self.ms = np.array([np.mean(zr ** 2, axis=0) for zr in z]).mean(axis=0)
+        self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov_)
+        self.history, self.wls_history, self.log_det_history, self.step_history = [], [], [], []
+        self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
+        self.rejected, self.max_rel_step = 0, 0.0
+        M, _ = prob.normal_equations(ev, self.Wh)
+        d = np.diag(M)
+        # a parameter no input excites has no influence at all: hold it, report std = inf
+        self.active = d > 1e-300 + 1e-26 * d.max()
+        if not self.active[:prob.p].any():
+            raise EstimationError("ML: no free parameter influences the outputs of these runs "
+                                  "(are the inputs all zero?)")
+        self.M = M
+        self.theta0 = np.abs(ev.beta[:prob.p])
+
+    def _relaxed_weighting(self) -> np.ndarray:
+        r = np.sum(self.ev.e ** 2, axis=(0, 2)) / self.prob.mask.sum()
+        r = np.maximum(r, RELAX_FLOOR * np.maximum(self.ms, 1e-300))
+        self._r = r
+        return np.diag(1 / np.sqrt(r))
+
+    def _cost(self, ev) -> float:
+        return self.prob.cost(ev, self.Wh)
+
+    def _step(self, M, g, active, lam) -> np.ndarray:
+        """Solve ``(Ms + lam I) s = g / d`` on the active unknowns, Ms = M scaled to unit diagonal."""
+        i = np.flatnonzero(active)
+        Ma, ga = M[np.ix_(i, i)], g[i]
+        d = np.sqrt(np.diag(Ma))
+        A = Ma / np.outer(d, d) + lam * np.eye(len(i))  # Marquardt: damping on the scaled diagonal
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+            try:
+                s = scipy.linalg.solve(A, ga / d, assume_a="pos")
+            except (np.linalg.LinAlgError, ValueError):
+                s = np.linalg.lstsq(A, ga / d, rcond=None)[0]
+        step = np.zeros_like(g)
+        step[i] = s / d
+        return step
+
+    def _try(self, beta):
+        try:
+            ev = self.prob.evaluate(beta)
+        except SimulationError:
+            return None, np.inf
+        c = self._cost(ev)
+        return ev, (c if np.isfinite(c) else np.inf)
+
+    @staticmethod
+    def _predicted(M, g, step) -> float:
+        """Decrease of the cost the Gauss-Newton (quadratic) model predicts for ``step``."""
+        return float(g @ step - 0.5 * step @ M @ step)
+
+    def _scale(self, M) -> np.ndarray:
+        """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma)."""
+        P = self.prob.p
+        with np.errstate(divide="ignore"):
+            sigma = 1 / np.sqrt(np.diag(M)[:P])
+        return np.maximum(np.maximum(np.abs(self.beta[:P]), self.theta0), np.where(self.active[:P], sigma, 0))
+
+    def _converged(self, M, g, r_change) -> str | None:
+        """The reason the undamped Gauss-Newton step says we are at the minimum, or None."""
+        if self.relax and r_change >= R_CHANGE_TOL:
+            return None
+        step = self._step(M, g, self.active, 0.0)
+        P = self.prob.p
+        # the step's length in the information metric bounds every unknown's move in standard
+        # errors (|step_i| / sigma_i <= sqrt(step^T M step), Cauchy-Schwarz); twice the predicted decrease
+        in_se = math.sqrt(max(float(g @ step), 0.0))
+        rel = float(np.max(np.abs(step[:P]) / (np.abs(self.beta[:P]) + 1e-6)))
+        self.step_history.append(in_se)
+        if in_se < STEP_TOL_SE:
+            return f"gradient: the next step is {in_se:.1e} standard errors"
+        if rel < self.ml.tol:
+            return f"step: the next step is {rel:.1e} of the parameters"
+        return None
+
+    def run(self) -> None:
+        prob, ml = self.prob, self.ml
+        P = prob.p
+        # initial states and zero shifts enter linearly: one exact step fits them to the a priori model
+        nuisance = self.active.copy()
+        nuisance[:P] = False
+        if nuisance.any():
+            M, g = prob.normal_equations(self.ev, self.Wh)
+            ev, c = self._try(self.beta + self._step(M, g, nuisance, 0.0))
+            if ev is not None and c < self._cost(self.ev):
+                self.ev, self.beta = ev, ev.beta.copy()
+            if self.relax:
+                self.Wh = self._relaxed_weighting()
+        cost = self._cost(self.ev)
+        self._record(cost)
+        r_change = np.inf
+        M, g = prob.normal_equations(self.ev, self.Wh)
+        self.lam = INITIAL_DAMPING  # Ms has unit diagonal: tau times its largest diagonal element
+        while True:
+            reason = self._converged(M, g, r_change)
+            if reason:
+                self.converged, self.stop = True, reason
+                break
+            if self.iterations >= ml.max_iter:
+                self.stop = f"max_iter: {ml.max_iter} iterations without convergence"
+                break
+            step, ev, c, pred = self._trial(M, g, cost)
+            self.iterations += 1
+            if ev is None:
+                self.stop = ("stalled: no step lowers the cost although the gradient predicts a "
+                             f"decrease of {pred:.3g}")
+                break
+            rho = (cost - c) / pred
+            self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
+            rel_step = float(np.max(np.abs(step[:P]) / self._scale(M)))
+            self.max_rel_step = max(self.max_rel_step, rel_step)
+            self.ev, self.beta = ev, ev.beta.copy()
+            r_change = 0.0
+            if self.relax:
+                r_old = self._r
+                self.Wh = self._relaxed_weighting()
+                r_change = float(np.max(np.abs(self._r / r_old - 1)))
+                c = self._cost(self.ev)
+            cost = c
+            self._record(cost)
+            M, g = prob.normal_equations(self.ev, self.Wh)
+            if ml.progress is not None:
+                ml.progress(self.iterations, self.history[-1], self.beta[:P].copy())
+            if ml.verbose:
+                print(f"ML iteration {self.iterations:3d}: -log likelihood {self.history[-1]:.10g}  "
+                      f"step {rel_step:.2e}  damping {self.lam:.1e}  gain ratio {rho:.2f}")
+        self.M = M
+
+    def _trial(self, M, g, cost):
+        """The damped step, shortened to the step bound, that lowers the cost by at least
+        ``MIN_GAIN_RATIO`` of the decrease predicted for it: ``(step, evaluation, cost, predicted
+        decrease)``; evaluation None when the damping limit is reached first (the damping ``lam``
+        rises along the way)."""
+        P, nu = self.prob.p, 2.0
+        scale = self._scale(M)
+        pred = 0.0
+        while self.lam <= MAX_DAMPING:
+            step = self._step(M, g, self.active, self.lam)
+            # bounded relative step: shorten along the same (descent) direction, keep the damping
+            step *= min(1.0, MAX_REL_STEP / max(float(np.max(np.abs(step[:P]) / scale)), 1e-300))
+            pred = self._predicted(M, g, step)
+            if pred > 0:
+                ev, c = self._try(self.beta + step)
+                if ev is not None and (cost - c) > MIN_GAIN_RATIO * pred:
+                    return step, ev, c, pred
+                self.rejected += 1
+            self.lam, nu = max(self.lam, INITIAL_DAMPING) * nu, 2 * nu
+        return None, None, np.inf, pred
+
+    def _record(self, cost: float) -> None:
+        """Log the weighted cost, log det R and the negative log-likelihood they make."""
+        log_det = float(-2 * np.sum(np.log(np.abs(np.diag(self.Wh)))))  # Wh is triangular
+        self.wls_history.append(float(cost))
+        self.log_det_history.append(log_det)
+        self.history.append(float(cost) + 0.5 * float(self.prob.mask.sum()) * log_det)
+
+
+# -- helpers ---------------------------------------------------------------------------------------
+def _covariance(M: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Inverse of the information on the active unknowns (scaled for conditioning); 0 elsewhere."""
+    i = np.flatnonzero(active)
+    Ma = M[np.ix_(i, i)]
+    d = np.sqrt(np.diag(Ma))
+    Ms = Ma / np.outer(d, d)
+    ill = bool(np.linalg.cond(Ms) > 1e14)
+    inv = np.linalg.pinv(Ms, rcond=1e-15, hermitian=True) if ill else np.linalg.inv(Ms)
+    cov = np.zeros_like(M)
+    cov[np.ix_(i, i)] = inv / np.outer(d, d)
+    return cov, ill
+
+
+def _std(cov: np.ndarray, active: np.ndarray) -> np.ndarray:
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std[~active] = np.inf
+    return std
+
+
+def _whitening(R: np.ndarray) -> np.ndarray:
+    """``Wh`` with ``Wh^T Wh = R^-1`` (inverse of R's Cholesky factor)."""
+    return np.linalg.inv(np.linalg.cholesky(R))
+
+
+def _check_segment(segment):
+    if segment is None or segment == "auto":
+        return None
+    if segment == "plain":
+        return math.inf
+    try:
+        value = float(segment)
+    except (TypeError, ValueError):
+        raise EstimationError(f"ML: segment must be None, 'plain' or a length in s, got {segment!r}") from None
+    if not value > 0:
+        raise EstimationError(f"ML: segment length must be positive, got {segment!r}")
+    return value
+
+
+def _check_noise_cov(noise_cov, ny: int):
+    if isinstance(noise_cov, str):
+        if noise_cov != "relax":
+            raise EstimationError(f"ML: noise_cov must be 'relax' or a covariance, got {noise_cov!r}")
+        return None
+    R = np.asarray(noise_cov, dtype=float)
+    if R.shape == (ny,):
+        R = np.diag(R)
+    if R.shape != (ny, ny) or not np.all(np.isfinite(R)):
+        raise EstimationError(f"ML: noise_cov must be {ny} variances or a {ny}x{ny} matrix, got shape {R.shape}")
+    if not np.allclose(R, R.T) or np.any(np.linalg.eigvalsh(R) <= 0):
+        raise EstimationError("ML: noise_cov must be symmetric positive definite")
+    return R
+
+
+def _common_dt(runs: list[Run]) -> float:
+    dts = [run.dt for run in runs]
+    if max(dts) - min(dts) > 1e-6 * max(dts):
+        listing = ", ".join(f"{d:g} s in {r.source}" for d, r in zip(dts, runs))
+        raise EstimationError(f"ML: runs have different sample intervals ({listing}); resample them to one rate")
+    return float(np.mean(dts))
+
+
+def _finite(run: Run, names: list[str]) -> np.ndarray:
+    data = run.matrix(names)
+    bad = ~np.isfinite(data)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise EstimationError(f"{run.source}: channel '{names[j]}' is not finite at t = {run.time[k]:g} s")
+    return data

@@ -1,0 +1,360 @@
+"""The segmented output-error engine: runs cut into segments, all simulated at once.
+
+Used by ML (:class:`OutputError`: residuals and their exact Jacobian, plain or multiple
+shooting) and by IV (:func:`simulate_segments`: instrument states restarted from the measured
+ones every few seconds).
+
+Output error compares measured outputs ``z`` with the outputs ``y`` of the model simulated from
+the inputs. Each run is cut into *segments*; every segment is simulated from its own initial state
+and every run carries its own output zero shifts (biases)::
+
+    x_s[k+1] = Phi x_s[k] + Gamma u_s[k],   x_s[0] = x0_s
+    y_s[k]   = C x_s[k] + D u_s[k] + b_run(s)
+
+One segment per run is the *plain* output-error form. Several short segments per run is
+*multiple shooting*: an unstable model is integrated only over a few seconds at a time, so it
+cannot diverge and the cost stays nearly quadratic; the segment initial states are nuisance
+parameters estimated with the derivatives.
+
+The unknowns are stacked in one vector ``beta = [theta (p), x0 per segment (n each), bias per run
+(ny each)]``. All segments are padded to a common length and simulated *together* (segments are
+a trailing axis), as are the parameter sensitivities: one time recursion per iteration, however
+many parameters and segments. The normal equations are accumulated segment by segment from the
+small local Jacobian ``[dy/dtheta, dy/dx0_s, dy/db]``, so the big, mostly empty global Jacobian
+is never formed.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+from ..errors import SimulationError
+from ..model.linear import LinearModel
+from ..model.profile import Profile
+from ..model.sensitivity import discretize_with_derivatives
+from ..model.simulate import DIVERGENCE_LIMIT, discretize, propagate
+from .colour import power
+
+MIN_SEGMENT = 1.0  # s: shorter segments leave too little response to pin down their own x0
+MAX_SEGMENT = 5.0  # s: longer segments of an unstable model grow too nonlinear in theta
+COLOUR_MAX_ITER = 30  # passes of the coloured-noise autocorrelation correction (see coloured_information)
+COLOUR_TOL = 1e-2  # ... until no variance changes by more than this (relative)
+OUTPUT_LIMIT = 1e3  # a modelled output this many times the largest measured one has diverged
+
+
+def auto_segment(model: LinearModel, duration: float) -> float:
+    """Segment length in s for a model and the longest run (``math.inf``: the plain form).
+
+    A stable model, or one whose fastest divergence doubles the response no more than once over
+    the run, is simulated over the whole run. Otherwise segments last half the fastest unstable
+    mode's time to double (clipped to 1..5 s): over a segment the a priori model's error grows
+    by at most about 40 %.
+    """
+    t_double = min((m.time_to_half_or_double for m in model.modes() if not m.stable), default=math.inf)
+    if duration <= t_double:
+        return math.inf
+    return float(np.clip(t_double / 2, MIN_SEGMENT, MAX_SEGMENT))
+
+
+@dataclass
+class Layout:
+    """Segments of the runs: ``run`` (S,) run index, ``start`` (S,) first sample in the run,
+    ``length`` (S,) samples; ``L`` the longest segment (the padded length)."""
+
+    run: np.ndarray
+    start: np.ndarray
+    length: np.ndarray
+
+    @property
+    def L(self) -> int:
+        return int(self.length.max())
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.run)
+
+
+def cut(run_lengths: list[int], dt: float, segment: float) -> Layout:
+    """Cut runs of ``run_lengths`` samples into near-equal segments of at most ``segment`` s."""
+    run, start, length = [], [], []
+    for r, N in enumerate(run_lengths):
+        pieces = 1 if not math.isfinite(segment) else max(1, int(math.ceil((N - 1) * dt / segment - 1e-9)))
+        edges = np.linspace(0, N, pieces + 1).round().astype(int)
+        for a, b in zip(edges[:-1], edges[1:]):
+            run.append(r), start.append(a), length.append(b - a)
+    return Layout(np.array(run), np.array(start), np.array(length))
+
+
+def restarts(n_samples: int, dt: float, segment: float | None) -> Layout:
+    """One run cut every ``segment`` s (whole samples) from its first sample on, for a simulation
+    restarted from known states (``None`` or ``inf``: one segment)."""
+    step = n_samples if segment is None or not math.isfinite(segment) else max(1, int(round(segment / dt)))
+    start = np.arange(0, n_samples, step)
+    return Layout(np.zeros(len(start), int), start, np.minimum(step, n_samples - start))
+
+
+def pad(layout: Layout, series: list[np.ndarray]) -> np.ndarray:
+    """The segments of per-run series (N_r, k) side by side, zero-padded: (L, k, S)."""
+    out = np.zeros((layout.L, series[0].shape[1], layout.n_segments))
+    for s, (r, a, n_s) in enumerate(zip(layout.run, layout.start, layout.length)):
+        out[:n_s, :, s] = series[r][a:a + n_s]
+    return out
+
+
+def simulate_segments(Phi: np.ndarray, forcing: np.ndarray, x_start: np.ndarray, layout: Layout) -> np.ndarray:
+    """States (N, n) of one run simulated segment by segment, all segments in one recursion:
+    ``x[k+1] = Phi x[k] + forcing[k]`` (forcing (N, n)), segment s starting from ``x_start[s]``
+    ((S, n)) at its first sample."""
+    x = propagate(Phi, pad(layout, [forcing]), np.asarray(x_start, dtype=float).T)
+    return np.concatenate([x[:n_s, :, s] for s, n_s in enumerate(layout.length)])
+
+
+@dataclass
+class Response:
+    """Model response at one ``beta``: ``e`` (L, ny, S) residual z - y (0 on padding), ``y`` (L, ny, S);
+    with the Jacobian: ``dy_theta`` (L, ny, p, S) and ``dy_x0`` (L, ny, n) (shared by all segments)."""
+
+    beta: np.ndarray
+    e: np.ndarray
+    y: np.ndarray
+    dy_theta: np.ndarray | None = None
+    dy_x0: np.ndarray | None = None
+
+
+class OutputError:
+    """The output-error problem of a profile over runs cut into segments.
+
+    ``u``: list of (N_r, m) inputs; ``z``: list of (N_r, ny) measured outputs; ``dt`` s;
+    ``segment`` s (``math.inf``: one segment per run). ``estimate_x0``/``estimate_bias`` choose
+    whether segment initial states / run zero shifts are unknowns (else held at their start values).
+    """
+
+    def __init__(self, profile: Profile, u: list[np.ndarray], z: list[np.ndarray], dt: float,
+                 segment: float, estimate_x0: bool = True, estimate_bias: bool = True):
+        self.profile, self.dt = profile, float(dt)
+        self.model0 = LinearModel(profile)
+        self.n, self.m, self.ny, self.p = (self.model0.n_states, self.model0.n_inputs,
+                                           self.model0.n_outputs, len(self.model0.names))
+        self.layout = lay = cut([len(zr) for zr in z], dt, segment)
+        S = lay.n_segments
+        self.U, self.Z = pad(lay, u), pad(lay, z)
+        self.mask = pad(lay, [np.ones((len(zr), 1)) for zr in z])[:, 0, :]
+        self.n_runs = len(z)
+        peak = np.max([np.abs(zr).max(axis=0) for zr in z], axis=0)
+        self.y_limit = np.where(peak > 0, OUTPUT_LIMIT * peak, np.inf)
+        # global index of each local column [theta | x0 of the segment | bias of its run]; -1: held
+        p, n, ny = self.p, self.n, self.ny
+        x0_idx = p + np.arange(S * n).reshape(S, n) if estimate_x0 else -np.ones((S, n), int)
+        nb0 = p + (S * n if estimate_x0 else 0)
+        b_idx = nb0 + np.arange(self.n_runs * ny).reshape(self.n_runs, ny) if estimate_bias \
+            else -np.ones((self.n_runs, ny), int)
+        self.local_index = np.hstack([np.tile(np.arange(p), (S, 1)), x0_idx, b_idx[lay.run]])
+        self.n_beta = nb0 + (self.n_runs * ny if estimate_bias else 0)
+        self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
+        self.x0_held = np.zeros((n, S))  # used when x0 is not estimated
+        self.b_held = np.zeros((ny, self.n_runs))
+
+    # -- the unknown vector ----------------------------------------------------------------------
+    def unpack(self, beta: np.ndarray):
+        """``theta`` (p,), ``x0`` (n, S), ``bias`` (ny, R) from ``beta``."""
+        p, n, ny, S = self.p, self.n, self.ny, self.layout.n_segments
+        theta = beta[:p]
+        k = p
+        if self.estimate_x0:
+            x0, k = beta[k:k + S * n].reshape(S, n).T, k + S * n
+        else:
+            x0 = self.x0_held
+        b = beta[k:k + self.n_runs * ny].reshape(self.n_runs, ny).T if self.estimate_bias else self.b_held
+        return theta, x0, b
+
+    def initial_beta(self, theta: np.ndarray) -> np.ndarray:
+        """``theta`` with each segment's initial state taken from the measured outputs that are
+        plain states (others 0) and zero biases; also sets the held values."""
+        p = self.profile
+        x0 = np.zeros((self.n, self.layout.n_segments))
+        for j, y in enumerate(p.outputs):
+            if y in p.states and p.output_terms(y) == {y: 1.0}:
+                x0[p.state_names.index(y)] = self.Z[0, j, :]
+        self.x0_held = x0
+        parts = [np.asarray(theta, float)]
+        if self.estimate_x0:
+            parts.append(x0.T.ravel())
+        if self.estimate_bias:
+            parts.append(np.zeros(self.n_runs * self.ny))
+        return np.concatenate(parts)
+
+    def names(self) -> list[str]:
+        """Name of every element of beta (parameters, ``x0[s].state``, ``bias[r].output``)."""
+        out = list(self.model0.names)
+        if self.estimate_x0:
+            out += [f"x0[{s}].{x}" for s in range(self.layout.n_segments) for x in self.profile.state_names]
+        if self.estimate_bias:
+            out += [f"bias[{r}].{y}" for r in range(self.n_runs) for y in self.profile.outputs]
+        return out
+
+    # -- simulation ------------------------------------------------------------------------------
+    def evaluate(self, beta: np.ndarray, jacobian: bool = True) -> Response:
+        """Residuals at ``beta`` and, with ``jacobian``, the exact output sensitivities."""
+        theta, x0, b = self.unpack(beta)
+        model = self.model0.with_theta(theta)
+        L, S, n = self.layout.L, self.layout.n_segments, self.n
+        if jacobian:
+            Phi, Gamma, dPhi, dGamma = discretize_with_derivatives(model, self.dt)
+        else:
+            Phi, Gamma = discretize(model.A, model.B, self.dt)
+        with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported below
+            x = propagate(Phi, Gamma @ self.U, x0)  # (L, n, S); matmul broadcasts over time
+            C, D = model.C, model.D
+            y = C @ x + D @ self.U + b[:, self.layout.run][None]
+        self._check(x, y)
+        e = np.where(self.mask[:, None, :] > 0, self.Z - y, 0.0)  # padding may hold inf
+        ev = Response(beta, e, y)
+        if jacobian:
+            p, ny = self.p, self.ny
+            # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (L, n, p, S)
+            forcing = ((dPhi.reshape(p * n, n) @ x + dGamma.reshape(p * n, self.m) @ self.U)
+                       .reshape(L, p, n, S).transpose(0, 2, 1, 3).reshape(L, n, p * S))
+            sens = propagate(Phi, forcing, np.zeros((n, p * S)))
+            direct = (model.dC.reshape(p * ny, n) @ x + model.dD.reshape(p * ny, self.m) @ self.U)
+            ev.dy_theta = (C @ sens).reshape(L, ny, p, S) + direct.reshape(L, p, ny, S).transpose(0, 2, 1, 3)
+            powers = propagate(Phi, np.zeros((L, n, n)), np.eye(n))  # Phi^k
+            ev.dy_x0 = C @ powers
+        return ev
+
+    def _check(self, x: np.ndarray, y: np.ndarray) -> None:
+        """SimulationError naming state or output, run and time where the simulation diverges:
+        a state beyond DIVERGENCE_LIMIT or an output beyond OUTPUT_LIMIT times its measured peak."""
+        valid = self.mask[:, None, :] > 0
+        bad_x = (~np.isfinite(x) | (np.abs(x) > DIVERGENCE_LIMIT)) & valid
+        bad_y = (np.abs(y) > self.y_limit[None, :, None]) & valid
+        checks = ((bad_x, "state", self.profile.state_names, f"exceeds {DIVERGENCE_LIMIT:g}"),
+                  (bad_y, "output", self.profile.outputs, f"exceeds {OUTPUT_LIMIT:g} times its measured peak"))
+        for bad, kind, names, what in checks:
+            if bad.any():
+                k, j, s = np.argwhere(bad)[0]
+                lay = self.layout
+                t = (lay.start[s] + k) * self.dt
+                raise SimulationError(f"simulation diverged: {kind} '{names[j]}' {what} in run {lay.run[s] + 1} "
+                                      f"at t = {t:.3f} s from the run's start")
+
+    # -- cost and normal equations ---------------------------------------------------------------
+    def whitened(self, ev: Response, Wh: np.ndarray) -> np.ndarray:
+        """Whitened residuals ``Wh e`` as one flat vector over all valid samples."""
+        return (Wh @ ev.e).transpose(2, 0, 1)[self.mask.T > 0].ravel()
+
+    def cost(self, ev: Response, Wh: np.ndarray) -> float:
+        """0.5 sum e^T R^-1 e (R^-1 = Wh^T Wh)."""
+        return 0.5 * float(np.sum((Wh @ ev.e) ** 2))
+
+    def residual_vector(self, beta: np.ndarray, Wh: np.ndarray) -> np.ndarray:
+        """Whitened residuals at ``beta`` (what a general least-squares solver minimises)."""
+        return self.whitened(self.evaluate(beta, jacobian=False), Wh)
+
+    def _local_jacobian(self, ev: Response, Wh: np.ndarray) -> np.ndarray:
+        """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment,
+        (S, L, ny, p + n + ny), 0 on padding."""
+        L, ny, S = ev.e.shape
+        p, n = self.p, self.n
+        Jloc = np.empty((S, L, ny, p + n + ny))
+        Jloc[..., :p] = (Wh @ ev.dy_theta.reshape(L, ny, p * S)).reshape(L, ny, p, S).transpose(3, 0, 1, 2)
+        Jloc[..., p:p + n] = (Wh @ ev.dy_x0)[None]
+        Jloc[..., p + n:] = Wh
+        Jloc[self.mask.T == 0] = 0.0  # not a product: padding may hold inf
+        return Jloc
+
+    def _scatter(self, Ml: np.ndarray, gl: np.ndarray | None = None):
+        """Sum per-segment local blocks ``Ml`` (S, k, k) (and ``gl`` (S, k)) into the global ones."""
+        M, g = np.zeros((self.n_beta, self.n_beta)), np.zeros(self.n_beta)
+        for s in range(len(Ml)):
+            idx = self.local_index[s]
+            keep = idx >= 0
+            i = idx[keep]
+            M[np.ix_(i, i)] += Ml[s][np.ix_(keep, keep)]
+            if gl is not None:
+                g[i] += gl[s][keep]
+        return M, g
+
+    def normal_equations(self, ev: Response, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Information matrix ``M = J^T R^-1 J`` (n_beta, n_beta) and ``g = J^T R^-1 e`` (n_beta,),
+        J = dy/dbeta; accumulated per segment from its local Jacobian."""
+        L, ny, S = ev.e.shape
+        Jloc = self._local_jacobian(ev, Wh).reshape(S, L * ny, -1)
+        ew = (Wh @ ev.e).transpose(2, 0, 1).reshape(S, L * ny, 1)
+        Ml = Jloc.transpose(0, 2, 1) @ Jloc
+        gl = (Jloc.transpose(0, 2, 1) @ ew)[..., 0]
+        return self._scatter(Ml, gl)
+
+    def coloured_information(self, ev: Response, Wh: np.ndarray, cov: np.ndarray,
+                             max_iter: int = COLOUR_MAX_ITER, tol: float = COLOUR_TOL):
+        """The middle of Morelli & Klein's sandwich for coloured residuals,
+        ``B = sum over whitened outputs y and segments s of J_ys^T T_y J_ys`` (n_beta, n_beta).
+
+        ``J_ys`` is the whitened sensitivity of output y in segment s (rows of ``Wh J``, ``J`` =
+        dy/dbeta) and ``T_y`` the Toeplitz matrix of the autocorrelation ``rho_y`` of output y's
+        whitened measurement noise, pooled over all segments of all runs (lag products stay within a
+        segment: segments are taken as independent of each other, as are the outputs). The
+        covariance of beta is then ``cov B cov``, ``cov`` = M^-1 (n_beta, n_beta) at the estimate.
+
+        ``rho_y`` comes from the residuals ``e = (I - H) w`` (H = J M^-1 J^T, whitened), not the
+        noise ``w``: the fit removes from them exactly the components along the sensitivities, so
+        their plain autocorrelation ``r_y`` makes ``B`` too small (for white noise with many unknowns
+        per sample, such as short multiple-shooting segments, by 30-40 % in the tests). Its expected
+        value is ``E r_y(k) = rho_y(k) - [2 tr(S_k H T) - tr(S_k H T H)]_y / N`` (S_k the lag-k
+        shift; ``H T H = J (cov B cov) J^T``), so ``rho`` is solved from
+        ``rho = r + [2 xcorr(J cov, T J) - xcorr(J cov B cov, J)] / N`` by fixed-point iteration
+        from white noise (the first pass is the exact correction for white noise), until no
+        parameter variance changes by more than ``tol`` (relative) or after ``max_iter`` passes. All of it by
+        FFT convolutions over time, all columns of a segment at once.
+
+        Returns ``B``, ``rho`` (L, ny) (lag 0 first) and the number of passes.
+        """
+        L, ny, S = ev.e.shape
+        n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
+        count = max(float(self.mask.sum()), 1.0)
+        r = np.fft.irfft(power(Wh @ ev.e, n_fft).sum(axis=2) / count, n_fft, axis=0)  # (n_fft, ny)
+        Jloc = self._local_jacobian(ev, Wh)  # (S, L, ny, k), 0 on padding
+        segs = []
+        for s in range(S):
+            idx = self.local_index[s]
+            keep = idx >= 0
+            i = idx[keep]
+            Js = Jloc[s, :self.layout.length[s]][..., keep]  # (l, ny, k)
+            FJ = np.fft.rfft(Js, n_fft, axis=0)
+            # the FFT is linear: rfft(J C) = rfft(J) C, a small matrix product instead of an FFT
+            segs.append((i, keep, Js, FJ, np.conj(FJ @ cov[np.ix_(i, i)])))
+        k_loc = Jloc.shape[-1]
+        rho = np.zeros_like(r)
+        rho[0] = r[0]  # start: white noise of the residuals' variance
+        var_old = None
+        for passes in range(1, max_iter + 1):
+            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)  # a covariance: PSD
+            Bl, TJs = np.zeros((S, k_loc, k_loc)), []
+            for s, (i, keep, Js, FJ, _) in enumerate(segs):
+                TJ = np.fft.irfft(spectrum[:, :, None] * FJ, n_fft, axis=0)[:len(Js)]
+                TJs.append(TJ)
+                q = Js.shape[-1]
+                Bl[s][np.ix_(keep, keep)] = Js.reshape(-1, q).T @ TJ.reshape(-1, q)
+            B, _ = self._scatter(0.5 * (Bl + Bl.transpose(0, 2, 1)))
+            cov_c = cov @ B @ cov
+            var = np.diag(cov_c)[:self.p]  # converged on the parameters (the nuisances follow)
+            if var_old is not None and np.all(np.abs(var - var_old) <= tol * np.abs(var_old)):
+                break
+            var_old = var
+            corr = np.zeros((n_fft // 2 + 1, ny))
+            for (i, keep, Js, FJ, FGc), TJ in zip(segs, TJs):
+                FC = np.conj(FJ @ cov_c[np.ix_(i, i)])
+                corr += np.sum(2 * FGc * np.fft.rfft(TJ, n_fft, axis=0) - FC * FJ, axis=-1).real
+            rho = r + np.fft.irfft(corr / count, n_fft, axis=0)
+        return B, rho[:L], passes
+
+    # -- per-run views -----------------------------------------------------------------------------
+    def per_run(self, arr: np.ndarray) -> list[np.ndarray]:
+        """Segment-stacked (L, ny, S) array back to one (N_r, ny) array per run."""
+        lay = self.layout
+        out = [[] for _ in range(self.n_runs)]
+        for s in range(lay.n_segments):
+            out[lay.run[s]].append(arr[:lay.length[s], :, s])
+        return [np.vstack(parts) for parts in out]

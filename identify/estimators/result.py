@@ -1,0 +1,233 @@
+"""Identification results: parameter table with standard errors, fit metrics, export.
+
+Every estimator returns an :class:`IdentificationResult`, in the spirit of a statsmodels results
+object: ``summary()`` prints a table an engineer can paste into a report; ``to_dict()`` /
+``save()`` give ``result.json`` and the identified model as a profile TOML, which can be the next a
+priori model.
+
+``result.json`` is strict JSON (``allow_nan=False``): a value that is not finite (the infinite
+standard error of a parameter no input excites, a NaN) is written as ``null``, as its ``notes``
+say; long per-sample or per-segment arrays are summarised so that the file stays small (well
+under 1 MB for an hour of data) — the time histories themselves belong in the plots and runs.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..model.linear import LinearModel, format_modes
+from ..model.profile import Profile
+from . import identifiability
+
+
+def theil(measured: np.ndarray, modelled: np.ndarray) -> float:
+    """Theil inequality coefficient: 0 is a perfect fit, 1 the worst possible."""
+    num = np.sqrt(np.mean((measured - modelled) ** 2))
+    den = np.sqrt(np.mean(measured ** 2)) + np.sqrt(np.mean(modelled ** 2))
+    return float(num / den) if den > 0 else 0.0
+
+
+def fit_metrics(outputs: list[str], measured: list[np.ndarray], modelled: list[np.ndarray]) -> dict:
+    """RMS error and Theil coefficient per output over all runs (arrays (N_r, ny) per run)."""
+    z, y = np.vstack(measured), np.vstack(modelled)
+    return {name: {"rms": float(np.sqrt(np.mean((z[:, j] - y[:, j]) ** 2))), "theil": theil(z[:, j], y[:, j])}
+            for j, name in enumerate(outputs)}
+
+
+@dataclass
+class IdentificationResult:
+    """Estimates of a profile's free parameters.
+
+    ``theta`` (p,) estimates; ``std`` (p,) standard errors (Cramér-Rao bounds, by default
+    corrected for coloured residuals: ``info["standard_errors"]`` says which); ``profile`` the a priori
+    profile (structure and a priori values); ``fit`` {output: {"rms", "theil"}}; ``info`` method
+    details (iterations, cost history, per-run initial states and zero shifts, ...); ``runs`` the
+    runs' sources.
+    """
+
+    method: str
+    profile: Profile
+    theta: np.ndarray
+    std: np.ndarray
+    fit: dict[str, dict[str, float]] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    runs: list[str] = field(default_factory=list)
+    # (p, p) covariance of theta (std = sqrt of its diagonal); None: only the stds are known
+    covariance: np.ndarray | None = field(default=None, repr=False)
+    # per run, for plots and residual analysis (not written to JSON): time (N,), measured and
+    # modelled outputs (N, ny) in the order of profile.outputs
+    time: list[np.ndarray] = field(default_factory=list, repr=False)
+    measured: list[np.ndarray] = field(default_factory=list, repr=False)
+    modelled: list[np.ndarray] = field(default_factory=list, repr=False)
+
+    def residuals(self) -> list[np.ndarray]:
+        """Measured minus modelled outputs, (N, ny) per run."""
+        return [z - y for z, y in zip(self.measured, self.modelled)]
+
+    @property
+    def names(self) -> list[str]:
+        return self.profile.free_names
+
+    @property
+    def apriori(self) -> np.ndarray:
+        return np.array(list(self.profile.free.values()))
+
+    @property
+    def relative_std(self) -> np.ndarray:
+        """Standard error in % of |estimate| (inf where the estimate is 0)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 100 * self.std / np.abs(self.theta)
+
+    @property
+    def model(self) -> LinearModel:
+        return LinearModel(self.profile, self.theta)
+
+    @property
+    def converged(self) -> bool:
+        """False only when an iterative estimator stopped before convergence."""
+        return bool(self.info.get("converged", True))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """(p, p) parameter correlation matrix (identity where only the stds are known)."""
+        return identifiability.correlation(self._cov())
+
+    def identifiability(self) -> dict:
+        """Correlated pairs, poorly determined parameters and modes whose stability these runs do
+        not determine (:func:`identify.identifiability.assess`)."""
+        return identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+
+    def _cov(self) -> np.ndarray:
+        return np.diag(self.std ** 2) if self.covariance is None else self.covariance
+
+    def parameters(self) -> dict[str, float]:
+        return dict(zip(self.names, map(float, self.theta)))
+
+    def identified_profile(self, name: str | None = None) -> Profile:
+        return self.model.to_profile(name or f"{self.profile.name} - identified ({self.method.upper()})")
+
+    def summary(self, truth: dict[str, float] | None = None) -> str:
+        """Parameter table (estimate, standard error, rel. std %, a priori [, truth]), fit and modes."""
+        head = f"{'parameter':<18}{'estimate':>13}{'std error':>12}{'rel. std %':>11}{'a priori':>12}"
+        if truth:
+            head += f"{'truth':>12}"
+        lines = [f"{self.method.upper()} identification of '{self.profile.name}' from "
+                 f"{len(self.runs) or 1} run(s)", head, "-" * len(head)]
+        for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
+            row = f"{name:<18}{v:13.6g}{s:12.4g}{r:11.2f}{a:12.5g}"
+            if truth:
+                row += f"{truth.get(name, float('nan')):12.5g}"
+            lines.append(row)
+        lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
+        lines.append(self._convergence_line())
+        if self.fit:
+            lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
+            lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
+            if self.info.get("modelled"):
+                lines.append(f"(modelled outputs: {self.info['modelled']})")
+        lines += ["", "modes of the identified model:", format_modes(self.model.modes())]
+        check = identifiability.report_lines(self.identifiability())
+        return "\n".join(lines + ([""] + check if check else []))
+
+    def _convergence_line(self) -> str:
+        if "converged" not in self.info:
+            return "convergence: not iterative (one least-squares solution)"
+        it, stop = self.info.get("iterations"), self.info.get("stop", "")
+        if self.info["converged"]:
+            return f"convergence: converged after {it} iterations ({stop})" if stop else \
+                f"convergence: converged after {it} iterations"
+        return f"convergence: NOT CONVERGED after {it} iterations ({stop}): the estimates are not final"
+
+    def markdown(self, truth: dict[str, float] | None = None) -> str:
+        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes."""
+        cols = ["parameter", "estimate", "std error", "rel. std %", "a priori"] + (["truth"] if truth else [])
+        lines = [f"{self.method.upper()} identification of `{self.profile.name}` from "
+                 f"{len(self.runs) or 1} run(s).", "", "| " + " | ".join(cols) + " |",
+                 "| --- |" + " ---: |" * (len(cols) - 1)]
+        for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
+            cells = [f"`{name}`", f"{v:.6g}", f"{s:.4g}", f"{r:.2f}", f"{a:.5g}"]
+            if truth:
+                cells.append(f"{truth.get(name, float('nan')):.5g}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", f"Standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}."]
+        if self.fit:
+            lines += ["", "| output | RMS error | Theil U |", "| --- | ---: | ---: |"]
+            lines += [f"| {k} | {v['rms']:.4g} | {v['theil']:.4f} |" for k, v in self.fit.items()]
+        lines += ["", "Modes of the identified model:", "", "```", format_modes(self.model.modes()), "```"]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict: non-finite floats become None (strict JSON), long arrays summaries."""
+        check = self.identifiability()
+        modes = [{"real": m.eigenvalue.real, "imag": m.eigenvalue.imag, "frequency": m.frequency,
+                  "damping": m.damping} for m in self.model.modes()]
+        for m, u in zip(modes, check["modes"]):  # both slowest first, one per conjugate pair
+            m.update(std_real=u["std_real"], std_imag=u["std_imag"],
+                     stability_determined=u["stability_determined"])
+        out = {
+            "method": self.method,
+            "profile": self.profile.name,
+            "runs": self.runs,
+            "converged": self.converged,
+            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a)}
+                           for n, v, s, a in zip(self.names, self.theta, self.std, self.apriori)},
+            "correlation": {"names": self.names, "matrix": self.correlation},
+            "identifiability": check,
+            "fit": self.fit,
+            "eigenvalues": modes,
+            "info": _summarised(self.info),
+            "notes": [NULL_NOTE],
+        }
+        return _jsonable(out)
+
+    def save(self, outdir: str | Path) -> Path:
+        """Write ``result.json`` and ``identified_profile.toml`` into ``outdir``."""
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        (outdir / "result.json").write_text(dumps(self.to_dict()))
+        self.identified_profile().save(outdir / "identified_profile.toml")
+        return outdir
+
+
+NULL_NOTE = "null stands for a value that is not finite: an infinite standard error (a parameter no input excites) or NaN"
+MAX_LAGS = 200  # noise autocorrelation lags kept in result.json
+MAX_LISTED = 100  # per-segment entries kept in result.json
+
+
+def dumps(obj) -> str:
+    """Strict JSON text (no NaN/Infinity: they must be None already, see :func:`_jsonable`)."""
+    return json.dumps(_jsonable(obj), indent=1, allow_nan=False)
+
+
+def _summarised(info: dict) -> dict:
+    """``info`` with the long arrays cut: the noise autocorrelation to its first MAX_LAGS lags,
+    the per-segment list to its first MAX_LISTED entries (the count and a note say so)."""
+    info = dict(info)
+    acf = info.get("noise_autocorrelation")
+    if acf is not None and len(acf) > MAX_LAGS:
+        info["noise_autocorrelation"] = np.asarray(acf)[:MAX_LAGS]
+        info["noise_autocorrelation_note"] = f"first {MAX_LAGS} of {len(acf)} lags"
+    segs = info.get("segments")
+    if segs is not None and len(segs) > MAX_LISTED:
+        info["segments"] = segs[:MAX_LISTED]
+        info["segments_note"] = f"first {MAX_LISTED} of {len(segs)} segments listed"
+    return info
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return _jsonable(obj.item())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if isinstance(obj, complex):
+        return {"real": _jsonable(obj.real), "imag": _jsonable(obj.imag)}
+    return obj

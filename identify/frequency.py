@@ -1,0 +1,367 @@
+"""Frequency responses from flown runs, their coherence, and the frequency-domain fit cost J.
+
+The CIFER-style view of a test point: for every input-output pair a frequency response
+``H(jw)`` with its coherence, estimated from the runs without any model, against which any model's
+response (a priori, identified) is checked by Tischler's cost J.
+
+Estimation (:func:`frequency_response`): each run is cut into overlapping (default 50 %) segments of
+several window lengths ``T_w``; each segment is detrended, Hann-windowed and Fourier-transformed at
+the frequencies of a log-spaced grid (a direct evaluation of the DFT at arbitrary frequencies, the
+job a chirp-z transform does in CIFER). Segments of all runs are pooled (runs are concatenated
+without any window spanning two runs), giving per window the spectral matrix
+``G_ab(w) = mean_s conj(A_s) B_s`` of inputs and outputs. Per output ``y`` the frequency responses
+to all inputs together solve ``G_uu H_y = G_uy`` (multi-input conditioning: correct even when the
+inputs are correlated, e.g. a pilot's cross-coupled stick), and the coherence of input ``i`` is the
+*partial* coherence of ``u_i`` and ``y`` with the other inputs' contributions removed,
+``|P_iy|^2 / (P_ii P_yy)`` from ``P`` the inverse of the spectral matrix of ``[u, y]`` (the
+ordinary coherence for one input). The normalised random error of ``|H|`` (and the phase error in
+rad) is Bendat & Piersol's ``eps = sqrt(1 - g^2) / (|g| sqrt(2 n_d))`` with ``n_d`` the effective
+number of averages (Hann, 50 % overlap: ``K / (1 + 2 * 0.167^2)`` for K segments) less the inputs
+conditioned on.
+
+A window is used only at frequencies where it holds at least two cycles and has enough averages.
+The composite estimate combines the windows per frequency and pair with weights ``1 / eps_k^2``
+(the most accurate window dominates); because all windows see the same data their errors are
+correlated, so the composite error is the weighted mean of the windows' errors, an upper bound
+(``var(sum w_k H_k) <= (sum w_k sigma_k)^2``), not the smaller independent-average value.
+
+Fit cost (:func:`fit_cost`): Tischler's ``J = 20 / n_w * sum W_g (dB error)^2 + W_p (deg error)^2``
+weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies where the coherence is at
+least 0.6; ``J <= 100`` per pair (mean ``<= 50``) is the usual mark of a model that fits.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import detrend
+
+from .data.runs import Run
+from .errors import EstimationError
+from .model.linear import LinearModel
+
+MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
+OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
+MIN_CYCLES = 3.0  # a window must hold this many periods of a frequency (fewer: leakage bias)
+N_WINDOWS = 5
+W_GAIN, W_PHASE = 1.0, 0.01745  # Tischler's weights on dB and deg errors
+
+
+@dataclass
+class FrequencyResponse:
+    """Composite frequency responses of ``outputs`` to ``inputs``.
+
+    ``omega`` (nf,) rad/s; ``H`` (nf, ny, nu) complex (output units per input unit);
+    ``coherence`` (nf, ny, nu) partial coherence (ordinary for one input), 0..1;
+    ``multiple_coherence`` (nf, ny) of each output with all inputs; ``random_error`` (nf, ny, nu)
+    normalised random error of ``|H|`` (also the phase error in rad), inf where no window is valid;
+    ``windows`` the window lengths (s) used; ``runs`` the sources.
+    """
+
+    omega: np.ndarray
+    H: np.ndarray
+    coherence: np.ndarray
+    multiple_coherence: np.ndarray
+    random_error: np.ndarray
+    inputs: list[str]
+    outputs: list[str]
+    windows: list[float] = field(default_factory=list)
+    runs: list[str] = field(default_factory=list)
+
+    @property
+    def magnitude_db(self) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return 20 * np.log10(np.abs(self.H))
+
+    @property
+    def phase_deg(self) -> np.ndarray:
+        """Phase in deg, unwrapped along frequency over the frequencies with an estimate (nan elsewhere)."""
+        angle = np.angle(self.H)
+        out = np.full(angle.shape, np.nan)
+        for j, i in np.ndindex(angle.shape[1:]):
+            ok = np.isfinite(angle[:, j, i])
+            out[ok, j, i] = np.degrees(np.unwrap(angle[ok, j, i]))
+        return out
+
+    def pair(self, output: str, input: str) -> tuple[int, int]:
+        return self.outputs.index(output), self.inputs.index(input)
+
+    def to_csv(self, path: str | Path) -> Path:
+        """One row per frequency and pair: omega, frequency (Hz), output, input, magnitude (dB),
+        phase (deg), coherence, random error."""
+        path = Path(path)
+        mag, ph = self.magnitude_db, self.phase_deg
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["omega_rad_s", "frequency_hz", "output", "input", "magnitude_db", "phase_deg",
+                        "coherence", "random_error"])
+            for j, y in enumerate(self.outputs):
+                for i, u in enumerate(self.inputs):
+                    for k, om in enumerate(self.omega):
+                        w.writerow([f"{om:.6g}", f"{om / (2 * np.pi):.6g}", y, u, f"{mag[k, j, i]:.6g}",
+                                    f"{ph[k, j, i]:.6g}", f"{self.coherence[k, j, i]:.6g}",
+                                    f"{self.random_error[k, j, i]:.6g}"])
+        return path
+
+
+# -- estimation ----------------------------------------------------------------------------------
+def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[str], *,
+                       omega: np.ndarray | None = None, windows: list[float] | None = None,
+                       f_range: tuple[float, float] | None = None, n_freq: int = 80,
+                       overlap: float = 0.5) -> FrequencyResponse:
+    """Composite frequency responses of ``outputs`` to ``inputs`` from one or several runs.
+
+    ``omega``: frequencies (rad/s), default ``n_freq`` log-spaced over ``f_range`` (Hz; default
+    from two cycles of the longest window to 0.4 x the sample rate, at most 5 Hz); ``windows``:
+    window lengths (s), default five from the longest with enough averages down to a sixth of it.
+    """
+    runs = [runs] if isinstance(runs, Run) else list(runs)
+    if not runs or not inputs or not outputs:
+        raise EstimationError("frequency response: need runs, inputs and outputs")
+    names = list(inputs) + list(outputs)
+    for r in runs:
+        r.require(names, "the frequency response")
+        bad = [n for n in names if not np.all(np.isfinite(r[n]))]
+        if bad:
+            raise EstimationError(f"{r.source}: non-finite values in channel(s) {', '.join(bad)}")
+    dt = runs[0].dt
+    if any(abs(r.dt - dt) > 1e-6 * dt for r in runs):
+        raise EstimationError("frequency response: runs have different sample rates")
+    if not 0 <= overlap < 1:
+        raise EstimationError(f"overlap must be within 0..1, got {overlap}")
+    nu = len(inputs)
+    windows = sorted(windows or default_windows([r.duration for r in runs], nu, overlap), reverse=True)
+    if omega is None:
+        lo, hi = f_range or (MIN_CYCLES / windows[0], min(0.4 / dt, 5.0))
+        if not 0 < lo < hi:
+            raise EstimationError(f"frequency range {lo:g}..{hi:g} Hz is empty")
+        omega = 2 * np.pi * np.geomspace(lo, hi, n_freq)
+    omega = np.asarray(omega, dtype=float)
+    data = [r.matrix(names) for r in runs]
+    per_window = [_window_estimate(data, dt, T, omega, nu, overlap) for T in windows]
+    H, coh, mult, err = _composite(per_window)
+    return FrequencyResponse(omega, H, coh, mult, err, list(inputs), list(outputs), list(windows),
+                             [r.source for r in runs])
+
+
+def default_windows(durations: list[float], n_inputs: int, overlap: float = 0.5) -> list[float]:
+    """Five window lengths (s): the longest (at most half the longest run) that still gives
+    ``n_inputs + 2`` segments over the runs, down to a sixth of it."""
+    step = 1 - overlap
+    # K segments of T from a run of length D: floor((D - T) / (step T)) + 1; search the longest T
+    need = n_inputs + 2
+    candidates = np.linspace(max(durations), 0.02 * max(durations), 400)
+    counts = [sum(max(0, int(np.floor((D - T) / (step * T) + 1e-9)) + 1) if D >= T else 0 for D in durations)
+              for T in candidates]
+    # at most half the longest run: a taper across a whole transient record distorts the relation
+    ok = [T for T, c in zip(candidates, counts) if c >= need and T <= 0.5 * max(durations)]
+    if not ok:
+        raise EstimationError(f"runs too short for a frequency response with {n_inputs} input(s)")
+    return list(np.geomspace(ok[0], ok[0] / 6, N_WINDOWS))
+
+
+def _segments(x: np.ndarray, L: int, step: int) -> np.ndarray:
+    """Overlapping segments (K, L, nch) of a run (N, nch)."""
+    starts = range(0, len(x) - L + 1, step)
+    return np.stack([x[s:s + L] for s in starts]) if len(x) >= L else np.zeros((0, L, x.shape[1]))
+
+
+def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndarray, nu: int, overlap: float):
+    """H, partial and multiple coherence, random error and validity (nf,) for one window length."""
+    L = max(int(round(T / dt)), 4)
+    step = max(1, int(round(L * (1 - overlap))))
+    seg = np.concatenate([_segments(x, L, step) for x in data])  # (K, L, nch)
+    K = len(seg)
+    nf, nch = len(omega), data[0].shape[1]
+    ny = nch - nu
+    if K == 0:
+        return None
+    valid = (omega * L * dt >= 2 * np.pi * MIN_CYCLES) & (omega < np.pi / dt)
+    seg = detrend(seg, axis=1) * np.hanning(L)[None, :, None]
+    E = np.exp(-1j * np.outer(np.arange(L) * dt, omega))  # (L, nf)
+    F = np.einsum("slc,lf->sfc", seg, E)  # (K, nf, nch)
+    G = np.einsum("sfa,sfb->fab", F.conj(), F) / K  # (nf, nch, nch) Hermitian
+    # averages that count: segments whose input power at a frequency is small add nothing, so a
+    # 3211 (power in one or two segments) or a sweep (each frequency in a few) has few per frequency
+    power = (np.abs(F[:, :, :nu]) ** 2).sum(axis=2)  # (K, nf)
+    n_eff = power.sum(axis=0) ** 2 / np.maximum((power ** 2).sum(axis=0), 1e-300)
+    n_d = n_eff / (OVERLAP_VARIANCE_FACTOR if overlap > 0 else 1.0) - (nu - 1)
+    valid = valid & (n_d >= 2)  # coherence from fewer averages is near 1 whatever the data
+    Guu, Guy = G[:, :nu, :nu], G[:, :nu, nu:]
+    H = np.swapaxes(np.linalg.solve(Guu + _ridge(Guu), Guy), 1, 2)  # (nf, ny, nu)
+    coh, mult = np.zeros((nf, ny, nu)), np.zeros((nf, ny))
+    for j in range(ny):
+        idx = list(range(nu)) + [nu + j]
+        M = G[:, idx][:, :, idx]
+        P = np.linalg.inv(M + _ridge(M))
+        Pyy = P[:, nu, nu].real
+        coh[:, j] = np.abs(P[:, :nu, nu]) ** 2 / (np.einsum("fii->fi", P[:, :nu, :nu]).real * Pyy[:, None])
+        mult[:, j] = 1 - 1 / np.maximum(Pyy * M[:, nu, nu].real, 1.0)
+    coh = np.clip(np.nan_to_num(coh), 0.0, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.sqrt((1 - coh[:, :, :]) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, None]))
+    err[~valid] = np.inf
+    err[~np.isfinite(err)] = np.inf
+    return H, coh, np.clip(mult, 0.0, 1.0), err
+
+
+def _ridge(M: np.ndarray) -> np.ndarray:
+    """A tiny diagonal load (1e-12 of the largest power) so that an input without power at some
+    frequency gives zero coherence instead of a singular solve."""
+    d = np.einsum("fii->fi", M).real
+    scale = np.maximum(d.max(axis=1), 1e-300)[:, None] * 1e-12
+    return np.einsum("fi,ij->fij", np.broadcast_to(scale, d.shape), np.eye(M.shape[1]))
+
+
+def _composite(per_window):
+    """Combine window estimates with weights 1/eps^2 (see the module notes)."""
+    est = [w for w in per_window if w is not None]
+    if not est:
+        raise EstimationError("frequency response: no window fits in the runs")
+    H = np.stack([e[0] for e in est])
+    coh = np.stack([e[1] for e in est])
+    mult = np.stack([e[2] for e in est])
+    err = np.stack([e[3] for e in est])
+    with np.errstate(divide="ignore"):
+        w = np.where(np.isfinite(err), 1 / np.maximum(err, 1e-12) ** 2, 0.0)
+    total = w.sum(axis=0)
+    has = total > 0
+    wn = np.where(has, w / np.where(has, total, 1.0), 0.0)
+    H_c = np.where(has, (wn * H).sum(axis=0), np.nan + 0j)
+    coh_c = np.where(has, (wn * coh).sum(axis=0), 0.0)
+    err_c = np.where(has, (wn * np.where(np.isfinite(err), err, 0.0)).sum(axis=0), np.inf)
+    w_out = wn.mean(axis=3)  # output-level weights for the multiple coherence
+    mult_c = (w_out * mult).sum(axis=0)
+    return H_c, coh_c, mult_c, err_c
+
+
+# -- models --------------------------------------------------------------------------------------
+def model_response(model: LinearModel, omega: np.ndarray, inputs: list[str] | None = None,
+                   outputs: list[str] | None = None) -> np.ndarray:
+    """``C (jwI - A)^-1 B + D`` at ``omega`` (rad/s): (nf, ny, nu), solved for all frequencies at once."""
+    p = model.profile
+    yi = [p.outputs.index(y) for y in (outputs or p.outputs)]
+    ui = [p.input_names.index(u) for u in (inputs or p.input_names)]
+    n = model.n_states
+    s = 1j * np.asarray(omega, dtype=float)
+    X = np.linalg.solve(s[:, None, None] * np.eye(n) - model.A, np.broadcast_to(model.B[:, ui], (len(s), n, len(ui))))
+    return np.einsum("yn,fnu->fyu", model.C[yi], X) + model.D[np.ix_(yi, ui)]
+
+
+def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE) -> dict:
+    """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
+
+    Returns ``{"pairs": {"y/u": J or None}, "mean": J, "n_frequencies": {"y/u": n}}``; a pair with
+    fewer than 3 frequencies of coherence >= ``min_coherence`` gets None (not judged).
+    """
+    p = model.profile
+    outs = [y for y in fr.outputs if y in p.outputs]
+    ins = [u for u in fr.inputs if u in p.input_names]
+    Hm = model_response(model, fr.omega, ins, outs)
+    pairs, counts = {}, {}
+    for jm, y in enumerate(outs):
+        for im, u in enumerate(ins):
+            j, i = fr.pair(y, u)
+            g2 = fr.coherence[:, j, i]
+            use = (g2 >= min_coherence) & np.isfinite(fr.H[:, j, i]) & (np.abs(Hm[:, jm, im]) > 0)
+            key = f"{y}/{u}"
+            counts[key] = int(use.sum())
+            if use.sum() < 3:
+                pairs[key] = None
+                continue
+            Hd, Hc = fr.H[use, j, i], Hm[use, jm, im]
+            mag = 20 * np.log10(np.abs(Hc) / np.abs(Hd))
+            phase = np.degrees(np.angle(Hc / Hd))  # wrapped difference: no unwrapping ambiguity
+            w = (1.58 * (1 - np.exp(-g2[use]))) ** 2
+            pairs[key] = float(20 / use.sum() * np.sum(w * (W_GAIN * mag ** 2 + W_PHASE * phase ** 2)))
+    judged = [v for v in pairs.values() if v is not None]
+    return {"pairs": pairs, "mean": float(np.mean(judged)) if judged else None, "n_frequencies": counts}
+
+
+def format_cost(cost: dict, label: str = "model") -> str:
+    """Lines of J per pair and the mean, for reports."""
+    lines = [f"frequency-domain fit cost J of the {label} (Tischler; coherence >= {MIN_COHERENCE}; "
+             f"J <= 100 per pair fits):"]
+    for key, value in cost["pairs"].items():
+        lines.append(f"  {key:<22}" + (f"{value:10.1f}" if value is not None else
+                                       f"{'-':>10}  (fewer than 3 coherent frequencies)"))
+    lines.append(f"  {'mean':<22}" + (f"{cost['mean']:10.1f}" if cost["mean"] is not None else f"{'-':>10}"))
+    return "\n".join(lines)
+
+
+# -- plots ---------------------------------------------------------------------------------------
+def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = None, outdir: str | Path = ".",
+              min_coherence: float = MIN_COHERENCE) -> list[Path]:
+    """One PNG per input: magnitude, phase and coherence of every output, models overlaid."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    models = models or {}
+    responses = {}
+    for label, m in models.items():
+        outs = [y for y in fr.outputs if y in m.profile.outputs]
+        ins = [u for u in fr.inputs if u in m.profile.input_names]
+        responses[label] = (outs, ins, model_response(m, fr.omega, ins, outs))
+    f_hz = fr.omega / (2 * np.pi)
+    paths = []
+    for i, u in enumerate(fr.inputs):
+        ny = len(fr.outputs)
+        fig, axes = plt.subplots(3, ny, figsize=(3.2 * ny, 7.5), sharex=True, squeeze=False)
+        for j, y in enumerate(fr.outputs):
+            coherent = fr.coherence[:, j, i] >= min_coherence
+            mag, ph = fr.magnitude_db[:, j, i], fr.phase_deg[:, j, i]
+            a_m, a_p, a_c = axes[0, j], axes[1, j], axes[2, j]
+            a_m.semilogx(f_hz, np.where(coherent, mag, np.nan), "k-", lw=1.5, label="flight data")
+            a_m.semilogx(f_hz, mag, "k:", lw=0.8)
+            a_p.semilogx(f_hz, np.where(coherent, ph, np.nan), "k-", lw=1.5)
+            a_p.semilogx(f_hz, ph, "k:", lw=0.8)
+            for (label, (outs, ins, Hm)), style in zip(responses.items(), ("C1--", "C0-", "C2-.")):
+                if y in outs and u in ins:
+                    h = Hm[:, outs.index(y), ins.index(u)]
+                    a_m.semilogx(f_hz, 20 * np.log10(np.abs(h)), style, lw=1.2, label=label)
+                    a_p.semilogx(f_hz, _phase_near(h, ph), style, lw=1.2)
+            a_c.semilogx(f_hz, fr.coherence[:, j, i], "k-")
+            a_c.axhline(min_coherence, color="0.6", ls=":")
+            a_c.set_ylim(0, 1.05)
+            a_m.set_title(f"{y} / {u}")
+            a_c.set_xlabel("frequency [Hz]")
+            a_c.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            a_c.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        axes[0, 0].set_ylabel("magnitude [dB]")
+        axes[1, 0].set_ylabel("phase [deg]")
+        axes[2, 0].set_ylabel("coherence")
+        axes[0, 0].legend(fontsize=7)
+        fig.suptitle(f"frequency responses to {u} (solid: coherence >= {min_coherence})")
+        fig.tight_layout()
+        path = outdir / f"bode_{u}.png"
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def _phase_near(h: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:
+    """Unwrapped model phase (deg) shifted by whole turns to lie near the data's."""
+    ph = np.degrees(np.unwrap(np.angle(h)))
+    ok = np.isfinite(reference_deg)
+    if ok.any():
+        ph += 360 * np.round(np.median(reference_deg[ok] - ph[ok]) / 360)
+    return ph
+
+
+def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, dict]:
+    """J of each model against the runs' frequency responses (the profile's inputs and outputs):
+    text lines for a report and ``{label: cost}``; says so instead when no response can be had."""
+    p = next(iter(models.values())).profile
+    try:
+        fr = frequency_response(runs, p.input_names, list(p.outputs))
+    except EstimationError as exc:
+        return f"frequency-domain fit cost J: not computed ({exc})", {"not_computed": str(exc)}
+    costs = {label: fit_cost(fr, m) for label, m in models.items()}
+    return "\n".join(format_cost(c, label) for label, c in costs.items()), costs

@@ -1,0 +1,355 @@
+"""A priori model profiles: states, inputs, outputs and named derivatives in TOML.
+
+A profile declares the linear model ``dx/dt = A x + B u`` through named derivatives. The equation
+of state ``u, v, w, p, q, r`` is ``X, Y, Z, L, M, N``; any other state's equation carries the
+state's own name. An entry of A is ``<equation>_<state>`` (``M_q``, ``theta_q``), an entry of B is
+``<equation>_<input>`` (``M_theta_s``). Entries not named are structurally zero. A parameter is
+either *free* (estimated; its value is the a priori guess) or *fixed* (known). A parameter that
+acts on several entries at once (for example ``1/tau`` of an added lag, which appears in A and B
+with opposite signs) is declared in ``[ties]`` as ``name = { entry = coefficient, ... }``. A tie
+may also act on the output equation: the entry ``"<output>:<state or input>"`` adds to C or D
+(an output scale factor ``k_q = { "q:q" = 1.0 }``, a drift on a time pseudo-input ``"q:t"``).
+
+Outputs are states, state derivatives (``q_dot``) or linear combinations declared in
+``[output_defs]`` as ``name = { term = coefficient, ... }`` whose terms are states, state
+derivatives and inputs (for example a specific force ``a_x = { u_dot = 1.0, theta = 9.81 }``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from ..errors import ProfileError, read_text
+
+EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
+DOT = "_dot"
+_KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_defs", "free",
+               "fixed", "ties", "meta", "limits"}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """Position of a named entry: ``matrix`` is ``"A"``, ``"B"`` or, for output-equation
+    entries ``<output>:<term>``, ``"C"`` (a state term) or ``"D"`` (an input term)."""
+
+    matrix: str
+    row: int
+    col: int
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A parsed, validated a priori model. Build with :func:`load_profile` or :func:`parse_profile`."""
+
+    name: str
+    states: dict[str, str]
+    inputs: dict[str, str]
+    outputs: tuple[str, ...]
+    free: dict[str, float]
+    fixed: dict[str, float] = field(default_factory=dict)
+    ties: dict[str, dict[str, float]] = field(default_factory=dict)
+    output_defs: dict[str, dict[str, float]] = field(default_factory=dict)
+    description: str = ""
+    meta: dict[str, object] = field(default_factory=dict)
+    source: str = "<profile>"
+    # largest |perturbation| each output may reach in a test manoeuvre, in the output's own units
+    # (signal design keeps every output's peak response within it)
+    limits: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        _validate(self)
+
+    # -- names --------------------------------------------------------------------------------
+    @property
+    def state_names(self) -> list[str]:
+        return list(self.states)
+
+    @property
+    def input_names(self) -> list[str]:
+        return list(self.inputs)
+
+    @property
+    def free_names(self) -> list[str]:
+        return list(self.free)
+
+    def equation(self, state: str) -> str:
+        """Equation name of a state: ``q`` -> ``M``, ``theta`` -> ``theta``."""
+        return EQUATION_OF_STATE.get(state, state)
+
+    def parse_entry(self, name: str) -> Entry:
+        """Locate ``<equation>_<state|input>`` in A or B, or ``<output>:<state|input>`` in C or D;
+        raise ProfileError unless unique."""
+        if ":" in name:
+            return _parse_output_entry(name, self)
+        return _parse_entry(name, self.state_names, self.input_names, self.source)
+
+    def entry_name(self, matrix: str, row: int, col: int) -> str:
+        """Inverse of :meth:`parse_entry`."""
+        cols = self.state_names if matrix in "AC" else self.input_names
+        if matrix in "CD":
+            return f"{self.outputs[row]}:{cols[col]}"
+        return f"{self.equation(self.state_names[row])}_{cols[col]}"
+
+    def parameter_entries(self, name: str) -> list[tuple[Entry, float]]:
+        """Entries a parameter acts on, with their coefficients."""
+        if name in self.ties:
+            return [(self.parse_entry(e), float(c)) for e, c in self.ties[name].items()]
+        return [(self.parse_entry(name), 1.0)]
+
+    def output_terms(self, output: str) -> dict[str, float]:
+        """Linear combination forming an output, as ``{term: coefficient}``."""
+        if output in self.output_defs:
+            return dict(self.output_defs[output])
+        return {output: 1.0}
+
+    @property
+    def channels(self) -> list[str]:
+        """Channels a run must hold for this profile: inputs, then outputs."""
+        return self.input_names + [y for y in self.outputs if y not in self.inputs]
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        return {**self.fixed, **self.free}
+
+    # -- derived profiles ---------------------------------------------------------------------
+    def with_values(self, values: dict[str, float], name: str | None = None) -> "Profile":
+        """Copy with new values for free (or fixed) parameters, keeping the structure."""
+        unknown = set(values) - set(self.free) - set(self.fixed)
+        if unknown:
+            raise ProfileError(f"{self.source}: unknown parameter(s) {', '.join(sorted(unknown))}")
+        free = {k: float(values.get(k, v)) for k, v in self.free.items()}
+        fixed = {k: float(values.get(k, v)) for k, v in self.fixed.items()}
+        return replace(self, free=free, fixed=fixed, name=name or self.name)
+
+    # -- serialisation ------------------------------------------------------------------------
+    def to_toml(self) -> str:
+        """TOML text that :func:`parse_profile` reads back to an equal profile."""
+        lines = [f"name = {_toml_str(self.name)}"]
+        if self.description:
+            lines.append(f"description = {_toml_str(self.description)}")
+        lines.append(f"states = {_inline(self.states)}")
+        lines.append(f"inputs = {_inline(self.inputs)}")
+        lines.append("outputs = [" + ", ".join(_toml_str(y) for y in self.outputs) + "]")
+        for table in ("output_defs", "ties"):
+            rows = getattr(self, table)
+            if rows:
+                lines += ["", f"[{table}]"] + [f"{_key(k)} = {_inline(v)}" for k, v in rows.items()]
+        for table in ("free", "fixed", "limits", "meta"):
+            rows = getattr(self, table)
+            if rows:
+                lines += ["", f"[{table}]"] + [f"{_key(k)} = {_toml_value(v)}" for k, v in rows.items()]
+        return "\n".join(lines) + "\n"
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text(self.to_toml())
+        return path
+
+
+# -- loading ----------------------------------------------------------------------------------
+def output_units(profile: Profile) -> dict[str, str]:
+    """Unit of every output, the one rule for plots, noise levels and reports: a state's or an
+    input's own unit; ``<unit>/s`` for a state derivative (``rad/s/s`` is written ``rad/s^2``); for
+    an output defined in ``[output_defs]`` the unit of its first state-derivative term, else of its
+    first state term (inputs do not set it); ``""`` when none is known."""
+    def unit(term: str) -> str:
+        if term in profile.states:
+            return profile.states[term]
+        if term in profile.inputs:
+            return profile.inputs[term]
+        if term.endswith(DOT) and term[:-len(DOT)] in profile.states:
+            base = profile.states[term[:-len(DOT)]]
+            return base[:-2] + "/s^2" if base.endswith("/s") else base + "/s"
+        return ""
+
+    units = {}
+    for y in profile.outputs:
+        if y not in profile.output_defs:
+            units[y] = unit(y)
+            continue
+        terms = [t for t, c in profile.output_terms(y).items() if c and t not in profile.inputs]
+        derivs = [t for t in terms if t.endswith(DOT) and t[:-len(DOT)] in profile.states]
+        units[y] = unit((derivs or terms or [y])[0])
+    return units
+
+
+def bundled_profiles_dir() -> Path:
+    """Folder of the profiles shipped with pseudostep.
+
+    ``profiles/`` sits beside the ``identify`` package both in the source tree and in an
+    installation (it is shipped as package data of its own top-level folder).
+    """
+    return Path(__file__).resolve().parents[2] / "profiles"
+
+
+def resolve_profile_path(spec: str | Path) -> Path:
+    """A path as given, else a bundled profile by file name with or without ``.toml``."""
+    path = Path(spec)
+    if path.exists():
+        return path
+    for candidate in (bundled_profiles_dir() / path.name, bundled_profiles_dir() / f"{path.name}.toml"):
+        if candidate.exists():
+            return candidate
+    available = ", ".join(sorted(p.stem for p in bundled_profiles_dir().glob("*.toml")))
+    raise ProfileError(f"{spec}: no such profile file (bundled profiles: {available})")
+
+
+def load_profile(spec: str | Path) -> Profile:
+    """Read a profile from a path or a bundled profile's name (``s61_hover_8state``)."""
+    path = resolve_profile_path(spec)
+    return parse_profile(read_text(path, ProfileError, "profile"), source=str(path))
+
+
+def parse_profile(text: str, source: str = "<profile>") -> Profile:
+    """Parse profile TOML text; every problem raises one ProfileError naming ``source``."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(f"{source}: not valid TOML ({exc})") from None
+    unknown = set(data) - _KNOWN_KEYS
+    if unknown:
+        raise ProfileError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+    for key in ("name", "states", "inputs", "outputs"):
+        if key not in data:
+            raise ProfileError(f"{source}: missing '{key}'")
+    return Profile(
+        name=_require(str, data["name"], "name", source),
+        description=_require(str, data.get("description", ""), "description", source),
+        states=_units(data["states"], "states", source),
+        inputs=_units(data["inputs"], "inputs", source),
+        outputs=tuple(_require(str, y, "outputs", source) for y in _require(list, data["outputs"], "outputs", source)),
+        free=_numbers(data.get("free", {}), "free", source),
+        fixed=_numbers(data.get("fixed", {}), "fixed", source),
+        ties={k: _numbers(v, f"ties.{k}", source) for k, v in _require(dict, data.get("ties", {}), "ties", source).items()},
+        output_defs={k: _numbers(v, f"output_defs.{k}", source)
+                     for k, v in _require(dict, data.get("output_defs", {}), "output_defs", source).items()},
+        meta=_require(dict, data.get("meta", {}), "meta", source),
+        source=source,
+        limits=_numbers(data.get("limits", {}), "limits", source),
+    )
+
+
+def _require(kind, value, where, source):
+    if not isinstance(value, kind):
+        raise ProfileError(f"{source}: '{where}' must be a {kind.__name__}, got {value!r}")
+    return value
+
+
+def _units(table, where, source) -> dict[str, str]:
+    table = _require(dict, table, where, source)
+    for name, unit in table.items():
+        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
+            raise ProfileError(f"{source}: {where} name '{name}' is not an identifier")
+        _require(str, unit, f"{where}.{name}", source)
+    return dict(table)
+
+
+def _numbers(table, where, source) -> dict[str, float]:
+    table = _require(dict, table, where, source)
+    out = {}
+    for name, value in table.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ProfileError(f"{source}: [{where}] {name} = {value!r} is not a number")
+        if not math.isfinite(value):
+            raise ProfileError(f"{source}: [{where}] {name} = {value!r} is not finite")
+        out[name] = float(value)
+    return out
+
+
+# -- validation -------------------------------------------------------------------------------
+def _parse_entry(name: str, states: list[str], inputs: list[str], source: str) -> Entry:
+    equations = {EQUATION_OF_STATE.get(s, s): i for i, s in enumerate(states)}
+    found = []
+    for cut in (m.start() for m in re.finditer("_", name)):
+        eq, var = name[:cut], name[cut + 1:]
+        if eq in equations and var in states:
+            found.append(Entry("A", equations[eq], states.index(var)))
+        elif eq in equations and var in inputs:
+            found.append(Entry("B", equations[eq], inputs.index(var)))
+    if len(found) == 1:
+        return found[0]
+    if found:
+        raise ProfileError(f"{source}: derivative name '{name}' is ambiguous")
+    raise ProfileError(f"{source}: '{name}' names no derivative: expected <equation>_<state or input> "
+                       f"with equations {', '.join(equations)}")
+
+
+def _parse_output_entry(name: str, p: Profile) -> Entry:
+    output, _, term = name.partition(":")
+    if output not in p.outputs:
+        raise ProfileError(f"{p.source}: output entry '{name}': '{output}' is not an output")
+    if term in p.states:
+        return Entry("C", p.outputs.index(output), p.state_names.index(term))
+    if term in p.inputs:
+        return Entry("D", p.outputs.index(output), p.input_names.index(term))
+    raise ProfileError(f"{p.source}: output entry '{name}': '{term}' is not a state or input")
+
+
+def _validate(p: Profile) -> None:
+    src = p.source
+    if not p.states:
+        raise ProfileError(f"{src}: no states declared")
+    clash = set(p.states) & set(p.inputs)
+    if clash:
+        raise ProfileError(f"{src}: name(s) {', '.join(sorted(clash))} declared as both state and input")
+    both = set(p.free) & set(p.fixed)
+    if both:
+        raise ProfileError(f"{src}: parameter(s) {', '.join(sorted(both))} declared both free and fixed")
+    for tie in p.ties:
+        if tie not in p.free and tie not in p.fixed:
+            raise ProfileError(f"{src}: tied parameter '{tie}' is neither free nor fixed")
+    owner: dict[Entry, str] = {}
+    for name in list(p.free) + list(p.fixed):
+        for entry, _ in p.parameter_entries(name):
+            if entry in owner:
+                raise ProfileError(f"{src}: derivative '{p.entry_name(*_astuple(entry))}' set by both "
+                                   f"'{owner[entry]}' and '{name}'")
+            owner[entry] = name
+    if len(set(p.outputs)) != len(p.outputs):
+        raise ProfileError(f"{src}: duplicate output names")
+    terms_ok = set(p.states) | {s + DOT for s in p.states} | set(p.inputs)
+    for y in p.outputs:
+        for term in p.output_terms(y):
+            if term not in terms_ok:
+                what = f"output '{y}'" if y in p.output_defs else "output"
+                raise ProfileError(f"{src}: {what} term '{term}' is not a state, state derivative or input")
+    for y, limit in p.limits.items():
+        if y not in p.outputs:
+            raise ProfileError(f"{src}: [limits] {y}: not an output (outputs: {', '.join(p.outputs)})")
+        if not limit > 0:
+            raise ProfileError(f"{src}: [limits] {y} = {limit:g} must be positive")
+
+
+def _astuple(entry: Entry):
+    return entry.matrix, entry.row, entry.col
+
+
+# -- TOML writing (tomllib only reads) --------------------------------------------------------
+def _toml_str(s: str) -> str:
+    return json.dumps(s, ensure_ascii=False)
+
+
+def _key(k: str) -> str:
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_str(k)
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return _toml_str(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return _inline(v)
+    raise TypeError(f"cannot write {v!r} to TOML")
+
+
+def _inline(d: dict) -> str:
+    return "{ " + ", ".join(f"{_key(k)} = {_toml_value(v)}" for k, v in d.items()) + " }"

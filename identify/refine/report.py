@@ -1,0 +1,162 @@
+"""Write a refinement's evidence: ``refine.json``, ``final_profile.toml``, ``report.md`` and plots.
+
+``refine.json`` holds ``steps`` (each with ``effect``, ``target``, ``parameters`` {name: {value,
+std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``error_before``,
+``error_after``), the ``rejected`` candidates with the reason, top-level ``error_before`` /
+``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
+``diagnostics`` before and after, and ``final_profile`` (the refined model as profile TOML text).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..estimators.result import _jsonable
+from .diagnostics import spectral_peak
+from .loop import Refine
+
+
+def to_dict(r: Refine) -> dict:
+    """Everything ``refine.json`` holds (plain JSON types)."""
+    return _jsonable({
+        "profile": r.profile.name,
+        "method": r.method if r.estimator is None else getattr(r.estimator, "__name__", str(r.estimator)),
+        "runs": [run.source for run in r._raw],
+        "validation_runs": [run.source for run in r._val],
+        "alpha": r.alpha,
+        "catalogue": list(r.kinds),
+        "segment_s": r.segment_ if np.isfinite(r.segment_) else None,
+        "nothing_found": r.nothing_found,
+        "stopped": r.stopped_,
+        "steps": [s.to_dict() for s in r.steps_],
+        "rejected": [s.to_dict() for s in r.rejected_],
+        "error_before": r.error_before_,
+        "error_after": r.error_after_,
+        "diagnostics": r.diagnostics_,
+        "last_scores": [{"effect": t["candidate"].kind, "target": t["candidate"].target,
+                         "statistic": t["statistic"], "threshold": t["threshold"], "dof": t["dof"]}
+                        for t in sorted(r.last_scores_, key=lambda t: t["log_p"])[:10]],
+        "final_parameters": {n: {"value": float(v), "std": float(s)}
+                             for n, v, s in zip(r.result_.names, r.result_.theta, r.result_.std)},
+        "final_profile": r.profile_.to_toml(),
+    })
+
+
+def write(r: Refine, outdir: str | Path, plots: bool = True) -> Path:
+    """Write ``refine.json``, ``final_profile.toml``, ``report.md`` (and PNG plots) into ``outdir``."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    data = to_dict(r)
+    (outdir / "refine.json").write_text(json.dumps(data, indent=2))
+    r.profile_.save(outdir / "final_profile.toml")
+    figures = _plots(r, outdir) if plots else []
+    (outdir / "report.md").write_text(markdown(r, data, figures))
+    return outdir
+
+
+def _fmt_err(err: dict) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in err.items())
+
+
+def _error_table(before: dict, after: dict, outputs) -> list[str]:
+    rows = ["| output | fit before | fit after | validation before | validation after |",
+            "| --- | ---: | ---: | ---: | ---: |"]
+    for y in list(outputs) + ["overall"]:
+        vb = before.get("validation", {}).get(y)
+        va = after.get("validation", {}).get(y)
+        cell = lambda v: "–" if v is None else f"{v:.4g}"  # noqa: E731
+        rows.append(f"| {y} | {cell(before['fit'].get(y))} | {cell(after['fit'].get(y))} | "
+                    f"{cell(vb)} | {cell(va)} |")
+    return rows
+
+
+def markdown(r: Refine, data: dict, figures: list[str]) -> str:
+    """The human report: verdict, errors before/after, each step's evidence, diagnostics, plots."""
+    outputs = list(r.profile.outputs)
+    lines = [f"# Model refinement: {r.profile.name}", ""]
+    lines.append(f"Runs fitted: {', '.join(data['runs'])}; validation runs: "
+                 f"{', '.join(data['validation_runs']) or 'none'}. Method: {data['method']}. Candidates tested: "
+                 f"{', '.join(r.kinds)}; family-wise false-alarm level alpha = {r.alpha} per iteration "
+                 f"(Šidák over all candidates tested).")
+    lines.append("")
+    if r.nothing_found:
+        lines.append("**Nothing found**: no candidate effect is significant; the residuals are consistent "
+                     "with measurement noise at this level. `steps` is empty.")
+    else:
+        lines.append(f"**{len(r.steps_)} effect(s) added**: " + "; ".join(
+            f"{s.effect} on {s.target}" for s in r.steps_) + ".")
+    lines.append(f"Stopped: {r.stopped_}.")
+    lines += ["", "## Error before and after", "",
+              "RMS error per output; `overall` is the RMS over outputs of RMS / std of the measured output.", ""]
+    lines += _error_table(r.error_before_, r.error_after_, outputs)
+    for i, s in enumerate(r.steps_, start=1):
+        lines += ["", f"## Step {i}: {s.effect} on {s.target}", ""]
+        lines.append(f"- score statistic {s.statistic:.4g} > threshold {s.threshold:.4g} "
+                     f"(chi-square, {s.dof} dof, p = {s.p_value:.3g}, {s.tested} candidates tested)")
+        lines.append(f"- likelihood-ratio of the re-fit {s.lr_statistic:.4g}")
+        for name, v in s.parameters.items():
+            lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g} (Cramér-Rao)")
+        lines.append(f"- error before: fit {_fmt_err(s.error_before['fit'])}")
+        lines.append(f"- error after: fit {_fmt_err(s.error_after['fit'])}")
+        if "validation" in s.error_before:
+            lines.append(f"- validation before {s.error_before['validation']['overall']:.4g}, after "
+                         f"{s.error_after['validation']['overall']:.4g} (overall)")
+        if s.runner_up:
+            lines.append("- next candidates: " + ", ".join(
+                f"{c['effect']} on {c['target']} ({c['statistic']:.3g} / {c['threshold']:.3g})"
+                for c in s.runner_up))
+    if r.rejected_:
+        lines += ["", "## Rejected candidates", ""]
+        lines += [f"- {s.effect} on {s.target}: score {s.statistic:.4g} > {s.threshold:.4g}, but {s.reason}"
+                  for s in r.rejected_]
+    lines += ["", "## Residual diagnostics", "",
+              "| output | Ljung-Box p before | after | trend t before | after | peak Hz / p before | after |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    b, a = r.diagnostics_["before"], r.diagnostics_["after"]
+    for y in outputs:
+        lines.append(f"| {y} | {b[y]['ljung_box_p']:.3g} | {a[y]['ljung_box_p']:.3g} | {b[y]['t_trend']:.3g} | "
+                     f"{a[y]['t_trend']:.3g} | {b[y]['peak_hz']:.3g} / {b[y]['peak_p']:.2g} | "
+                     f"{a[y]['peak_hz']:.3g} / {a[y]['peak_p']:.2g} |")
+    if figures:
+        lines += ["", "## Plots", ""] + [f"![{f}]({f})" for f in figures]
+    lines += ["", "## Final identification", "", r.result_.markdown()]
+    lines += ["", "## Final model", "", "Written to `final_profile.toml`:", "", "```toml",
+              r.profile_.to_toml().rstrip(), "```", ""]
+    return "\n".join(lines)
+
+
+def _plots(r: Refine, outdir: Path) -> list[str]:
+    outputs = list(r.profile.outputs)
+    ev = r.final_evaluation_
+    before, after = ev["before"].residuals, ev["fit"].residuals
+    _before_after(ev["time"][0], before[0], after[0], outputs, "time [s]",
+                  "residuals (first fit run)", outdir / "residuals.png", log=False)
+    dt = r._raw[0].dt
+    sb, sa = spectral_peak(before, dt), spectral_peak(after, dt)
+    _before_after(sb["freqs"][1:], sb["psd"][1:], sa["psd"][1:], outputs, "frequency [Hz]",
+                  "residual spectra (periodogram, fit runs averaged)", outdir / "residual_spectra.png", log=True)
+    return ["residuals.png", "residual_spectra.png"]
+
+
+def _before_after(x, before, after, outputs, xlabel: str, title: str, path: Path, log: bool) -> None:
+    """One panel per output, before and after refinement; ``before``/``after`` (N, ny)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ny = len(outputs)
+    fig, axes = plt.subplots(ny, 1, figsize=(8, 1.6 * ny + 0.6), sharex=True, squeeze=False)
+    for j, y in enumerate(outputs):
+        ax = axes[j, 0]
+        draw = ax.semilogy if log else ax.plot
+        draw(x, before[:, j], lw=0.7, label="before")
+        draw(x, after[:, j], lw=0.7, label="after")
+        ax.set_ylabel(y, fontsize=8)
+    axes[0, 0].legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel(xlabel)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

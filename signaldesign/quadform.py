@@ -1,0 +1,244 @@
+"""The Fisher information of a step sequence as a quadratic form in its levels, and the design
+criterion built on it: information per unit of peak response, on one model or over a model set.
+
+Output sensitivities are linear in the input, so for K steps of width h the noise-weighted
+sensitivity history is ``sum_k l_k shift_k(S_pulse)`` where ``S_pulse`` is the response to one
+unit pulse of width h. The Fisher information is a quadratic form in the levels::
+
+    M(l) = sum_{k,j} l_k l_j G_kj,     G_kj = sum_t shift_k(S)^T shift_j(S)    (p x p)
+
+and the outputs are linear in them, ``y(t) = Y(t) l``. Information grows with amplitude squared
+and the peak response with amplitude, so at equal peak response (the largest output's peak over
+its limit, r(l), brought to 1) a sequence carries ``log det M(l) - 2 p log r(l)``: the criterion.
+A search changes a few levels at a time; the objective keeps ``V_k = sum_j G_kj l_j`` and y so that a
+proposal costs a few small products and one p x p log determinant per model.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from identify import LinearModel
+
+from .evaluate import DesignError, Evaluator
+from .signal import Signal
+
+
+class StepBasis:
+    """Pulse basis of K steps of ``width`` s per axis on a record, on every model of ``models``
+    (default: the evaluator's a priori only; the a priori should come first).
+
+    ``G`` (n_models, Ktot, Ktot, p, p); ``Y`` (n_models, N, ny, Ktot) output response per unit level.
+    The record runs 0..``record`` s sampled every ``dt`` (``width`` a multiple of ``dt``).
+    """
+
+    def __init__(self, evaluator: Evaluator, width: float, n_steps: int, delay: float = 0.0,
+                 models: list[LinearModel] | None = None):
+        ev = self.evaluator = evaluator
+        self.width, self.n_steps, self.delay = float(width), int(n_steps), float(delay)
+        self.inputs = ev.inputs
+        self.sub = int(round(width / ev.dt))
+        if self.sub < 1 or abs(self.sub * ev.dt - width) > 1e-9 * max(1.0, width):
+            raise DesignError(f"step width {width:g} s is not a multiple of the {ev.dt:g} s time step")
+        self.offset = int(round(delay / ev.dt))
+        if delay + n_steps * width > ev.record + 1e-9:
+            raise DesignError(f"a {n_steps * width:g} s sequence does not fit in the {ev.record:g} s record")
+        self.models = list(models) if models else [ev.model]
+        self.n = int(round(ev.record / ev.dt)) + 1
+        self.Ktot = len(self.inputs) * self.n_steps
+        pulses = [self._pulses(m) for m in self.models]
+        self.G = np.stack([self._gram([P[0] for P in pl]) for pl in pulses])
+        self.Y = np.stack([self._outputs([P[1] for P in pl]) for pl in pulses])
+
+    def _pulses(self, model: LinearModel):
+        """Per axis: weighted sensitivities (N, ny, p) and outputs (N, ny) for a unit pulse lasting
+        one step from t = 0, as running sums of the evaluator's cached unit-sample responses."""
+        units = self.evaluator._unit_responses(model)
+        out = []
+        for name in self.inputs:
+            pulse = []
+            for R in units[name]:
+                c = np.cumsum(R, axis=0)
+                c[self.sub:] -= c[:-self.sub].copy()
+                pulse.append(c)
+            out.append(pulse)
+        return out
+
+    def _gram(self, pulses) -> np.ndarray:
+        """G (Kt, Kt, p, p). For steps k <= j (shift difference d = j - k) and pulse responses
+        S_a, S_b: ``G = sum_{tau < L_j} S_a(tau + d h)^T S_b(tau)`` with ``L_j = N - offset - j h``:
+        one running sum over tau per (axis pair, d) gives every block of that diagonal."""
+        n, K, h, o = self.n, self.n_steps, self.sub, self.offset
+        axes, p = len(self.inputs), self.evaluator.p
+        G = np.zeros((axes * K, axes * K, p, p))
+        for a in range(axes):
+            for b in range(axes):
+                for d in range(K):
+                    span = n - o - d * h  # tau + d h must stay inside the record
+                    if span <= 0:
+                        continue
+                    prod = np.einsum("tyi,tyj->tij", pulses[a][d * h:d * h + span], pulses[b][:span])
+                    csum = np.cumsum(prod, axis=0)
+                    k = np.arange(K - d)
+                    L = n - o - (k + d) * h
+                    ok = L > 0
+                    G[a * K + k[ok], b * K + k[ok] + d] = csum[L[ok] - 1]
+                    G[b * K + k[ok] + d, a * K + k[ok]] = csum[L[ok] - 1].transpose(0, 2, 1)
+        return G
+
+    def _outputs(self, pulses) -> np.ndarray:
+        """(N, ny, Kt) output response per unit level of each step."""
+        n, K = self.n, self.n_steps
+        out = np.zeros((n, pulses[0].shape[1], len(self.inputs) * K))
+        for a, Y in enumerate(pulses):
+            for k in range(K):
+                s = self.offset + k * self.sub
+                if s < n:
+                    out[s:, :, a * K + k] = Y[:n - s]
+        return out
+
+    def information(self, levels, model: int = 0) -> np.ndarray:
+        """M(l) (p, p) for levels (Ktot,) on model number ``model`` (0 is the a priori)."""
+        return np.einsum("k,j,kjab->ab", levels, levels, self.G[model])
+
+    def peaks(self, levels, model: int = 0) -> np.ndarray:
+        """max |y| over the record per output (ny,), for unit amplitude."""
+        return np.abs(self.Y[model] @ levels).max(axis=0)
+
+    def signals(self, levels, amplitudes, kind: str = "pseudo-stochastic", params: dict | None = None) -> list[Signal]:
+        K = self.n_steps
+        amps = np.broadcast_to(np.asarray(amplitudes, float), (len(self.inputs),))
+        return [Signal(kind, name, self.width, np.asarray(levels[a * K:(a + 1) * K]), float(amps[a]),
+                       self.delay, dict(params or {}, width=self.width))
+                for a, name in enumerate(self.inputs)]
+
+
+class Objective:
+    """Design criterion on a basis, for levels (Ktot,) at unit amplitude.
+
+    Free amplitude (``amplitude`` None): per model m, ``log det M_m(l) - 2 p log r_m(l)`` with
+    ``r_m`` the largest output peak over its limit on model m (the information at equal peak
+    response; the amplitude is an outcome, 1 / r_0). Fixed amplitude A: ``log det M_m(l) + 2 p log A``
+    while ``A r_0(l) <= 1``; beyond, a large offset (any sequence within the limits scores higher) and
+    a graded penalty that leads the search back (the designer rejects an infeasible result). Criterion ``nominal`` scores model 0 (the a priori),
+    ``mean`` the mean over models with ``weights`` (the expected log det under that prior), ``worst`` the minimum over models of the
+    score minus ``offsets`` (n_models,) (a relative D-efficiency, e.g. against each model's
+    correctly tuned 3211).
+    """
+
+    PENALTY = 10.0  # per unit of 2 p log(A r_0) beyond the limit
+    INFEASIBLE = 1e4  # offset of any sequence beyond a limit at a fixed amplitude
+
+    def __init__(self, basis: StepBasis, criterion: str = "mean", inv_limits=None, amplitude: float | None = None,
+                 offsets=None, weights=None):
+        if criterion not in ("nominal", "worst", "mean"):
+            raise DesignError(f"unknown criterion '{criterion}' (nominal, worst, mean)")
+        self.basis, self.criterion, self.amplitude = basis, criterion, amplitude
+        self.n_models = 1 if criterion == "nominal" else len(basis.models)
+        self.G = basis.G[:self.n_models]
+        self.Y = basis.Y[:self.n_models]
+        # per step, contiguous, every other sample: a proposal reads the few rows it changes; the
+        # responses are smooth at 2 dt and the designer checks the final peaks on every sample
+        self.Yk = np.ascontiguousarray(np.moveaxis(self.Y[:, ::2], 3, 1))  # (m, K, N/2, ny)
+        # 1 / limit per output (ny,); 0 for an output without a limit
+        self.inv_limits = 1.0 / basis.evaluator.limits if inv_limits is None else np.asarray(inv_limits, float)
+        self.offsets = np.zeros(self.n_models) if offsets is None else np.asarray(offsets, float)[:self.n_models]
+        w = np.ones(self.n_models) if weights is None else np.asarray(weights, float)[:self.n_models]
+        self.weights = w / w.sum()
+        self.p = basis.evaluator.p
+        self.evaluations = 0
+        self._base = self._last = None
+
+    # -- state kept for low-rank updates ------------------------------------------------------------
+    def _state(self, levels):
+        """(levels, V (m, K, p, p), M (m, p, p), y (m, N, ny)) from scratch."""
+        V = np.einsum("mkjab,j->mkab", self.G, levels)
+        M = np.einsum("k,mkab->mab", levels, V)
+        y = np.tensordot(levels, self.Yk, axes=([0], [1]))
+        return levels.copy(), V, M, y
+
+    def reset(self, levels=None) -> None:
+        """Forget (or set) the committed candidate that proposals are updated from."""
+        self._base = None if levels is None else self._state(np.asarray(levels, float))
+
+    def commit(self) -> None:
+        """Make the last scored candidate the base of the next low-rank updates."""
+        if self._last is None:
+            return
+        levels, idx, d, M, y, V = self._last
+        if idx is not None and idx.size:
+            # V_k += sum_j G_kj d_j = (sum_j d_j G_jk)^T: rows of G are contiguous views
+            dV = d[0] * self.G[:, idx[0]]
+            for j, dj in zip(idx[1:], d[1:]):
+                dV += dj * self.G[:, j]
+            V = self._base[1] + dV.transpose(0, 1, 3, 2)
+        elif idx is not None:
+            V = self._base[1]
+        self._base = (levels, V, M, y)
+
+    def _candidate(self, levels):
+        """(M, y) of ``levels`` from the committed base when few steps differ, else from scratch."""
+        if self._base is not None:
+            l0, V, M0, y0 = self._base
+            idx = np.flatnonzero(levels != l0)
+            if idx.size == 0:
+                self._last = (levels.copy(), idx, idx.astype(float), M0, y0, None)
+                return M0, y0
+            if idx.size <= max(2, levels.size // 3):
+                d = (levels - l0)[idx]
+                # proposals change one contiguous run of steps: slices are views, not copies
+                sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
+                Gii = self.G[:, sl, sl] if isinstance(sl, slice) else self.G[:, idx[:, None], idx[None, :]]
+                Vi = np.einsum("r,mrab->mab", d, V[:, sl])
+                M = M0 + Vi + Vi.transpose(0, 2, 1) + np.einsum("rs,mrsab->mab", np.outer(d, d), Gii)
+                y = y0 + np.einsum("r,mrty->mty", d, self.Yk[:, sl])
+                self._last = (levels.copy(), idx, d, M, y, None)
+                return M, y
+        _, V, M, y = self._state(levels)
+        self._last = (levels.copy(), None, None, M, y, V)
+        return M, y
+
+    # -- scoring ------------------------------------------------------------------------------------
+    def ratios(self, y) -> np.ndarray:
+        """Largest peak over limit per model (m,) from outputs y (m, N, ny)."""
+        return (np.abs(y).max(axis=1) * self.inv_limits).max(axis=1)
+
+    def _value(self, M, r) -> float:
+        sign, ld = np.linalg.slogdet(M)
+        ld = np.where(sign > 0, ld, -np.inf)
+        if self.amplitude is None:
+            with np.errstate(divide="ignore"):
+                per_model = ld - 2 * self.p * np.log(r)
+        else:
+            over = max(0.0, float(np.log(self.amplitude * r[0]))) if r[0] > 0 else 0.0
+            per_model = ld + 2 * self.p * (np.log(self.amplitude) - self.PENALTY * over)
+            if over > 0:  # below every flyable sequence within the limits, graded toward them
+                per_model = per_model - self.INFEASIBLE
+        per_model = np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
+        if self.criterion == "nominal":
+            return float(per_model[0])
+        if self.criterion == "worst":
+            return float(per_model.min())
+        return float(per_model @ self.weights) if np.all(np.isfinite(per_model)) else -np.inf
+
+    def __call__(self, levels) -> float:
+        levels = np.asarray(levels, dtype=float)
+        self.evaluations += 1
+        M, y = self._candidate(levels)
+        return self._value(M, self.ratios(y))
+
+    def batch(self, L: np.ndarray, chunk: int = 2048) -> np.ndarray:
+        """Objective of many candidates L (C, Ktot)."""
+        self.evaluations += len(L)
+        out = np.empty(len(L))
+        for i in range(0, len(L), chunk):
+            Li = L[i:i + chunk]
+            M = np.einsum("ck,cj,mkjab->cmab", Li, Li, self.G, optimize=True)
+            y = np.einsum("mkty,ck->cmty", self.Yk, Li, optimize=True)
+            for c in range(len(Li)):
+                out[i + c] = self._value(M[c], self.ratios(y[c]))
+        return out
+
+    def feasible_amplitude(self, levels) -> tuple[float, float]:
+        """(amplitude flown, r_0 at unit amplitude) for a final sequence."""
+        r0 = float(((np.abs(self.Y[0] @ np.asarray(levels, float)).max(axis=0)) * self.inv_limits).max())
+        return (self.amplitude if self.amplitude is not None else 1.0 / r0), r0

@@ -1,0 +1,203 @@
+"""Searches over flyable sequences: exhaustive where the space is small, simulated annealing with
+restarts and a greedy local polish otherwise.
+
+The objective (see :mod:`signaldesign.quadform`) scores a candidate from the last accepted one by a
+low-rank update, so proposals change a few levels at a time: a block set to a level, a switch
+moved, a hold's sign flipped.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .evaluate import DesignError
+from .flyable import LEVELS, Flyability, enumerate_sequences
+from .quadform import Objective
+
+
+@dataclass
+class SearchResult:
+    """Best levels (Ktot,), its objective, how it was found and how many candidates were scored."""
+
+    levels: np.ndarray
+    objective: float
+    method: str
+    evaluations: int
+    seconds: float = 0.0
+    trace: list = field(default_factory=list)
+
+
+def exhaustive(objective: Objective, fly: Flyability, limit: int = 200_000) -> SearchResult:
+    """Score every flyable sequence (per axis; several axes as their product) and keep the best."""
+    t0 = time.perf_counter()
+    basis = objective.basis
+    axes = len(basis.inputs)
+    one = enumerate_sequences(basis.n_steps, fly, limit)
+    if axes == 1:
+        L = one
+    else:
+        full = enumerate_sequences(basis.n_steps, fly, limit, canonical=False)
+        total = len(one) * len(full) ** (axes - 1)
+        if total > limit:
+            raise DesignError(f"{total} flyable multi-axis sequences: too many to search exhaustively")
+        grids = [one] + [full] * (axes - 1)
+        idx = np.stack(np.meshgrid(*[np.arange(len(g)) for g in grids], indexing="ij"), -1).reshape(-1, axes)
+        L = np.concatenate([g[idx[:, a]] for a, g in enumerate(grids)], axis=1)
+    values = objective.batch(L)
+    i = int(np.argmax(values))
+    return SearchResult(L[i].copy(), float(values[i]), "exhaustive", len(L), time.perf_counter() - t0)
+
+
+def _random_feasible(n_steps: int, fly: Flyability, rng: np.random.Generator, tries: int = 2000) -> np.ndarray:
+    """A random flyable sequence built hold by hold."""
+    for _ in range(tries):
+        seq, level, k = [], 0, 0
+        while k < n_steps:
+            choices = [v for v in LEVELS if v != level and abs(v - level) <= fly.max_jump]
+            level = int(rng.choice(choices)) if k else int(rng.choice([-1, 1]))
+            hold = int(rng.integers(fly.min_pulse, 3 * fly.min_pulse + 2))
+            seq += [level] * hold
+            k += hold
+        seq = np.array(seq[:n_steps], float)
+        if fly.feasible(seq):
+            return seq
+        # repair: the tail (truncated hold or too-many changes) often fails; trim it to 0
+        for cut in range(n_steps - 1, 0, -1):
+            trial = seq.copy()
+            trial[cut:] = 0
+            if fly.feasible(trial):
+                return trial
+    raise DesignError(f"no flyable {n_steps}-step sequence found: constraints (min pulse "
+                      f"{fly.min_pulse} steps, max {fly.max_changes} changes) leave none")
+
+
+def _propose(levels: list, n_steps: int, axes: int, fly: Flyability, rng) -> list:
+    """A random neighbour that changes few levels (plain lists: this runs thousands of times)."""
+    new = list(levels)
+    a = int(rng.integers(axes))
+    lo = a * n_steps
+    move = rng.random()
+    if move < 0.35:  # a block of up to 2 min_pulse steps to another level
+        length = int(rng.integers(1, 2 * fly.min_pulse + 1))
+        start = lo + int(rng.integers(0, n_steps))
+        value = LEVELS[int(rng.integers(3))]
+        for k in range(start, min(start + length, lo + n_steps)):
+            new[k] = value
+    elif move < 0.8:  # move a switch by up to min_pulse steps
+        changes = [k for k in range(lo + 1, lo + n_steps) if new[k] != new[k - 1]]
+        if changes:
+            c = changes[int(rng.integers(len(changes)))]
+            step = int(rng.integers(1, fly.min_pulse + 1))
+            if rng.random() < 0.5:  # later: the earlier hold extends
+                for k in range(c, min(c + step, lo + n_steps)):
+                    new[k] = new[c - 1]
+            else:  # earlier: the later hold extends
+                for k in range(max(c - step, lo), c):
+                    new[k] = new[c]
+    else:  # flip the sign of one hold
+        k = lo + int(rng.integers(n_steps))
+        v = new[k]
+        i = k
+        while i >= lo and new[i] == v:
+            new[i] = -v
+            i -= 1
+        i = k + 1
+        while i < lo + n_steps and new[i] == v:
+            new[i] = -v
+            i += 1
+    return new
+
+
+def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: int = 4, seed: int = 0,
+           starts=(), progress=None) -> SearchResult:
+    """Simulated annealing over flyable sequences from ``starts`` (level vectors, e.g. the tuned
+    3211 on the grid) and then random flyable sequences, ``restarts`` runs in all, each finished by
+    a greedy polish. Infeasible proposals are rejected; the temperature falls geometrically from
+    the scale of the objective's typical changes. ``trace`` holds each run's final objective."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    basis = objective.basis
+    K, axes = basis.n_steps, len(basis.inputs)
+    starts = [np.asarray(s, float) for s in starts if _feasible(s, K, axes, fly)]
+
+    def feasible(levels):
+        return _feasible(levels, K, axes, fly)
+
+    best, trace = None, []
+    for r in range(restarts):
+        if r < len(starts):
+            cur = [float(v) for v in starts[r]]
+        else:
+            cur = [float(v) for _ in range(axes) for v in _random_feasible(K, fly, rng)]
+        objective.reset(cur)
+        f_cur = objective(np.array(cur))
+        objective.commit()
+        deltas = []  # temperature scale from a few random feasible neighbours
+        for _ in range(60):
+            cand = _propose(cur, K, axes, fly, rng)
+            if feasible(cand):
+                f = objective(np.array(cand))
+                if np.isfinite(f) and np.isfinite(f_cur):
+                    deltas.append(abs(f - f_cur))
+        # hot enough that a typical worsening is accepted 80 % of the time at first: with peak
+        # responses in the criterion the landscape is rugged (an optimum can sit among neighbours
+        # far below it), and a walk at the median change never leaves its basin
+        T0 = max(float(np.mean(deltas)) / -np.log(0.8) if deltas else 1.0, 1e-3)
+        T_end = T0 * 1e-3
+        r_best = (f_cur, list(cur))
+        for i in range(n_iter):
+            T = T0 * (T_end / T0) ** (i / max(n_iter - 1, 1))
+            for _ in range(50):  # every iteration scores a flyable neighbour (rejecting is cheap)
+                cand = _propose(cur, K, axes, fly, rng)
+                if cand != cur and feasible(cand):
+                    break
+            else:
+                continue
+            f = objective(np.array(cand))
+            if f >= f_cur or (np.isfinite(f) and (not np.isfinite(f_cur) or rng.random() < np.exp((f - f_cur) / T))):
+                cur, f_cur = cand, f
+                objective.commit()
+                if f_cur > r_best[0]:
+                    r_best = (f_cur, list(cur))
+        objective.reset(r_best[1])
+        cur, f_cur = _polish(objective, r_best[1], r_best[0], K, axes, fly.min_pulse, feasible)
+        trace.append(float(f_cur))
+        if best is None or f_cur > best[0]:
+            best = (f_cur, np.array(cur, dtype=float))
+        if progress is not None:
+            progress(r + 1, restarts)
+    objective.reset()  # report the optimum scored from scratch, free of update round-off
+    value = objective(best[1])
+    return SearchResult(best[1], float(value), "annealing", objective.evaluations, time.perf_counter() - t0, trace)
+
+
+def _feasible(levels, K, axes, fly) -> bool:
+    return all(fly.feasible(levels[a * K:(a + 1) * K]) for a in range(axes))
+
+
+def _polish(score: Objective, levels, value, n_steps, axes, min_pulse, feasible):
+    """Greedy local search: set any block of 1..2 min_pulse steps of one axis to any level, and
+    shift any switch by one step, while that improves the objective."""
+    improved = True
+    while improved:
+        improved = False
+        for a in range(axes):
+            lo, hi = a * n_steps, (a + 1) * n_steps
+            for start in range(lo, hi):
+                for length in range(1, 2 * min_pulse + 1):
+                    for v in LEVELS:
+                        stop = min(start + length, hi)
+                        if all(levels[k] == v for k in range(start, stop)):
+                            continue
+                        cand = list(levels)
+                        cand[start:stop] = [float(v)] * (stop - start)
+                        if feasible(cand):
+                            f = score(cand)
+                            if f > value + 1e-12:
+                                levels, value, improved = cand, f, True
+                                score.commit()
+    return levels, value
+
+
