@@ -125,11 +125,11 @@ def _overlaps(run, t_start, t_end) -> bool:
 
 def _add_common_options(p, runs_help: str, default_method: str) -> None:
     """Options of every command that reads runs (through :mod:`identify.data.io`) and estimates."""
-    from .estimators.registry import METHODS
+    from .estimators.registry import METHOD_NAMES
 
     p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv or .mat)")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=tuple(METHODS), default=default_method,
+    p.add_argument("--method", choices=METHOD_NAMES, default=default_method,
                    help=f"estimator (default {default_method})")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--channel-map", metavar="JSON",
