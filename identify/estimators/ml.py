@@ -269,8 +269,11 @@ class _Solver:
         return step
 
     def _try(self, beta):
+        """Residuals at a trial point (no sensitivities: most trials of a hard start are rejected,
+        and a long record holds one set of sensitivities at a time); the caller takes
+        :meth:`_accept` of the one it keeps."""
         try:
-            ev = self.prob.evaluate(beta)
+            ev = self.prob.evaluate(beta, jacobian=False)
         except SimulationError:
             return None, np.inf
         c = self._cost(ev)
@@ -315,7 +318,7 @@ class _Solver:
             M, g = prob.normal_equations(self.ev, self.Wh)
             ev, c = self._try(self.beta + self._step(M, g, nuisance, 0.0))
             if ev is not None and c < self._cost(self.ev):
-                self.ev, self.beta = ev, ev.beta.copy()
+                self._accept(ev)
             if self.relax:
                 self.Wh = self._relaxed_weighting()
         cost = self._cost(self.ev)
@@ -341,7 +344,7 @@ class _Solver:
             self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
             rel_step = float(np.max(np.abs(step[:P]) / self._scale(M)))
             self.max_rel_step = max(self.max_rel_step, rel_step)
-            self.ev, self.beta = ev, ev.beta.copy()
+            self._accept(ev)
             r_change = 0.0
             if self.relax:
                 r_old = self._r
@@ -357,6 +360,12 @@ class _Solver:
                 print(f"ML iteration {self.iterations:3d}: -log likelihood {self.history[-1]:.10g}  "
                       f"step {rel_step:.2e}  damping {self.lam:.1e}  gain ratio {rho:.2f}")
         self.M = M
+
+    def _accept(self, ev) -> None:
+        """Move to the trial point ``ev``, with its sensitivities."""
+        self.ev = None  # the old sensitivities go before the new ones are computed
+        self.ev = self.prob.evaluate(ev.beta)
+        self.beta = ev.beta.copy()
 
     def _trial(self, M, g, cost):
         """The damped step, shortened to the step bound, that lowers the cost by at least

@@ -44,8 +44,8 @@ COLOUR_MAX_ITER = 30  # passes of the coloured-noise autocorrelation correction 
 COLOUR_TOL = 1e-2  # ... until no variance changes by more than this (relative)
 OUTPUT_LIMIT = 1e3  # a modelled output this many times the largest measured one has diverged
 BLOCK_FLOATS = 2_000_000  # time blocks of the sensitivity work hold about this many floats (16 MB)
-COLOUR_CHUNK_FLOATS = 4_000_000  # Jacobian columns per FFT in the coloured correction: ~64 MB of spectra
-COLOUR_CACHE = 20_000_000  # spectra kept between passes up to this many floats (160 MB)
+COLOUR_CHUNK_FLOATS = 3_000_000  # Jacobian columns per FFT in the coloured correction: ~24 MB of spectra
+COLOUR_CACHE = 8_000_000  # spectra kept between passes up to this many floats (64 MB)
 
 
 def auto_segment(model: LinearModel, duration: float) -> float:
@@ -277,18 +277,22 @@ class OutputError:
         """Whitened residuals at ``beta`` (what a general least-squares solver minimises)."""
         return self.whitened(self.evaluate(beta, jacobian=False), Wh)
 
-    def _local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None) -> np.ndarray:
-        """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment over the
-        samples k0..k1 (default all), (S, k1 - k0, ny, p + n + ny), 0 on padding."""
+    def _local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None,
+                        segment: int | None = None) -> np.ndarray:
+        """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment (or of
+        ``segment`` alone) over the samples k0..k1 (default all), (S, k1 - k0, ny, p + n + ny),
+        0 on padding."""
         _, ny, S = ev.e.shape
         k1 = ev.e.shape[0] if k1 is None else k1
+        segs = slice(None) if segment is None else slice(segment, segment + 1)
+        S = S if segment is None else 1
         p, n, l = self.p, self.n, k1 - k0
         Jloc = np.empty((S, l, ny, p + n + ny))
-        Jloc[..., :p] = ((Wh @ ev.dy_theta[k0:k1].reshape(l, ny, p * S)).reshape(l, ny, p, S)
+        Jloc[..., :p] = ((Wh @ ev.dy_theta[k0:k1, ..., segs].reshape(l, ny, p * S)).reshape(l, ny, p, S)
                          .transpose(3, 0, 1, 2))
         Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1])[None]
         Jloc[..., p + n:] = Wh
-        Jloc[self.mask[k0:k1].T == 0] = 0.0  # not a product: padding may hold inf
+        Jloc[self.mask[k0:k1, segs].T == 0] = 0.0  # not a product: padding may hold inf
         return Jloc
 
     def _scatter(self, Ml: np.ndarray, gl: np.ndarray | None = None):
@@ -354,30 +358,28 @@ class OutputError:
         # columns of each segment's Jacobian are taken a chunk at a time, so that the spectra of a
         # long record (n_fft ~ 2 N) never exist for all columns at once; spectra are kept between
         # passes while they fit in COLOUR_CACHE floats (short segments: always)
-        width = max(1, min(k_loc, COLOUR_CHUNK_FLOATS // (F * ny)))
-        cache_ok = S * F * ny * k_loc * 2 <= COLOUR_CACHE
+        width = max(1, min(k_loc, COLOUR_CHUNK_FLOATS // (2 * F * ny)))  # complex: 2 floats
+        cache_ok = S * F * ny * k_loc * 4 <= COLOUR_CACHE  # two complex spectra per column
         Jloc = self._local_jacobian(ev, Wh) if cache_ok else None  # (S, L, ny, k), 0 on padding
         segs = []
         for s in range(S):
-            idx = self.local_index[s]
-            keep = idx >= 0
-            segs.append((idx[keep], keep, None if Jloc is None else Jloc[s, :self.layout.length[s]][..., keep]))
+            keep = self.local_index[s] >= 0
+            whole = None if Jloc is None else Jloc[s, :self.layout.length[s]][..., keep]
+            segs.append((self.local_index[s][keep], keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)))
         cache = {}
 
-        def jacobian(s):
-            i, keep, Js = segs[s]
-            if Js is None:  # long segment: rebuilt from the stored sensitivities when needed
-                Js = self._local_jacobian(ev, Wh, 0, self.layout.length[s])[s][..., keep]
-            return Js
-
-        def spectra(s, c, Js, cov_ii):
-            """rfft of the chunk c of J and of (J cov)[:, c]: the FFT is linear, so the latter is
-            rfft(J) cov when the whole rfft(J) is at hand (one chunk), an FFT of J cov[:, c] else."""
+        def spectra(s, c, J, cov_ii):
+            """rfft of the columns c of J and of (J cov)[:, c]. The FFT is linear: with all columns
+            at once the latter is rfft(J) cov, a small product instead of another FFT."""
             key = (s, c.start, c.stop)  # slices are not hashable before Python 3.12
             if key in cache:
                 return cache[key]
-            FJ = np.fft.rfft(Js[..., c], n_fft, axis=0)
-            FG = FJ @ cov_ii[c][:, c] if c == slice(None) else np.fft.rfft(Js @ cov_ii[:, c], n_fft, axis=0)
+            if c == slice(None):
+                FJ = np.fft.rfft(J.whole if J.whole is not None else J.apply(np.eye(J.q)), n_fft, axis=0)
+                FG = FJ @ cov_ii
+            else:
+                FJ = np.fft.rfft(J.apply(np.eye(J.q)[:, c]), n_fft, axis=0)
+                FG = np.fft.rfft(J.apply(cov_ii[:, c]), n_fft, axis=0)
             if cache_ok:
                 cache[key] = FJ, np.conj(FG)
             return FJ, np.conj(FG)
@@ -392,16 +394,15 @@ class OutputError:
             spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)[:, :, None]  # a covariance: PSD
             Bl = np.zeros((S, k_loc, k_loc))
             corr = np.zeros((F, ny))
-            for s, (i, keep, _) in enumerate(segs):
-                Js = jacobian(s)
+            for s, (i, keep, J) in enumerate(segs):
                 cov_ii = cov[np.ix_(i, i)]
-                q = Js.shape[-1]
-                block = np.zeros((q, q))
-                for c in chunks(q):
-                    FJ, FGc = spectra(s, c, Js, cov_ii)
-                    TJ = np.fft.irfft(spectrum * FJ, n_fft, axis=0)[:len(Js)]
-                    block[:, c] = Js.reshape(-1, q).T @ TJ.reshape(len(Js) * ny, -1)
+                block = np.zeros((J.q, J.q))
+                for c in chunks(J.q):
+                    FJ, FGc = spectra(s, c, J, cov_ii)
+                    TJ = np.fft.irfft(spectrum * FJ, n_fft, axis=0)[:J.length]
+                    block[:, c] = J.gram(TJ)
                     corr += 2 * np.einsum("fyq,fyq->fy", FGc, np.fft.rfft(TJ, n_fft, axis=0)).real
+                    del FJ, FGc, TJ
                 Bl[s][np.ix_(keep, keep)] = block
             B, _ = self._scatter(0.5 * (Bl + Bl.transpose(0, 2, 1)))
             cov_c = cov @ B @ cov
@@ -409,13 +410,13 @@ class OutputError:
             if var_old is not None and np.all(np.abs(var - var_old) <= tol * np.abs(var_old)):
                 break
             var_old = var
-            for s, (i, keep, _) in enumerate(segs):
-                Js = jacobian(s)
+            for s, (i, keep, J) in enumerate(segs):
                 cc = cov_c[np.ix_(i, i)]
-                for c in chunks(Js.shape[-1]):
-                    FJ = spectra(s, c, Js, cov[np.ix_(i, i)])[0]
-                    FC = FJ @ cc if c == slice(None) else np.fft.rfft(Js @ cc[:, c], n_fft, axis=0)
+                for c in chunks(J.q):
+                    FJ = spectra(s, c, J, cov[np.ix_(i, i)])[0]
+                    FC = FJ @ cc if c == slice(None) else np.fft.rfft(J.apply(cc[:, c]), n_fft, axis=0)
                     corr -= np.einsum("fyq,fyq->fy", np.conj(FC), FJ).real
+                    del FJ, FC
             rho = r + np.fft.irfft(corr / count, n_fft, axis=0)
         return B, rho[:L], passes
 
@@ -427,3 +428,38 @@ class OutputError:
         for s in range(lay.n_segments):
             out[lay.run[s]].append(arr[:lay.length[s], :, s])
         return [np.vstack(parts) for parts in out]
+
+
+class _SegmentJacobian:
+    """The whitened local Jacobian (l, ny, q) of one segment (its estimated columns ``keep``),
+    either held ``whole`` or rebuilt from the stored sensitivities a time block at a time, so
+    that a long record's Jacobian never exists whole: its products are all it offers."""
+
+    def __init__(self, prob: OutputError, ev: Response, Wh: np.ndarray, segment: int, keep: np.ndarray,
+                 whole: np.ndarray | None = None):
+        self.prob, self.ev, self.Wh, self.segment, self.keep, self.whole = prob, ev, Wh, segment, keep, whole
+        self.length, self.q, self.ny = int(prob.layout.length[segment]), int(keep.sum()), ev.e.shape[1]
+
+    def _blocks(self):
+        if self.whole is not None:
+            yield 0, self.length, self.whole
+            return
+        for k0, k1 in self.prob._blocks(len(self.keep)):
+            if k0 >= self.length:
+                break
+            k1 = min(k1, self.length)
+            yield k0, k1, self.prob._local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
+
+    def apply(self, C: np.ndarray) -> np.ndarray:
+        """``J C`` (l, ny, w) for C (q, w)."""
+        out = np.empty((self.length, self.ny, C.shape[1]))
+        for k0, k1, J in self._blocks():
+            out[k0:k1] = J @ C
+        return out
+
+    def gram(self, T: np.ndarray) -> np.ndarray:
+        """``J^T T`` (q, w) summed over time and outputs, T (l, ny, w)."""
+        acc = np.zeros((self.q, T.shape[-1]))
+        for k0, k1, J in self._blocks():
+            acc += J.reshape(-1, self.q).T @ T[k0:k1].reshape(-1, T.shape[-1])
+        return acc
