@@ -56,7 +56,8 @@ R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more tha
 MAX_DAMPING = 1e10
 INITIAL_DAMPING = 1e-3  # LM's tau: the first damping, relative to the scaled information's diagonal
 MIN_GAIN_RATIO = 1e-3  # a step is taken when it achieves this share of its predicted decrease
-MAX_REL_STEP = 0.5  # no step moves a parameter by more than this share of its scale
+MAX_REL_STEP = 0.5  # the first steps move no parameter by more than this share of its scale
+MAX_RADIUS = 1e3  # ... a bound that doubles after each step that ran into it and agreed with the model
 STEP_TOL_SE = 1e-3  # converged: the next Gauss-Newton step moves no unknown by this many std errors
 RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
 
@@ -216,9 +217,11 @@ class _Solver:
     the damping starts at ``INITIAL_DAMPING`` times the largest diagonal of the scaled information
     matrix; a trial step is taken only when the ratio of the actual to the predicted (quadratic
     model) decrease of the cost exceeds ``MIN_GAIN_RATIO``, and the damping then falls (good
-    agreement) or rises (poor); no step may move a parameter by more than ``MAX_REL_STEP`` of its
+    agreement) or rises (poor); no step may move a parameter by more than a trust radius times its
     scale ``max(|theta|, |theta a priori|, sigma)`` (sigma its white Cramér-Rao bound at the
-    current point), so a far a priori model cannot throw the iteration into another basin.
+    current point), so a far a priori model cannot throw the iteration into another basin. The
+    radius starts at ``MAX_REL_STEP``, doubles after a step that reached it with a gain ratio
+    above 0.75 (the quadratic model is trustworthy that far) and halves after one below 0.25.
     Convergence is judged on the undamped Gauss-Newton step: it must move no unknown by more
     than ``STEP_TOL_SE`` of its standard error (or no parameter by more than ``tol`` relative),
     with the relaxed noise covariance settled. Anything else is not convergence: ``max_iter``
@@ -232,7 +235,7 @@ class _Solver:
         self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov_)
         self.history, self.wls_history, self.log_det_history, self.step_history = [], [], [], []
         self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
-        self.rejected, self.max_rel_step = 0, 0.0
+        self.rejected, self.max_rel_step, self.radius = 0, 0.0, MAX_REL_STEP
         M, _ = prob.normal_equations(ev, self.Wh)
         d = np.diag(M)
         # a parameter no input excites has no influence at all: hold it, report std = inf
@@ -344,6 +347,10 @@ class _Solver:
             self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
             rel_step = float(np.max(np.abs(step[:P]) / self._scale(M)))
             self.max_rel_step = max(self.max_rel_step, rel_step)
+            if rho > 0.75 and rel_step >= 0.99 * self.radius:
+                self.radius = min(2 * self.radius, MAX_RADIUS)
+            elif rho < 0.25:
+                self.radius = max(0.5 * self.radius, 1e-6)
             self._accept(ev)
             r_change = 0.0
             if self.relax:
@@ -360,6 +367,19 @@ class _Solver:
                 print(f"ML iteration {self.iterations:3d}: -log likelihood {self.history[-1]:.10g}  "
                       f"step {rel_step:.2e}  damping {self.lam:.1e}  gain ratio {rho:.2f}")
         self.M = M
+        if not self.converged:
+            self.stop += self._drifting(M)
+
+    def _drifting(self, M) -> str:
+        """When not converged: the parameters the runs cannot determine (white std error over
+        10 x the estimate), along which the likelihood may keep rising (an estimate running off to
+        infinity, e.g. a rotor time constant that the data cannot tell from instantaneous)."""
+        P = self.prob.p
+        cov, _ = _covariance(M, self.active)
+        rel = np.sqrt(np.clip(np.diag(cov)[:P], 0, None)) / np.maximum(np.abs(self.beta[:P]), 1e-300)
+        bad = [self.prob.model0.names[i] for i in np.argsort(-rel)[:4] if rel[i] > 10]
+        return (f"; not determined by these runs (std error > 10 x estimate), the likelihood may rise "
+                f"without bound along them: {', '.join(bad)}" if bad else "")
 
     def _accept(self, ev) -> None:
         """Move to the trial point ``ev``, with its sensitivities."""
@@ -378,7 +398,7 @@ class _Solver:
         while self.lam <= MAX_DAMPING:
             step = self._step(M, g, self.active, self.lam)
             # bounded relative step: shorten along the same (descent) direction, keep the damping
-            step *= min(1.0, MAX_REL_STEP / max(float(np.max(np.abs(step[:P]) / scale)), 1e-300))
+            step *= min(1.0, self.radius / max(float(np.max(np.abs(step[:P]) / scale)), 1e-300))
             pred = self._predicted(M, g, step)
             if pred > 0:
                 ev, c = self._try(self.beta + step)
