@@ -7,7 +7,7 @@ minimising the negative log-likelihood for white Gaussian measurement noise of c
 
 Newton-Raphson with the Gauss-Newton approximation of the Hessian (``M = J^T R^-1 J``, the Fisher
 information) moves the derivatives ``theta``, the initial states ``x0`` and the output zero shifts
-``b`` together; a Levenberg-Marquardt damping takes over when a step does not lower the cost. R is
+``b`` together under Levenberg-Marquardt trust-region control (:class:`_Solver`). R is
 estimated by *relaxation*: after each step, R = diag(mean residual^2), the R that minimises J for
 the current residuals. The Cramér-Rao bounds are the square roots of the diagonal of M^-1 (the
 full matrix, initial states and zero shifts included as nuisance parameters).
@@ -66,10 +66,12 @@ class ML(Estimator):
 
     ``segment``: None (automatic: plain output error for a stable model, multiple shooting for an
     unstable one), a segment length in s, or ``math.inf``/``"plain"`` (one segment per run).
-    ``max_iter``: Gauss-Newton iterations; ``tol``: convergence on the relative parameter step or
-    the relative cost decrease. ``estimate_x0``/``estimate_bias``: estimate initial states (of
-    every segment) and per-run output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the
-    measurement-noise covariance, (ny,) variances or (ny, ny), in output units squared.
+    ``max_iter``: iterations at most (not converged by then: a :class:`ConvergenceWarning`,
+    ``info["converged"]`` False with the reason in ``info["stop"]``); convergence when the next
+    Gauss-Newton step is under 1e-3 standard errors, or under ``tol`` relative to the parameters.
+    ``estimate_x0``/``estimate_bias``: estimate initial states (of every segment) and per-run
+    output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the measurement-noise
+    covariance, (ny,) variances or (ny, ny), in output units squared.
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
 
@@ -217,8 +219,7 @@ class _Solver:
     matrix; a trial step is taken only when the ratio of the actual to the predicted (quadratic
     model) decrease of the cost exceeds ``MIN_GAIN_RATIO``, and the damping then falls (good
     agreement) or rises (poor); no step may move a parameter by more than a trust radius times its
-    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma its white Cramér-Rao bound at the
-    current point), so a far a priori model cannot throw the iteration into another basin. The
+    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma = 1/sqrt(M_ii) at the current point), so a far a priori model cannot throw the iteration into another basin. The
     radius starts at ``MAX_REL_STEP``, halves after a step with a gain ratio below 0.25 and
     doubles back (never beyond ``MAX_REL_STEP``) after one that reached it with a ratio above 0.75.
     (Letting it grow further was tried: on a noise-free S 61 case with one derivative 60 x off it
@@ -289,7 +290,8 @@ class _Solver:
         return float(g @ step - 0.5 * step @ M @ step)
 
     def _scale(self, M) -> np.ndarray:
-        """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma)."""
+        """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma),
+        sigma = 1/sqrt(M_ii) the parameter's white bound with the others held."""
         P = self.prob.p
         with np.errstate(divide="ignore"):
             sigma = 1 / np.sqrt(np.diag(M)[:P])

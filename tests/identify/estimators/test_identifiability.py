@@ -6,6 +6,7 @@ import numpy as np
 
 from identify import LinearModel, parse_profile, simulate_run
 from identify.estimators.identifiability import correlation, mode_uncertainty
+from tests.identify.estimators.test_ml import steps_3211
 from identify import ML
 
 LONGITUDINAL = """
@@ -31,17 +32,9 @@ theta_q = 1.0
 NOISE = {"u": 0.2, "w": 0.2, "q": 0.003, "theta": 0.003}  # absolute: sensors and light turbulence
 
 
-def steps_3211(t, width, amp=0.02, t0=0.5):
-    u, a = np.zeros_like(t), t0
-    for k, sign in zip((3, 2, 1, 1), (1, -1, 1, -1)):
-        u[(t >= a) & (t < a + k * width)] = sign * amp
-        a += k * width
-    return u
-
-
 def fit(truth, duration, width, seed=1):
     t = np.arange(int(round(duration / 0.05)) + 1) * 0.05
-    run = simulate_run(truth, t, steps_3211(t, width)[:, None], noise=NOISE, seed=seed)
+    run = simulate_run(truth, t, steps_3211(t, 0.5, width=width, amp=0.02)[:, None], noise=NOISE, seed=seed)
     start = truth.profile.with_values(dict(zip(truth.names, truth.theta * 1.2)))
     return ML(start).fit(run).result_
 

@@ -9,16 +9,9 @@ import pytest
 from identify import ConvergenceWarning, Run, simulate_run
 from identify.cli import main
 from identify.estimators.ml import MAX_REL_STEP, ML
+from tests.identify.estimators.test_ml import steps_3211
 
 DT = 0.01
-
-
-def steps_3211(t, t0, width=0.7, amp=0.03):
-    u, a = np.zeros_like(t), t0
-    for k, sign in zip((3, 2, 1, 1), (1, -1, 1, -1)):
-        u[(t >= a) & (t < a + k * width)] = sign * amp
-        a += k * width
-    return u
 
 
 def plain_case(s61, duration=20.0, seed=1):
