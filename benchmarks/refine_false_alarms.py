@@ -26,12 +26,13 @@ def main(n: int = 20) -> None:
         u = np.random.default_rng(1000 + seed).choice([-1.0, 0.0, 1.0], size=601 // 25 + 1)
         u = np.repeat(u, 25)[:601, None] * 0.05
         run = simulate_run(model, t, u, noise_fraction=0.02, seed=1000 + seed)
+        t0 = time.perf_counter()
         r = Refine(PROFILE).fit([run])
         found += not r.nothing_found
         top = max(r.last_scores_, key=lambda d: d["statistic"] / d["threshold"], default=None)
         worst = f"{top['candidate'].name} {top['statistic']:.1f} / {top['threshold']:.1f}" if top else "-"
         print(f"realisation {seed:2d}: added {[(s.effect, s.target) for s in r.steps_]}, "
-              f"largest score / threshold: {worst}", flush=True)
+              f"largest score / threshold: {worst}; {time.perf_counter() - t0:.2f} s", flush=True)
     print(f"something found in {found} of {n} matched-model realisations (full catalogue: "
           f"{', '.join(Refine(PROFILE).kinds)}); {time.perf_counter() - started:.1f} s")
 

@@ -110,10 +110,12 @@ def _add_estimate_parser(sub) -> None:
 
 
 def _read_runs(paths, channel_map, profile):
-    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units."""
+    """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
+    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
     from .data.io import load_channel_map, read_run_files
+    from .model.pseudo_inputs import prepare
 
-    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
 
 
 def _overlaps(run, t_start, t_end) -> bool:
@@ -150,7 +152,7 @@ def cmd_refine(args) -> int:
     profile = load_profile(args.profile)
     refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
-                     tau_max=args.tau_max)
+                     tau_max=args.tau_max, progress=True)
     refiner.fit(_read_runs(args.runs, args.channel_map, profile),
                 validate=_read_runs(args.validate or [], args.channel_map, profile))
     if refiner.nothing_found:

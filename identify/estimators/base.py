@@ -17,6 +17,7 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError
 from ..model.profile import Profile, load_profile
+from ..model.pseudo_inputs import prepare
 from .result import IdentificationResult
 
 MIN_SAMPLES = 10
@@ -51,6 +52,9 @@ class Estimator:
             raise EstimationError("no runs given")
         if not self.profile_.free:
             raise EstimationError(f"{self.profile_.source}: the profile has no free parameters")
+        # as the profile needs them: inputs delayed by its meta.delays, its pseudo-inputs (a refined
+        # model's nonlinear terms, drifts, vibrations) computed from the runs' own channels
+        runs = prepare(self.profile_, runs)
         for run in runs:
             run.require(channels or self.profile_.channels, f"profile '{self.profile_.name}'")
             if len(run) < MIN_SAMPLES:

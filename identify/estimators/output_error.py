@@ -248,6 +248,13 @@ class OutputError:
             ev.dy_x0[k0:k1] = C @ powers
             sens, power = Phi @ block[-1] + forcing[-1], Phi @ powers[-1]
 
+    def initial_state_response(self, theta: np.ndarray) -> np.ndarray:
+        """``dy/dx0 = C Phi^k`` (L, ny, n), the same for every segment (without the parameter
+        sensitivities that :meth:`evaluate` computes with it)."""
+        model = self.model0.with_theta(theta)
+        Phi, _ = discretize(model.A, model.B, self.dt)
+        return model.C @ propagate(Phi, np.zeros((self.layout.L, self.n, self.n)), np.eye(self.n))
+
     def _check(self, x: np.ndarray, y: np.ndarray) -> None:
         """SimulationError naming state or output, run and time where the simulation diverges:
         a state beyond DIVERGENCE_LIMIT or an output beyond OUTPUT_LIMIT times its measured peak."""

@@ -1,5 +1,7 @@
 """Refine: find the structure left in the residuals, name the effect, add it, re-identify."""
-from .loop import Evaluation, Refine, Step, errors, estimator_class, evaluate, neg_log_likelihood, run_design, segments
+from ..estimators.registry import estimator_class
+from .evaluation import ModelFit, errors, evaluate, neg_log_likelihood, split_validation
+from .loop import Refine, Step
 
-__all__ = ["Evaluation", "Refine", "Step", "errors", "estimator_class", "evaluate", "neg_log_likelihood",
-           "run_design", "segments"]
+__all__ = ["ModelFit", "Refine", "Step", "errors", "estimator_class", "evaluate", "neg_log_likelihood",
+           "split_validation"]

@@ -1,55 +1,83 @@
-"""Catalogue of candidate effects a declared model may lack, as profile + run transformations.
+"""Candidate effects a declared model may lack: one class per effect.
 
-Each candidate is a small object with a ``kind`` (from :data:`KINDS`), a ``target`` (the entry,
-output, input or equation it acts on) and the ``params`` it adds. ``profile(p, values)`` returns the
-extended profile (a plain profile: new free parameters, ties, states, pseudo-inputs);
-``runs(runs)`` adds the pseudo-input channels (or shifts an input, for a delay) the extended
-profile needs. Applying both to a fitted profile with the added parameters at their null value
-leaves the model's outputs unchanged, so output sensitivities at that point are the candidate's
-score-test columns. See ``docs/refine.md`` for the catalogue.
+Each class owns everything about its effect:
+
+* ``propose(p, context)`` (class method): the candidates of this kind for profile ``p``;
+* ``profile(p, values)``: the extended profile (new free parameters, ties, states, inputs), a plain
+  profile; with the added parameters at their null value it has the same outputs as ``p``;
+* ``pseudo()``: the pseudo-input channels it needs, as descriptions that
+  :mod:`identify.model.pseudo_inputs` rebuilds from any run (so a refined profile works on plain
+  measured runs with every command); ``runs(runs)`` adds them (a delay shifts its input instead);
+* ``score_columns(loop, p)``: its score-test columns when they are not the output sensitivities of
+  its parameters (``linear = False``: the delay's response to ``-du/dt``);
+* ``estimate(loop, p, noise, hint)``: its fit(s), by default one ML re-fit (the delay searches tau
+  by profile likelihood and also fits a lag).
+
+``KINDS`` maps a kind's name to its class; adding an effect is adding one class here and its name
+there (docs/refine.md lists the steps). The loop (:mod:`identify.refine.loop`) knows no kind.
 
 =============  ==============  ===============================================================
 kind           target          added
 =============  ==============  ===============================================================
-derivative     ``M_p``         a structurally zero A or B entry freed (null value 0)
-delay          input           ``tau_<input>`` (s): the input shifted in time (run transform;
-                               recorded in the profile's ``meta.delays``)
+derivative     ``M_p``         a structurally zero A or B entry of a dynamic equation freed
+delay          input           ``tau_<input>`` (s): the input shifted in time (``meta.delays``)
 lag            input           state ``<input>_lag``, ``dx/dt = k (u - x)``, the input's B
                                entries moved onto it; ``k_<input>_lag`` (1/s) = 1/tau
 bias           output          pseudo-input ``one``; ``bias_<y>`` on ``"<y>:one"``
 drift          output          pseudo-input ``t`` (s from run start); ``drift_<y>`` on ``"<y>:t"``
 scale          output          ``sf_<y>`` on ``"<y>:<y>"``: measured = (1 + sf) x
-nonlinear      ``M:q_absq``    pseudo-input from measured channels (``q_absq`` = q|q|,
-                               ``q_sq`` = q^2, ``u_x_v`` = u v) with a B entry ``M_q_absq``
+nonlinear      ``M:q_absq``    pseudo-input from measured channels with a physical reason
+                               (``q_absq`` = q|q| of the equation's own state, ``eta_sq``,
+                               ``q_x_eta`` with a declared input) and a B entry ``M_q_absq``
 periodic       output          pseudo-inputs ``cos_<y>``, ``sin_<y>`` at frequency f (phase per
                                run from the measured output); ``a_cos_<y>``, ``a_sin_<y>``
 =============  ==============  ===============================================================
 """
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import dataclass, field, replace
-from itertools import combinations
 
 import numpy as np
 
 from ..data.runs import Run
-from ..errors import ProfileError
+from ..errors import EstimationError, ProfileError, PseudostepError
+from ..model import pseudo_inputs as pi
 from ..model.profile import Profile
-from ..model.simulate import delay_inputs
+from ..model.pseudo_inputs import delay_run
+from .noise import line_frequency
 
-KINDS = ("derivative", "delay", "lag", "bias", "drift", "scale", "nonlinear", "periodic")
 
+# a calibrated sensor's scale-factor error is a few per cent; beyond this a fitted "scale factor" is
+# absorbing missing dynamics (seen: -50 % on a rotor-tilt output standing in for a control delay)
+MAX_SCALE_ERROR = 0.3
 
 @dataclass
-class Candidate:
-    """Base: a named extension. ``linear``: the model is linear in the added parameters at their
-    null value (exact score columns from sensitivities); otherwise (delay, lag) the score column
-    is supplied by the loop (the delay sensitivity ``-du/dt`` response)."""
+class Context:
+    """What proposing candidates needs besides the profile: the fit ``runs`` (raw), their
+    ``residuals`` (N_r, ny) under the current model, ``dt`` s, the periodic search's ``f_min`` Hz
+    and known ``frequencies`` Hz, and ``products`` (state x input nonlinear terms)."""
 
-    kind: str
+    runs: list[Run]
+    residuals: list[np.ndarray]
+    dt: float
+    f_min: float = 0.5
+    frequencies: tuple = ()
+    products: bool = True
+    kinds: tuple = ()
+
+
+@dataclass(eq=False)
+class Candidate:
+    """Base: a named extension of a profile (see the module docstring)."""
+
+    kind = "base"
+    complexity = 0  # 1: ranked below the simpler explanations (nonlinear terms)
+    linear = True  # score columns = output sensitivities of ``params`` at their null values
+
     target: str
     params: list[str]
-    linear: bool = True
     n_tests: int = 1  # how many hypotheses choosing this candidate stands for (multiple testing)
     spec: dict = field(default_factory=dict)
     null_dof: int | None = None  # degrees of freedom of the null distribution if not len(params)
@@ -58,55 +86,149 @@ class Candidate:
     def name(self) -> str:
         return f"{self.kind}:{self.target}"
 
+    @classmethod
+    def propose(cls, p: Profile, context: Context) -> list["Candidate"]:
+        return []
+
     def null_values(self) -> dict[str, float]:
         return {k: 0.0 for k in self.params}
 
     def profile(self, p: Profile, values: dict[str, float] | None = None) -> Profile:
         raise NotImplementedError
 
+    def pseudo(self) -> dict[str, dict]:
+        """``{channel: description}`` of the pseudo-inputs it adds (see :mod:`identify.model.pseudo_inputs`)."""
+        return {}
+
     def runs(self, runs: list[Run]) -> list[Run]:
-        return list(runs)
+        specs = self.pseudo()
+        return [r.with_channels({n: pi.channel(n, s, r) for n, s in specs.items() if n not in r.channels})
+                if specs else r for r in runs]
 
     def apply(self, p: Profile, runs: list[Run], values: dict[str, float] | None = None):
         return self.profile(p, values), self.runs(runs)
+
+    def score_columns(self, loop, p: Profile) -> list[np.ndarray] | None:
+        """Per fit run (N_r, ny, q) columns for a candidate that is not ``linear``."""
+        return None
+
+    def estimate(self, loop, p: Profile, noise, hint=None) -> list[tuple]:
+        """Fits as ``(profile, result, parameters, kind)``, the more likely first: one ML re-fit of
+        the extended profile (``loop.refit``), the parameters with ML's (coloured-residual) bounds."""
+        new_p, result = loop.refit(self.profile(p), p)
+        params = {k: {"value": float(result.theta[result.names.index(k)]),
+                      "std": float(result.std[result.names.index(k)])} for k in self.params}
+        return [(new_p, result, params, self.kind)]
+
+    def implausible(self, params: dict[str, dict]) -> str:
+        """Why the fitted ``params`` ({name: {"value", "std"}}) are physically implausible for
+        this effect ('' if they are not): a statistically significant but unphysical value means
+        the effect stands in for another one the model lacks."""
+        return ""
 
     def to_dict(self) -> dict:
         return {"effect": self.kind, "target": self.target, "params": list(self.params),
                 **{k: v for k, v in self.spec.items() if not k.startswith("_")}}
 
 
-def _add(p: Profile, *, free=None, ties=None, inputs=None, states=None, meta=None) -> Profile:
-    meta = dict(meta or {})
-    if inputs:  # remembered so that later steps tell pseudo-inputs from controls
-        meta["pseudo_inputs"] = list(dict.fromkeys(list(p.meta.get("pseudo_inputs", [])) + list(inputs)))
+def _add(p: Profile, *, free=None, ties=None, inputs=None, states=None, meta=None, pseudo=None) -> Profile:
+    meta = {**p.meta, **(meta or {})}
+    if pseudo:  # how to rebuild each pseudo-input from a run (and which inputs are not controls)
+        meta["pseudo_inputs"] = {**pi.specs(p), **pseudo}
     return replace(p, free={**p.free, **(free or {})}, ties={**p.ties, **(ties or {})},
-                   inputs={**p.inputs, **(inputs or {})}, states={**p.states, **(states or {})},
-                   meta={**p.meta, **(meta or {})})
+                   inputs={**p.inputs, **(inputs or {})}, states={**p.states, **(states or {})}, meta=meta)
 
 
 def _values(c: Candidate, values):
     return {**c.null_values(), **(values or {})}
 
 
+def extend_all(p: Profile, candidates: list[Candidate]) -> tuple[Profile, list[Candidate]]:
+    """One profile holding every candidate (each at its null value) that only *adds* to ``p``
+    (free parameters, ties, inputs, meta tables), and the candidates that could be built: the
+    score test of all of them from one sensitivity computation. Built as one union, validated once."""
+    free, ties, inputs, meta = dict(p.free), dict(p.ties), dict(p.inputs), dict(p.meta)
+    built = []
+    for c in candidates:
+        try:
+            q = c.profile(p)
+        except ProfileError:
+            continue  # a candidate that cannot be built on this profile is not tested
+        free.update(q.free)
+        ties.update(q.ties)
+        inputs.update(q.inputs)
+        for key, value in q.meta.items():  # delays, periodic, pseudo_inputs: {name: value}
+            meta[key] = {**dict(meta.get(key, {})), **value} if isinstance(value, dict) else value
+        built.append(c)
+    return replace(p, free=free, ties=ties, inputs=inputs, meta=meta), built
+
+
+def prepare_runs(profile: Profile, runs: list[Run]) -> list[Run]:
+    """Runs as ``profile`` needs them (delays applied, pseudo-inputs added): :func:`identify.model.pseudo_inputs.prepare`."""
+    return pi.prepare(profile, runs)
+
+
+# -- the kinds -------------------------------------------------------------------------------------
+def _dynamic_rows(p: Profile) -> list[int]:
+    """Rows of A/B with a free parameter (the dynamic equations), lag states excepted: an equation
+    whose every entry is fixed (theta_dot = q) is kinematics, known exactly."""
+    rows = {e.row for name in p.free for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
+    return [i for i in sorted(rows) if not p.state_names[i].endswith("_lag")]
+
+
+def _controls(p: Profile) -> list[str]:
+    """The declared inputs (not pseudo-inputs), without a lag already on them."""
+    pseudo = pi.specs(p)
+    return [u for u in p.inputs if u not in pseudo and f"{u}_lag" not in p.states]
+
+
+def _measured_states(p: Profile, runs: list[Run]) -> list[str]:
+    return [s for s in p.states if s in p.outputs and p.output_terms(s) == {s: 1.0}
+            and all(s in r.channels for r in runs)]
+
+
 class Derivative(Candidate):
     """Free a structurally zero A or B entry (``target`` is the entry name, e.g. ``M_p``)."""
 
+    kind = "derivative"
+
     def __init__(self, entry: str):
-        super().__init__("derivative", entry, [entry])
+        super().__init__(entry, [entry])
+
+    @classmethod
+    def propose(cls, p, context):
+        taken = {(e.matrix, e.row, e.col) for name in p.parameters for e, _ in p.parameter_entries(name)}
+        states = [j for j, s in enumerate(p.state_names) if not s.endswith("_lag")]
+        inputs = [p.input_names.index(u) for u in _controls(p)]
+        return [cls(p.entry_name(m, i, j)) for i in _dynamic_rows(p)
+                for m, cols in (("A", states), ("B", inputs)) for j in cols if (m, i, j) not in taken]
 
     def profile(self, p, values=None):
         return _add(p, free={self.target: _values(self, values)[self.target]})
 
 
 class Delay(Candidate):
-    """Pure time delay on an input (``tau_<input>`` in s), applied by shifting the input channel
-    (linear interpolation; the first value held before the start)."""
+    """Pure time delay on an input (``tau_<input>`` in s), applied by shifting the input channel.
 
-    def __init__(self, input_name: str, tau: float = 0.0):
-        super().__init__("delay", input_name, [f"tau_{input_name}"], linear=False, spec={"tau": tau})
+    Not linear in tau: its score column is dy/dtau at tau = 0, the response to ``-du/dt``. When
+    chosen it is estimated by a profile-likelihood search over tau (ML re-fit at each tau) and a
+    first-order :class:`Lag` is fitted too (to first order a lag and a delay are the same,
+    ``1 - tau s``): both fits are returned, the more likely first."""
+
+    kind = "delay"
+    linear = False
+
+    def __init__(self, input_name: str, tau: float = 0.0, lag: bool = True, search: bool = True):
+        super().__init__(input_name, [f"tau_{input_name}"], spec={"tau": tau, "_lag": lag, "_search": search})
+
+    @classmethod
+    def propose(cls, p, context):
+        delays = dict(p.meta.get("delays", {}))
+        kinds = set(context.kinds or ("delay", "lag"))
+        return [cls(u, lag="lag" in kinds, search="delay" in kinds) for u in _controls(p) if u not in delays]
 
     def profile(self, p, values=None):
-        tau = _values(self, values).get(self.params[0], self.spec["tau"])
+        tau = (values or {}).get(self.params[0], self.spec["tau"])
         return _add(p, meta={"delays": {**dict(p.meta.get("delays", {})), self.target: float(tau)}})
 
     def runs(self, runs, tau: float | None = None):
@@ -114,29 +236,83 @@ class Delay(Candidate):
         return [delay_run(r, self.target, tau) for r in runs]
 
     def apply(self, p, runs, values=None):
-        tau = _values(self, values).get(self.params[0], self.spec["tau"])
+        tau = (values or {}).get(self.params[0], self.spec["tau"])
         return self.profile(p, {self.params[0]: tau}), self.runs(runs, tau)
 
+    def score_columns(self, loop, p):
+        return [d[:, :, None] for d in loop.input_response(p, self.target, lambda u, dt: -np.gradient(u, dt))]
 
-def delay_run(run: Run, input_name: str, tau: float) -> Run:
-    """``run`` with ``input_name`` replaced by u(t - tau)."""
-    return run.with_channels({input_name: delay_inputs(run.time, run[input_name], tau)})
+    def estimate(self, loop, p, noise, hint=None):
+        options = []
+        dt = loop.dt
+        if self.spec["_search"]:
+            fits: dict[float, tuple] = {}
+
+            def at(tau: float):
+                tau = float(np.clip(tau, 0.0, loop.tau_max))
+                key = round(tau, 9)
+                if key not in fits:
+                    # warm start from the nearest delay fitted so far: a few iterations, not twenty
+                    start = fits[min(fits, key=lambda k: abs(k - key))][1] if fits else p
+                    prof, res = loop.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
+                    fits[key] = (0.5 * noise.cost(loop.residuals(prof)), prof, res)
+                return fits[key]
+
+            # the profile likelihood in the metric of the test's noise model (under turbulence the
+            # white one is biased: 0.088 s for a 0.1 s delay, 10 standard errors off)
+            tau = _search_delay(lambda t: at(t)[0], hint or 0.0, dt, loop.tau_max)
+            prof, res = loop.refit(at(tau)[1], p)  # the same fit, with its bounds
+            # the bound from the curvature (central difference, shifted off the bound tau = 0)
+            h = max(dt / 2, 0.05 * tau)
+            c = tau if tau >= h else h
+            curv = (at(c + h)[0] - 2 * at(c)[0] + at(c - h)[0]) / h ** 2
+            std = 1 / math.sqrt(curv) if curv > 0 else math.inf
+            options.append((prof, res, {self.params[0]: {"value": tau, "std": std}}, "delay"))
+        if self.spec["_lag"]:
+            tau0 = options[0][2][self.params[0]]["value"] if options else 0.1
+            try:
+                options += Lag(self.target, k=1.0 / max(tau0, 2 * dt)).estimate(loop, p, noise)
+            except PseudostepError:
+                pass  # a lag that diverges or cannot be fitted is not the effect
+        if not options:
+            raise EstimationError(f"neither a delay nor a lag on '{self.target}' could be fitted")
+        return sorted(options, key=lambda o: noise.cost(loop.residuals(o[0])))
 
 
-def apply_delays(profile: Profile, runs: list[Run]) -> list[Run]:
-    """Shift the inputs of runs by the delays recorded in ``profile.meta['delays']``."""
-    for name, tau in dict(profile.meta.get("delays", {})).items():
-        runs = [delay_run(r, name, float(tau)) for r in runs]
-    return runs
+def _search_delay(cost, tau0: float, dt: float, tau_max: float) -> float:
+    """Minimise ``cost(tau)`` over [0, tau_max]: a coarse grid first (the score test's linearised
+    estimate ``tau0`` is only good for small delays, and the profile likelihood of a large one is
+    not quadratic from 0), then successive parabolas through three re-fits around the best point."""
+    grid = np.unique(np.clip(np.r_[np.linspace(0.0, tau_max, 6), tau0], 0.0, tau_max))
+    tau = float(min(grid, key=cost))
+    h = max(dt, 0.5 * tau_max / 10)
+    for _ in range(6):
+        pts = np.clip([tau - h, tau, tau + h], 0.0, tau_max)
+        vals = [cost(t) for t in pts]
+        with warnings.catch_warnings():  # repeated points at the bounds: the fallback handles it
+            warnings.simplefilter("ignore", np.exceptions.RankWarning)
+            a, b, _ = np.polyfit(pts, vals, 2)
+        new = -b / (2 * a) if a > 0 else pts[int(np.argmin(vals))]
+        new = float(np.clip(new, max(tau - 2 * h, 0.0), min(tau + 2 * h, tau_max)))
+        done = abs(new - tau) < dt / 100  # well inside the statistical error of any usable delay
+        tau, h = new, max(dt / 10, min(h, 2 * abs(new - tau)))
+        if done:
+            break
+    # keep the best point evaluated (the parabola may overshoot on a rough cost)
+    return float(min([tau] + [t for t in np.clip([tau - h, tau + h], 0, tau_max)], key=cost))
 
 
 class Lag(Candidate):
     """First-order lag between an input and the model: new state ``<input>_lag`` with
-    ``d(lag)/dt = k (u - lag)``; every B entry of the input moves onto the lag state."""
+    ``d(lag)/dt = k (u - lag)``; every B entry of the input moves onto the lag state. Proposed
+    through :class:`Delay` (they share the score test)."""
+
+    kind = "lag"
+    linear = False
 
     def __init__(self, input_name: str, k: float = 10.0):
         self.state = f"{input_name}_lag"
-        super().__init__("lag", input_name, [f"k_{self.state}"], linear=False, spec={"k": k})
+        super().__init__(input_name, [f"k_{self.state}"], spec={"k": k})
 
     def null_values(self):
         return {self.params[0]: self.spec["k"]}
@@ -170,61 +346,141 @@ class Lag(Candidate):
 
 class OutputTerm(Candidate):
     """An output-equation entry ``"<y>:<term>"`` through a tie parameter, with an optional
-    pseudo-input channel built from each run."""
+    pseudo-input ``term`` described by ``channel`` (see :mod:`identify.model.pseudo_inputs`)."""
 
-    def __init__(self, kind: str, output: str, param: str, term: str, unit: str | None = None,
-                 channel=None, n_tests: int = 1, spec=None):
-        super().__init__(kind, output, [param], n_tests=n_tests, spec=dict(spec or {}))
-        self.term, self.unit, self.channel = term, unit, channel
+    prefix = ""
+    term = ""
+    description: dict | None = None
+    unit = "1"
+
+    def __init__(self, output: str):
+        super().__init__(output, [f"{self.prefix}_{output}"])
+
+    @classmethod
+    def propose(cls, p, context):
+        return [cls(y) for y in p.outputs if f"{cls.prefix}_{y}" not in p.parameters and cls.applies(p, y)]
+
+    @classmethod
+    def applies(cls, p: Profile, y: str) -> bool:
+        return True
+
+    def entry_term(self) -> str:
+        return self.term
+
+    def pseudo(self):
+        return {self.term: self.description} if self.description else {}
 
     def profile(self, p, values=None):
-        inputs = {self.term: self.unit} if self.unit is not None and self.term not in p.inputs else {}
-        param = self.params[0]
-        return _add(p, inputs=inputs, free={param: _values(self, values)[param]},
-                    ties={param: {f"{self.target}:{self.term}": 1.0}})
-
-    def runs(self, runs):
-        if self.channel is None:
-            return list(runs)
-        return [r if self.term in r.channels else r.with_channels({self.term: self.channel(r)}) for r in runs]
+        param, term = self.params[0], self.entry_term()
+        pseudo = {k: v for k, v in self.pseudo().items() if k not in p.inputs}
+        return _add(p, inputs={k: self.unit for k in pseudo}, pseudo=pseudo,
+                    free={param: _values(self, values)[param]}, ties={param: {f"{self.target}:{term}": 1.0}})
 
 
-def bias(output: str) -> OutputTerm:
-    return OutputTerm("bias", output, f"bias_{output}", "one", "1", lambda r: np.ones(len(r)))
+class Bias(OutputTerm):
+    """A bias common to all runs on an output (testable only without per-run zero shifts)."""
+
+    kind, prefix, term, description, unit = "bias", "bias", "one", pi.constant(), "1"
 
 
-def drift(output: str) -> OutputTerm:
-    return OutputTerm("drift", output, f"drift_{output}", "t", "s", lambda r: r.time - r.time[0])
+class Drift(OutputTerm):
+    """A linear drift of an output with the time from each run's start."""
+
+    kind, prefix, term, description, unit = "drift", "drift", "t", pi.time(), "s"
 
 
-def scale(output: str) -> OutputTerm:
-    return OutputTerm("scale", output, f"sf_{output}", output)
+class Scale(OutputTerm):
+    """A scale-factor error of an output that is a state: measured = (1 + sf) x."""
+
+    kind, prefix = "scale", "sf"
+
+    @classmethod
+    def applies(cls, p, y):
+        return y in p.states and p.output_terms(y) == {y: 1.0}
+
+    def entry_term(self):
+        return self.target
+
+    def implausible(self, params):
+        sf = params[self.params[0]]["value"]
+        if abs(sf) > MAX_SCALE_ERROR:
+            return (f"a scale-factor error of {100 * sf:+.0f} % on '{self.target}' is beyond any "
+                    f"calibration error (limit ±{100 * MAX_SCALE_ERROR:.0f} %): it stands in for an effect "
+                    f"the model lacks")
+        return ""
+
+
+def bias(output: str) -> Bias:
+    return Bias(output)
+
+
+def drift(output: str) -> Drift:
+    return Drift(output)
+
+
+def scale(output: str) -> Scale:
+    return Scale(output)
 
 
 class Nonlinear(Candidate):
-    """A library term of measured channels (``a_absa`` = a|a|, ``a_sq`` = a^2, ``a_x_b`` = a b)
-    as a pseudo-input with a B entry in ``equation``: target ``<equation>:<term>``."""
+    """A term of measured channels (``a_absa`` = a|a|, ``a_sq`` = a^2, ``a_x_b`` = a b) as a
+    pseudo-input with a B entry in ``equation``: target ``<equation>:<term>``; ``why`` the physical
+    reason that ties the term to the equation (stated in the report)."""
 
-    def __init__(self, equation: str, term: str, factors: tuple[str, ...], op: str):
-        super().__init__("nonlinear", f"{equation}:{term}", [f"{equation}_{term}"], spec={"term": term, "op": op})
-        self.equation, self.term, self.factors = equation, term, factors
+    kind = "nonlinear"
+    complexity = 1
 
-    def channel(self, run: Run) -> np.ndarray:
-        a = run[self.factors[0]]
+    def __init__(self, equation: str, term: str, factors: tuple[str, ...], op: str, why: str = ""):
+        super().__init__(f"{equation}:{term}", [f"{equation}_{term}"], spec={"term": term, "op": op, "why": why})
+        self.equation, self.term, self.factors = equation, term, tuple(factors)
+
+    @classmethod
+    def propose(cls, p, context):
+        """Terms with a physical reason, in every dynamic equation: the equation's own state x as
+        x|x| (quadratic damping) and x^2 (an asymmetry), each declared control input u as u|u| and
+        u^2 (a nonlinear control effectiveness) and (``context.products``) x u (a control
+        effectiveness that varies with the equation's own state). Terms of other states
+        (alpha|alpha| in the speed equation, q theta in X) have no such story there: not tried."""
+        measured = set(_measured_states(p, context.runs))
+        controls = [u for u in _controls(p) if all(u in r.channels for r in context.runs)]
+        out = []
+        for i in _dynamic_rows(p):
+            x = p.state_names[i]
+            eq = p.equation(x)
+            terms = []
+            if x in measured:
+                terms += [(f"{x}_abs{x}", (x,), "absq", f"quadratic damping: {eq} in {x}|{x}|, its own state"),
+                          (f"{x}_sq", (x,), "sq", f"asymmetry of {eq} in its own state {x}")]
+            for u in controls:
+                terms += [(f"{u}_abs{u}", (u,), "absq", f"control effectiveness of the declared input {u} nonlinear"),
+                          (f"{u}_sq", (u,), "sq", f"control effectiveness of the declared input {u} asymmetric")]
+                if context.products and x in measured:
+                    terms.append((f"{x}_x_{u}", (x, u), "prod",
+                                  f"effectiveness of the declared input {u} varies with {x}, the equation's own state"))
+            for term, factors, op, why in terms:
+                if term in p.inputs or f"{eq}_{term}" in p.parameters:
+                    continue
+                c = cls(eq, term, factors, op, why)
+                try:
+                    c.profile(p)
+                except ProfileError:
+                    continue  # the name would be ambiguous with an existing entry
+                out.append(c)
+        return out
+
+    def pseudo(self):
+        a = self.factors[0]
         if self.spec["op"] == "absq":
-            return a * np.abs(a)
+            return {self.term: pi.product([a, a], [False, True])}
         if self.spec["op"] == "sq":
-            return a * a
-        return a * run[self.factors[1]]
+            return {self.term: pi.product([a, a])}
+        return {self.term: pi.product(self.factors)}
 
     def profile(self, p, values=None):
-        inputs = {} if self.term in p.inputs else {self.term: "nonlinear"}
-        p2 = _add(p, inputs=inputs)
+        pseudo = {} if self.term in p.inputs else self.pseudo()
+        p2 = _add(p, inputs={k: "nonlinear" for k in pseudo}, pseudo=pseudo)
         p2.parse_entry(self.params[0])  # unambiguous or ProfileError
         return _add(p2, free={self.params[0]: _values(self, values)[self.params[0]]})
-
-    def runs(self, runs):
-        return [r if self.term in r.channels else r.with_channels({self.term: self.channel(r)}) for r in runs]
 
 
 class Periodic(Candidate):
@@ -233,156 +489,60 @@ class Periodic(Candidate):
     in run r (a disturbance's phase differs from run to run; the relative phase of the outputs
     does not), with coefficients ``a_cos_<y>`` (the amplitude) and ``a_sin_<y>``."""
 
+    kind = "periodic"
+
     def __init__(self, output: str, frequency: float, n_tests: int = 1, n_runs: int = 1):
         # the phase is taken from each run's data: under the null the statistic has two degrees of
         # freedom per run (amplitude and phase), not two in all
-        super().__init__("periodic", output, [f"a_cos_{output}", f"a_sin_{output}"], n_tests=n_tests,
+        super().__init__(output, [f"a_cos_{output}", f"a_sin_{output}"], n_tests=n_tests,
                          spec={"frequency": float(frequency)}, null_dof=2 * n_runs)
+
+    @classmethod
+    def propose(cls, p, context):
+        """One per output not yet holding one: at the first known frequency, else at the residual
+        spectrum's most prominent line above ``f_min`` (counted as one test per frequency bin,
+        twice for the sub-bin search)."""
+        done = set(dict(p.meta.get("periodic", {})))
+        n_runs = len(context.runs)
+        n_bins = int(np.sum(np.fft.rfftfreq(min(len(e) for e in context.residuals), context.dt) > context.f_min))
+        out = []
+        for j, y in enumerate(p.outputs):
+            if y in done:
+                continue
+            if context.frequencies:
+                out.append(cls(y, context.frequencies[0], n_runs=n_runs))
+                continue
+            f = line_frequency([e[:, j] for e in context.residuals], context.dt, context.f_min)
+            if np.isfinite(f):
+                out.append(cls(y, f, n_tests=2 * max(n_bins, 1), n_runs=n_runs))
+        return out
+
+    def pseudo(self):
+        y, f = self.target, self.spec["frequency"]
+        return {f"cos_{y}": pi.sinusoid(y, f), f"sin_{y}": pi.sinusoid(y, f, quadrature=True)}
 
     def profile(self, p, values=None):
         v = _values(self, values)
         y = self.target
-        inputs = {f"{w}_{y}": "1" for w in ("cos", "sin")}
-        return _add(p, inputs=inputs, free={k: v[k] for k in self.params},
+        pseudo = self.pseudo()
+        return _add(p, inputs={k: "1" for k in pseudo}, pseudo=pseudo, free={k: v[k] for k in self.params},
                     ties={f"a_{w}_{y}": {f"{y}:{w}_{y}": 1.0} for w in ("cos", "sin")},
                     meta={"periodic": {**dict(p.meta.get("periodic", {})), y: self.spec["frequency"]}})
 
-    def runs(self, runs):
-        return [periodic_channels(r, self.target, self.spec["frequency"]) for r in runs]
+
+# the catalogue: kind -> class (a lag is proposed through Delay: they share one score test)
+KIND_CLASSES = {"derivative": Derivative, "delay": Delay, "lag": Lag, "bias": Bias, "drift": Drift,
+                "scale": Scale, "nonlinear": Nonlinear, "periodic": Periodic}
+KINDS = tuple(KIND_CLASSES)
 
 
-def periodic_channels(run: Run, output: str, frequency: float) -> Run:
-    """Add ``cos_<y>``, ``sin_<y>`` to a run, phased on the measured output at ``frequency``."""
-    z = run[output]
-    t = run.time - run.time[0]
-    X = np.column_stack([np.ones_like(t), t])
-    z = z - X @ np.linalg.lstsq(X, z, rcond=None)[0]
-    w = 2 * np.pi * frequency
-    phase = float(np.angle(np.sum(z * np.exp(-1j * w * t))))
-    return run.with_channels({f"cos_{output}": np.cos(w * t + phase), f"sin_{output}": np.sin(w * t + phase)})
+def catalogue(p: Profile, context: Context, kinds=KINDS) -> list[Candidate]:
+    """Every candidate of ``kinds`` the profile does not already hold."""
+    classes = list(dict.fromkeys(Delay if KIND_CLASSES[k] is Lag else KIND_CLASSES[k] for k in kinds))
+    context = replace(context, kinds=tuple(kinds))
+    return [c for cls in classes for c in cls.propose(p, context)]
 
 
-def apply_periodic(profile: Profile, runs: list[Run]) -> list[Run]:
-    """Add the periodic pseudo-inputs recorded in ``profile.meta['periodic']`` to runs."""
-    for y, f in dict(profile.meta.get("periodic", {})).items():
-        runs = [periodic_channels(r, y, float(f)) for r in runs]
-    return runs
-
-
-def prepare_runs(profile: Profile, runs: list[Run]) -> list[Run]:
-    """Everything a refined profile needs from raw runs: delays, pseudo-inputs ``one``, ``t``,
-    nonlinear library terms and periodic channels, by the names the profile declares."""
-    runs = apply_periodic(profile, apply_delays(profile, runs))
-    out = []
-    for r in runs:
-        extra = {}
-        for name in profile.inputs:
-            if name in r.channels:
-                continue
-            if name == "one":
-                extra[name] = np.ones(len(r))
-            elif name == "t":
-                extra[name] = r.time - r.time[0]
-            else:
-                term = _parse_library_term(name, r)
-                if term is not None:
-                    extra[name] = term
-        out.append(r.with_channels(extra) if extra else r)
-    return out
-
-
-def _parse_library_term(name: str, run: Run):
-    """The channel of a nonlinear library pseudo-input named as :class:`Nonlinear` names it."""
-    if name.endswith("_sq") and name[:-3] in run.channels:
-        return run[name[:-3]] ** 2
-    if "_abs" in name:
-        a, _, b = name.partition("_abs")
-        if a == b and a in run.channels:
-            return run[a] * np.abs(run[a])
-    if "_x_" in name:
-        a, _, b = name.partition("_x_")
-        if a in run.channels and b in run.channels:
-            return run[a] * run[b]
-    return None
-
-
-# -- the catalogue ------------------------------------------------------------------------------
-def _measured_states(p: Profile, runs: list[Run]) -> list[str]:
-    return [s for s in p.states if s in p.outputs and p.output_terms(s) == {s: 1.0}
-            and all(s in r.channels for r in runs)]
-
-
-def _base_inputs(p: Profile) -> list[str]:
-    pseudo = set(p.meta.get("pseudo_inputs", []))
-    return [u for u in p.inputs if u not in pseudo]
-
-
-def catalogue(p: Profile, runs: list[Run], kinds=KINDS, nonlinear_products: bool = True) -> list[Candidate]:
-    """Every candidate of ``kinds`` the profile does not already hold (periodic candidates come
-    from the residual spectrum, see :func:`identify.refine.Refine`)."""
-    kinds = set(kinds)
-    out: list[Candidate] = []
-    taken = {(e.matrix, e.row, e.col) for name in p.parameters for e, _ in p.parameter_entries(name)}
-    lag_states = {s for s in p.states if s.endswith("_lag") and s[:-4] in p.inputs}
-    dynamic = [s for s in p.states if s not in lag_states]
-    base_inputs = _base_inputs(p)
-    if "derivative" in kinds:
-        for i, s in enumerate(p.state_names):
-            if s in lag_states:
-                continue
-            for j, s2 in enumerate(p.state_names):
-                if ("A", i, j) not in taken and s2 in dynamic:
-                    out.append(Derivative(p.entry_name("A", i, j)))
-            for j, u in enumerate(p.input_names):
-                if ("B", i, j) not in taken and u in base_inputs and not _lagged(p, u):
-                    out.append(Derivative(p.entry_name("B", i, j)))
-    delays = dict(p.meta.get("delays", {}))
-    for u in base_inputs:
-        if u in delays or _lagged(p, u):
-            continue
-        if "delay" in kinds or "lag" in kinds:
-            out.append(Delay(u))
-    for y in p.outputs:
-        if "bias" in kinds and f"bias_{y}" not in p.parameters:
-            out.append(bias(y))
-        if "drift" in kinds and f"drift_{y}" not in p.parameters:
-            out.append(drift(y))
-        if "scale" in kinds and f"sf_{y}" not in p.parameters and y in p.states \
-                and p.output_terms(y) == {y: 1.0}:
-            out.append(scale(y))
-    if "nonlinear" in kinds:
-        out += nonlinear_library(p, runs, products=nonlinear_products)
-    return out
-
-
-def _lagged(p: Profile, u: str) -> bool:
-    return f"{u}_lag" in p.states
-
-
-def nonlinear_library(p: Profile, runs: list[Run], products: bool = True) -> list[Nonlinear]:
-    """x|x| and x^2 of every measured state and every input, and (``products``) pairwise products,
-    each tried in every equation that has a free parameter (the dynamic equations)."""
-    channels = _measured_states(p, runs) + [u for u in _base_inputs(p) if all(u in r.channels for r in runs)]
-    terms = [(f"{a}_abs{a}", (a,), "absq") for a in channels] + [(f"{a}_sq", (a,), "sq") for a in channels]
-    if products:
-        terms += [(f"{a}_x_{b}", (a, b), "prod") for a, b in combinations(channels, 2)]
-    free_rows = {e.row for name in p.free for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
-    equations = [p.equation(p.state_names[i]) for i in sorted(free_rows)
-                 if not p.state_names[i].endswith("_lag")]
-    out = []
-    for eq in equations:
-        for term, factors, op in terms:
-            if term in p.inputs or f"{eq}_{term}" in p.parameters:
-                continue
-            c = Nonlinear(eq, term, factors, op)
-            try:
-                c.profile(p)
-            except ProfileError:
-                continue  # the name would be ambiguous with an existing entry
-            out.append(c)
-    return out
-
-
-__all__ = ["KINDS", "Candidate", "Derivative", "Delay", "Lag", "OutputTerm", "Nonlinear", "Periodic",
-           "bias", "drift", "scale", "catalogue", "nonlinear_library", "delay_run", "apply_delays",
-           "periodic_channels", "apply_periodic", "prepare_runs"]
+__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Derivative", "Delay", "Lag", "OutputTerm", "Bias",
+           "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
+           "prepare_runs", "extend_all"]

@@ -4,7 +4,10 @@
 std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``error_before``,
 ``error_after``), the ``rejected`` candidates with the reason, top-level ``error_before`` /
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
-``diagnostics`` before and after, and ``final_profile`` (the refined model as profile TOML text).
+``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
+the declared model's fit and of the refined model against the fit runs' frequency responses, per
+input-output pair and the mean: :func:`identify.frequency.cost_report`) and ``final_profile`` (the
+refined model as profile TOML text).
 """
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..estimators.result import _jsonable
+from ..frequency import cost_report, format_cost
 from .diagnostics import spectral_peak
 from .loop import Refine
 
@@ -25,7 +29,13 @@ def to_dict(r: Refine) -> dict:
         "method": r.method if r.estimator is None else getattr(r.estimator, "__name__", str(r.estimator)),
         "runs": [run.source for run in r._raw],
         "validation_runs": [run.source for run in r._val],
+        "data": r.data_,
         "alpha": r.alpha,
+        "coloured_tests": r.coloured,
+        "noise_model_orders": r.noise_orders_,
+        "noise_model_white": r.noise_white_,
+        "tries": r.tries_,
+        "evaluations": r.evaluations_,
         "catalogue": list(r.kinds),
         "segment_s": r.segment_ if np.isfinite(r.segment_) else None,
         "nothing_found": r.nothing_found,
@@ -35,13 +45,26 @@ def to_dict(r: Refine) -> dict:
         "error_before": r.error_before_,
         "error_after": r.error_after_,
         "diagnostics": r.diagnostics_,
+        "frequency_cost_J": cost_report(r._raw, {"before": r.initial_result_.model, "after": r.result_.model})[1],
         "last_scores": [{"effect": t["candidate"].kind, "target": t["candidate"].target,
-                         "statistic": t["statistic"], "threshold": t["threshold"], "dof": t["dof"]}
+                         "statistic": t["statistic"], "threshold": t["threshold"], "dof": t["dof"],
+                         "metric": t["metric"]}
                         for t in sorted(r.last_scores_, key=lambda t: t["log_p"])[:10]],
+        "poorly_identified": _poorly_identified(r),
         "final_parameters": {n: {"value": float(v), "std": float(s)}
                              for n, v, s in zip(r.result_.names, r.result_.theta, r.result_.std)},
         "final_profile": r.profile_.to_toml(),
     })
+
+
+def _poorly_identified(r: Refine) -> list[dict]:
+    """Parameters of the final model whose standard error exceeds half their value (or that no
+    input excites: std inf), as the final result gives them."""
+    out = []
+    for n, v, s in zip(r.result_.names, r.result_.theta, r.result_.std):
+        if not np.isfinite(s) or (v != 0 and s > 0.5 * abs(v)):
+            out.append({"name": n, "value": float(v), "std": float(s)})
+    return out
 
 
 def write(r: Refine, outdir: str | Path, plots: bool = True) -> Path:
@@ -72,45 +95,57 @@ def _error_table(before: dict, after: dict, outputs) -> list[str]:
     return rows
 
 
+def _names(runs: list[str]) -> str:
+    return ", ".join(runs) or "none"
+
+
 def markdown(r: Refine, data: dict, figures: list[str]) -> str:
-    """The human report: verdict, errors before/after, each step's evidence, diagnostics, plots."""
+    """The human report: verdict, data roles, errors before/after, each try's evidence,
+    diagnostics, plots."""
     outputs = list(r.profile.outputs)
+    d = data["data"]
     lines = [f"# Model refinement: {r.profile.name}", ""]
-    lines.append(f"Runs fitted: {', '.join(data['runs'])}; validation runs: "
-                 f"{', '.join(data['validation_runs']) or 'none'}. Method: {data['method']}. Candidates tested: "
-                 f"{', '.join(r.kinds)}; family-wise false-alarm level alpha = {r.alpha} per iteration "
-                 f"(Šidák over all candidates tested).")
-    lines.append("")
+    orders = ", ".join(f"{o}" + ("" if w else " (its limit: innovations still not white)")
+                       for o, w in zip(r.noise_orders_, r.noise_white_))
+    lines += ["## Data and tests", "",
+              f"- **fit** (estimation, score and likelihood-ratio tests): {_names(d['fit'])}",
+              f"- **choosing** (every try's held-out check, the choice between a delay and a lag): "
+              f"{_names(d['choosing'])}",
+              f"- **judging** (only confirms a candidate the rest has chosen, once; the `validation` "
+              f"errors below): {_names(d['validation'])}",
+              f"- method {data['method']}; candidates of {', '.join(r.kinds)}; family-wise false-alarm "
+              f"level alpha = {r.alpha} per step (Šidák over all candidates tested)",
+              "- tests " + ("valid for coloured residuals: score and likelihood-ratio statistics in the metric "
+                            "of a vector autoregressive noise model of the residuals (orders per step: "
+                            f"{orders or '-'})" if r.coloured else
+                            "for white residuals (`coloured=False`)"),
+              f"- {r.tries_} candidate(s) tried: {len(r.steps_)} accepted, {len(r.rejected_)} rejected; "
+              f"stopped: {r.stopped_}", ""]
     if r.nothing_found:
-        lines.append("**Nothing found**: no candidate effect is significant; the residuals are consistent "
-                     "with measurement noise at this level. `steps` is empty.")
+        lines.append("**Nothing found**: no candidate effect is significant and confirmed; the residuals are "
+                     "consistent with the noise model at this level. `steps` is empty.")
     else:
         lines.append(f"**{len(r.steps_)} effect(s) added**: " + "; ".join(
             f"{s.effect} on {s.target}" for s in r.steps_) + ".")
-    lines.append(f"Stopped: {r.stopped_}.")
+    poor = data["poorly_identified"]
+    if poor:
+        lines += ["", "**Poorly identified** in the final model (standard error above half the value): " +
+                  ", ".join(f"`{p['name']}` = {p['value']:.4g} ± {p['std']:.2g}" for p in poor) +
+                  ". An input that excites them: `python -m signaldesign band` / `design`."]
     lines += ["", "## Error before and after", "",
-              "RMS error per output; `overall` is the RMS over outputs of RMS / std of the measured output.", ""]
+              "RMS error per output; `overall` is the RMS over outputs of RMS / std of the measured output; "
+              "validation = the judging data.", ""]
     lines += _error_table(r.error_before_, r.error_after_, outputs)
+    cost = data["frequency_cost_J"]
+    lines += ["", "Frequency-domain fit cost J on the fit runs, before (the declared model's fit) and after:", "",
+              "```", cost["not_computed"] if "not_computed" in cost else
+              "\n".join(format_cost(c, f"model {label} refinement") for label, c in cost.items()), "```"]
     for i, s in enumerate(r.steps_, start=1):
-        lines += ["", f"## Step {i}: {s.effect} on {s.target}", ""]
-        lines.append(f"- score statistic {s.statistic:.4g} > threshold {s.threshold:.4g} "
-                     f"(chi-square, {s.dof} dof, p = {s.p_value:.3g}, {s.tested} candidates tested)")
-        lines.append(f"- likelihood-ratio of the re-fit {s.lr_statistic:.4g}")
-        for name, v in s.parameters.items():
-            lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g} (Cramér-Rao)")
-        lines.append(f"- error before: fit {_fmt_err(s.error_before['fit'])}")
-        lines.append(f"- error after: fit {_fmt_err(s.error_after['fit'])}")
-        if "validation" in s.error_before:
-            lines.append(f"- validation before {s.error_before['validation']['overall']:.4g}, after "
-                         f"{s.error_after['validation']['overall']:.4g} (overall)")
-        if s.runner_up:
-            lines.append("- next candidates: " + ", ".join(
-                f"{c['effect']} on {c['target']} ({c['statistic']:.3g} / {c['threshold']:.3g})"
-                for c in s.runner_up))
+        lines += ["", f"## Step {i}: {s.effect} on {s.target}", ""] + _evidence(s)
     if r.rejected_:
         lines += ["", "## Rejected candidates", ""]
-        lines += [f"- {s.effect} on {s.target}: score {s.statistic:.4g} > {s.threshold:.4g}, but {s.reason}"
-                  for s in r.rejected_]
+        for s in r.rejected_:
+            lines += [f"### {s.effect} on {s.target}: {s.reason}", ""] + _evidence(s) + [""]
     lines += ["", "## Residual diagnostics", "",
               "| output | Ljung-Box p before | after | trend t before | after | peak Hz / p before | after |",
               "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
@@ -125,6 +160,32 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
     lines += ["", "## Final model", "", "Written to `final_profile.toml`:", "", "```toml",
               r.profile_.to_toml().rstrip(), "```", ""]
     return "\n".join(lines)
+
+
+def _evidence(s) -> list[str]:
+    """One try's evidence as Markdown list items."""
+    lines = [f"- score statistic {s.statistic:.4g} > threshold {s.threshold:.4g} "
+             f"(chi-square, {s.dof} dof, p = {s.p_value:.3g}, {s.tested} candidates tested; noise model: "
+             f"{'of the residuals' if s.metric == 'residual' else 'of the residuals without this candidate'}, "
+             f"order {s.noise_order})"]
+    if s.why:
+        lines.append(f"- physical reason: {s.why}")
+    lines.append(f"- likelihood ratio of the re-fit {s.lr_statistic:.4g}; Wald statistic of the estimate "
+                 f"(coloured-residual bounds) {s.wald:.4g}")
+    for name, v in s.parameters.items():
+        lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g}")
+    for data, (b, a) in s.held_out.items():
+        lines.append(f"- prediction error on the {'judging' if data == 'validation' else 'choosing'} data "
+                     f"(noise-model cost) {b:.6g} -> {a:.6g}")
+    lines.append(f"- error before: fit {_fmt_err(s.error_before['fit'])}")
+    lines.append(f"- error after: fit {_fmt_err(s.error_after['fit'])}")
+    if "validation" in s.error_before:
+        lines.append(f"- judging data RMS (overall) before {s.error_before['validation']['overall']:.4g}, after "
+                     f"{s.error_after['validation']['overall']:.4g}")
+    if s.runner_up:
+        lines.append("- next candidates: " + ", ".join(
+            f"{c['effect']} on {c['target']} ({c['statistic']:.3g} / {c['threshold']:.3g})" for c in s.runner_up))
+    return lines
 
 
 def _plots(r: Refine, outdir: Path) -> list[str]:

@@ -2,8 +2,8 @@
 import numpy as np
 
 from identify import LinearModel, parse_profile, simulate, simulate_run
-from identify.refine.candidates import (Delay, Derivative, Lag, Nonlinear, Periodic, bias, catalogue, delay_run, drift,
-                                 prepare_runs, scale)
+from identify.refine.candidates import (Context, Delay, Derivative, Lag, Nonlinear, Periodic, bias, catalogue,
+                                        delay_run, drift, prepare_runs, scale)
 from identify.refine.diagnostics import dominant_frequency
 from tests.identify.refine.test_refine import PROFILE, excitation
 
@@ -83,11 +83,20 @@ def test_prepare_runs_rebuilds_pseudo_inputs_of_a_refined_profile():
 
 def test_catalogue_lists_every_structurally_zero_entry_once():
     run = _run()
-    cands = catalogue(PROFILE, [run], kinds=("derivative",))
+    ctx = Context([run], [np.zeros((len(run), 3))], DT)
+    cands = catalogue(PROFILE, ctx, kinds=("derivative",))
     names = sorted(c.target for c in cands)
-    # A: 9 entries minus X_u, X_theta, M_q, M_theta, theta_q; B: 3 minus M_eta
-    assert names == sorted(["X_q", "M_u", "theta_u", "theta_theta", "X_eta", "theta_eta"])
-    kinds = {c.kind for c in catalogue(PROFILE, [run])}
-    assert kinds == {"derivative", "delay", "bias", "drift", "scale", "nonlinear"}
+    # the dynamic equations X and M only (theta_dot = q is kinematics, all fixed): A: X_q, M_u; B: X_eta
+    assert names == sorted(["X_q", "M_u", "X_eta"])
+    kinds = {c.kind for c in catalogue(PROFILE, ctx)}
+    assert kinds == {"derivative", "delay", "bias", "drift", "scale", "nonlinear", "periodic"}
     p = Derivative("M_u").profile(PROFILE)
-    assert "M_u" not in [c.target for c in catalogue(p, [run], kinds=("derivative",))]
+    assert "M_u" not in [c.target for c in catalogue(p, ctx, kinds=("derivative",))]
+
+
+def test_a_scale_factor_beyond_any_calibration_error_is_implausible():
+    sf = scale("q")
+    assert sf.implausible({"sf_q": {"value": 0.15, "std": 0.02}}) == ""
+    reason = sf.implausible({"sf_q": {"value": -0.5, "std": 0.007}})
+    assert "-50 %" in reason and "'q'" in reason
+    assert Derivative("M_u").implausible({"M_u": {"value": 40.0, "std": 1.0}}) == ""

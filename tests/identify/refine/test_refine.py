@@ -8,8 +8,10 @@ be within 3 Cramér-Rao standard errors of the truth, and the validation error m
 import numpy as np
 import pytest
 
-from identify import EstimationError, LinearModel, discretize, parse_profile, simulate_run
-from identify.refine.candidates import Lag, delay_run
+from scipy import signal
+
+from identify import EstimationError, LinearModel, Run, discretize, parse_profile, simulate_run
+from identify.refine.candidates import Lag
 from identify.refine import Refine
 
 TOML = """
@@ -39,34 +41,64 @@ def excitation(seed: int) -> np.ndarray:
     return u[:, None]
 
 
-def make_runs(truth_profile=PROFILE, transform=None, noise=0.01, seeds=FIT_SEEDS + (VAL_SEED,)):
-    """Runs simulated from ``truth_profile``; ``transform(run, seed)`` adds the effect."""
+# turbulence: a white disturbance on the force and moment equations (per-sample std, m/s^2 and
+# rad/s^2) that the aircraft's own dynamics colour; about 15 % of q's response to the input
+TURBULENCE = np.array([0.05, 0.1, 0.0])
+
+
+def coloured_noise(run, seed: int, fraction: float = 0.02, pole: float = 0.8):
+    """``run`` with measurement noise of ``fraction`` of each output's std through a first-order
+    low-pass filter (AR(1) pole ``pole`` per sample): a filtered sensor, not white noise."""
+    rng = np.random.default_rng(10_000 + seed)
+    out = {}
+    for y in PROFILE.outputs:
+        w = signal.lfilter([np.sqrt(1 - pole ** 2)], [1.0, -pole], rng.standard_normal(len(run)))
+        out[y] = run[y] + fraction * np.std(run[y]) * w
+    return run.with_channels(out)
+
+
+def make_runs(truth_profile=PROFILE, transform=None, noise=0.01, seeds=FIT_SEEDS + (VAL_SEED,),
+              turbulence=None, delay_samples: int = 0):
+    """Runs simulated from ``truth_profile``; ``transform(run, seed)`` adds the effect;
+    ``turbulence``: process noise (TURBULENCE) and coloured measurement noise added to the white
+    ``noise``; ``delay_samples``: the aircraft sees the recorded input that many samples late."""
     model = LinearModel(truth_profile)
     t = np.arange(N) * DT
+    w = np.zeros(model.n_states)  # states the truth adds (a lag) get no disturbance of their own
+    if turbulence is not None:
+        w[:len(turbulence)] = turbulence
     runs = []
     for s in seeds:
-        run = simulate_run(model, t, excitation(s), noise_fraction=noise, seed=s)
+        u = excitation(s)
+        late = np.concatenate([np.zeros((delay_samples, 1)), u[:N - delay_samples]])
+        run = simulate_run(model, t, late, noise_fraction=noise, seed=s,
+                           process_noise=w)
+        run = run.with_channels({"eta": u[:, 0]})
+        if turbulence is not None:
+            run = coloured_noise(run, s)
         runs.append(transform(run, s) if transform else run)
     return runs[:-1], runs[-1:]
 
 
-def nonlinear_runs(coef: float, noise=0.01):
+def nonlinear_runs(coef: float, noise=0.01, turbulence=None):
     """Truth with M += coef * q|q|, simulated with the nonlinear term held over each sample."""
     model = LinearModel(PROFILE)
-    B = np.hstack([model.B, np.array([[0.0], [1.0], [0.0]])])
+    B = np.hstack([model.B, np.array([[0.0], [1.0], [0.0]]), np.eye(3)])
     Phi, Gamma = discretize(model.A, B, DT)
     runs = []
     for s in FIT_SEEDS + (VAL_SEED,):
         u = excitation(s)
         x = np.zeros((N, 3))
+        w = np.zeros((N, 3)) if turbulence is None else \
+            np.random.default_rng(5000 + s).standard_normal((N, 3)) * turbulence
         for k in range(N - 1):
-            x[k + 1] = Phi @ x[k] + Gamma @ np.array([u[k, 0], coef * x[k, 1] * abs(x[k, 1])])
+            x[k + 1] = Phi @ x[k] + Gamma @ np.r_[u[k, 0], coef * x[k, 1] * abs(x[k, 1]), w[k]]
         rng = np.random.default_rng(s)
         ch = {"eta": u[:, 0]}
         for j, y in enumerate(("u", "q", "theta")):
             ch[y] = x[:, j] + noise * np.std(x[:, j]) * rng.standard_normal(N)
-        from identify import Run
-        runs.append(Run(np.arange(N) * DT, ch, source=f"<nonlinear truth {s}>"))
+        run = Run(np.arange(N) * DT, ch, source=f"<nonlinear truth {s}>")
+        runs.append(run if turbulence is None else coloured_noise(run, s))
     return runs[:2], runs[2:]
 
 
@@ -95,25 +127,9 @@ def test_missing_derivative_found():
 
 
 def test_input_delay_found_and_estimated():
-    tau = 0.1
-
-    def delayed(run, s):  # the aircraft saw eta 0.1 s late; the recorded eta is the pilot's
-        late = delay_run(run, "eta", -tau)
-        return run.with_channels({"eta": late["eta"]})
-
-    fit, val = make_runs(PROFILE, None)
-    # simulate the truth from the delayed input, record the undelayed one
-    model = LinearModel(PROFILE)
-    t = np.arange(N) * DT
-
-    def sim(s):
-        u = excitation(s)
-        u_late = np.concatenate([np.zeros((5, 1)), u[:-5]])
-        run = simulate_run(model, t, u_late, noise_fraction=0.01, seed=s)
-        return run.with_channels({"eta": u[:, 0]})
-    fit, val = [sim(s) for s in FIT_SEEDS], [sim(VAL_SEED)]
-    r = refine(fit, val, kinds=("derivative", "delay", "lag", "drift"))
-    check_first_step(r, "delay", "eta", "tau_eta", tau)
+    """The aircraft saw eta 0.1 s late; the recorded eta is the pilot's."""
+    r = refine(*make_runs(delay_samples=5), kinds=("derivative", "delay", "lag", "drift"))
+    check_first_step(r, "delay", "eta", "tau_eta", 0.1)
 
 
 def test_first_order_lag_found_and_estimated():
@@ -214,7 +230,7 @@ def test_effect_not_reducing_validation_error_is_rejected():
     r = refine(*make_runs(transform=drifting), kinds=("drift", "scale"))
     assert r.nothing_found
     assert [(s.effect, s.target) for s in r.rejected_][:1] == [("drift", "theta")]
-    assert "validation error not reduced" in r.rejected_[0].reason
+    assert "prediction error on the choosing data" in r.rejected_[0].reason, r.rejected_[0].reason
 
 
 def test_cli_refine_writes_json_report_and_profile(tmp_path):
@@ -239,6 +255,12 @@ def test_cli_refine_writes_json_report_and_profile(tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     assert "derivative on M_u" in report and "residuals.png" in report
     assert "## Final identification" in report and "| `M_u` |" in report  # the result's Markdown summary
+    # issue 13: the frequency-domain fit cost J before and after, every pair judged; both models fit
+    # (J well below 100: M_u acts at the phugoid, below the band where J is judged)
+    J = data["frequency_cost_J"]
+    assert set(J["before"]["pairs"]) == set(J["after"]["pairs"]) == {"u/eta", "q/eta", "theta/eta"}
+    assert all(0 < j < 100 for side in J.values() for j in side["pairs"].values())
+    assert "fit cost J of the model before refinement" in report and "model after refinement" in report
     assert (tmp_path / "out" / "residuals.png").stat().st_size > 1000
 
 
@@ -311,7 +333,114 @@ def test_cli_refine_reads_mat_runs_through_the_same_door_as_estimate(tmp_path, c
                  "--channel-map", cmap, "--kinds", "drift", "--max-steps", "1", "--out", str(tmp_path / "out")]) == 0
     data = json.loads((tmp_path / "out" / "refine.json").read_text())
     assert data["error_before"]["validation"]["overall"] > 0
+    assert "refine [" in capsys.readouterr().err  # progress on stderr
     (tmp_path / "bad.mat").write_text("not a mat file")
     assert main(["refine", "--profile", str(prof), str(tmp_path / "bad.mat"), "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.mat" in err[0] and "MATLAB" in err[0]
+
+
+# -- coloured residuals (issue 10) -------------------------------------------------------------------
+def test_no_false_alarm_under_turbulence_where_white_tests_fire():
+    """Matched model, turbulence and a filtered sensor, the full catalogue, 2 fit runs and a
+    validation run: nothing is added. The white-noise score test on the same data is significant
+    in almost every realisation (benchmarks/refine_coloured.py runs 40 and prints both rates)."""
+    added, white_fired = 0, 0
+    for i in range(5):
+        fit, val = make_runs(seeds=(100 + 3 * i, 101 + 3 * i, 102 + 3 * i), turbulence=TURBULENCE)
+        added += not Refine(PROFILE).fit(fit, validate=val).nothing_found
+        white = Refine(PROFILE, coloured=False, max_steps=1).fit(fit)
+        white_fired += bool(white.steps_ or white.rejected_)
+    assert added == 0
+    assert white_fired >= 4
+
+
+@pytest.mark.parametrize("case", ["delay", "periodic"])
+def test_effects_found_under_turbulence(case):
+    if case == "delay":
+        r = refine(*make_runs(delay_samples=5, turbulence=TURBULENCE), kinds=("derivative", "delay", "lag", "drift"))
+        check_first_step(r, "delay", "eta", "tau_eta", 0.1, halve=False)
+    else:
+        def vibrating(run, s):
+            phase = np.random.default_rng(100 + s).uniform(0, 2 * np.pi)
+            return run.with_channels({"q": run["q"] + 0.01 * np.cos(2 * np.pi * 4.0 * run.time + phase)})
+        r = refine(*make_runs(transform=vibrating, turbulence=TURBULENCE), kinds=("periodic", "drift", "derivative"))
+        check_first_step(r, "periodic", "q", "a_cos_q", 0.01, halve=False)
+    assert r.error_after_["validation"]["overall"] < r.error_before_["validation"]["overall"]
+
+
+def test_each_model_is_evaluated_once_per_data_set(monkeypatch):
+    """The loop asks for the same (model, data) pair many times (errors, likelihoods, held-out
+    checks, diagnostics); the model is simulated once."""
+    import identify.refine.loop as loop
+
+    seen = []
+    real = loop.predict  # a model on a data set (the jacobian of the score test goes to evaluate)
+
+    def counting(p, runs, *args, **kw):
+        seen.append((p.to_toml(), tuple(r.source for r in runs), len(runs[0])))
+        return real(p, runs, *args, **kw)
+
+    monkeypatch.setattr(loop, "predict", counting)
+    truth = parse_profile(TOML.replace("M_eta = 5.0", "M_eta = 5.0\nM_u = 0.05"))
+    r = refine(*make_runs(truth), kinds=("derivative", "drift"))
+    assert r.steps_ and len(seen) == r.evaluations_ - len(r.noise_orders_)
+    assert len(seen) == len(set(seen)), "a model simulated twice on the same data"
+
+
+def test_validation_split_into_choosing_and_judging_data():
+    fit, val = make_runs()
+    r = Refine(PROFILE, kinds=("drift",)).fit(fit, validate=val)
+    assert r.data_["choosing"] == [f"{val[0].source} [first half]"]
+    assert r.data_["validation"] == [f"{val[0].source} [second half]"]
+    two = make_runs(seeds=(1, 2, 9, 10))[1] + make_runs(seeds=(11, 12))[1]
+    assert Refine(PROFILE, kinds=("drift",)).fit(fit, validate=two).data_["choosing"] == [two[0].source]
+
+
+def test_nonlinear_library_has_physical_reasons_only():
+    from identify.refine.candidates import Context, catalogue
+
+    run = make_runs()[0][0]
+    terms = {c.target: c.spec["why"] for c in catalogue(PROFILE, Context([run], [np.zeros((N, 3))], DT),
+                                                        kinds=("nonlinear",))}
+    assert "M:q_absq" in terms and "own state" in terms["M:q_absq"]
+    assert "X:u_x_eta" in terms and "M:eta_abseta" in terms
+    assert not any(k in terms for k in ("X:q_absq", "M:u_absu", "X:q_x_theta", "M:u_x_q", "theta:q_sq"))
+
+
+def trimmed_turbulent_runs(seeds, trim: float = 0.05, strength: float = 4.0):
+    """The linear pitch truth flown about a trimmed elevator (``trim`` rad added to the steps), in
+    ``strength`` times TURBULENCE, with a filtered sensor: no nonlinear term in the truth."""
+    model, t = LinearModel(PROFILE), np.arange(N) * DT
+    runs = [coloured_noise(simulate_run(model, t, excitation(s) + trim, noise_fraction=0.01, seed=s,
+                                        process_noise=strength * TURBULENCE), s) for s in seeds]
+    return runs[:-1], runs[-1:]
+
+
+def test_no_nonlinear_term_from_turbulence_in_the_measured_states():
+    """A turbulent linear truth refined with the nonlinear library: nothing nonlinear is added, and
+    the score of the state-built q|q| stays chi-square(1)-like on average. Built from the *measured*
+    q (which carries the gust response; an odd function of it correlates with the residual) its
+    score averaged 6 and reached 10.4 of 11.7 on these realisations; from the model's simulated
+    states (an instrumental-variable score) it does not."""
+    scores = []
+    for i in range(3):
+        fit, val = trimmed_turbulent_runs((100 + 3 * i, 101 + 3 * i, 102 + 3 * i))
+        r = Refine(PROFILE, kinds=("derivative", "nonlinear")).fit(fit, validate=val)
+        assert not [s for s in r.steps_ if s.effect == "nonlinear"], [s.to_dict() for s in r.steps_]
+        scores.append(next(t["statistic"] for t in r.last_scores_ if t["candidate"].name == "nonlinear:M:q_absq"))
+    assert np.mean(scores) < 4.0, scores
+
+
+def test_state_built_terms_come_from_the_simulated_states():
+    """``predict`` builds q|q| from the model's simulated q (zero shift removed), never the measured q."""
+    from identify.refine.candidates import Nonlinear, prepare_runs
+    from identify.refine.evaluation import predict
+
+    fit, _ = nonlinear_runs(-20.0)
+    p = Nonlinear("M", "q_absq", ("q",), "absq").profile(PROFILE, {"M_q_absq": -20.0})
+    ev = predict(p, prepare_runs(p, fit))
+    for run, mod, b in zip(ev.runs, ev.modelled, ev.bias):
+        q_sim = mod[:, 1] - b[1]
+        assert np.allclose(run["q_absq"], q_sim * np.abs(q_sim), atol=1e-9 * np.max(q_sim ** 2))
+        assert not np.allclose(run["q_absq"], run["q"] * np.abs(run["q"]), atol=1e-3 * np.max(q_sim ** 2))

@@ -1,0 +1,65 @@
+"""Wall time of `identify refine` at flight-test size: the BO 105 model (8 states, 4 inputs, 11
+outputs, 37 free derivatives, unstable: multiple shooting), 4 fit runs of 12 s at 100 Hz with all
+four controls excited and a 7 Hz vibration on q, plus one validation run, the full catalogue
+(issue 10's target: under 2 minutes on one core). A second case adds turbulence, a third has the
+turbulence without the vibration (the truth is then the declared model: anything added is false).
+
+Prints each case's steps, the wall time of each, and the progress lines refine writes to stderr.
+
+    .venv/bin/python benchmarks/refine_speed.py [cases, e.g. 123]
+"""
+import os
+import sys
+import time
+from pathlib import Path
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from identify import LinearModel, load_profile, simulate_run  # noqa: E402
+from identify.refine import Refine  # noqa: E402
+
+DT, LENGTH, TARGET = 0.01, 12.0, 120.0
+
+
+def runs(turbulence: bool, vibration: bool = True) -> list:
+    profile = load_profile("bo105_70kt")
+    model = LinearModel(profile)
+    t = np.arange(int(LENGTH / DT) + 1) * DT
+    out = []
+    for s in range(5):
+        rng = np.random.default_rng(s)
+        k = int(0.5 / DT)
+        u = np.repeat(rng.choice([-1.0, 0.0, 1.0], size=(len(t) // k + 1, 4)), k, axis=0)[:len(t)] * 0.01
+        u[:k] = 0.0
+        w = np.zeros(model.n_states)
+        if turbulence:  # gusts on the six force and moment equations
+            w[:6] = [0.05, 0.05, 0.05, 0.02, 0.02, 0.02]
+        r = simulate_run(model, t, u, noise_fraction=0.02, process_noise=w, seed=s)
+        if vibration:
+            r = r.with_channels({"q": r["q"] + 0.3 * np.std(r["q"]) * np.cos(2 * np.pi * 7.0 * t + s)})
+        out.append(r)
+    return out
+
+
+def main(cases: str = "123") -> None:
+    for case, turbulence, vibration in (("1", False, True), ("2", True, True), ("3", True, False)):
+        if case not in cases:
+            continue
+        data = runs(turbulence, vibration)
+        started = time.perf_counter()
+        r = Refine(load_profile("bo105_70kt"), progress=True).fit(data[:4], validate=data[4:])
+        wall = time.perf_counter() - started
+        print(f"case {case}: BO 105, 8 states, 4 inputs, 4 fit runs + 1 validation run of {LENGTH:g} s at "
+              f"{1 / DT:g} Hz{', 7 Hz vibration on q' if vibration else ''}{', turbulence' if turbulence else ''}; "
+              f"full catalogue")
+        print(f"  added {[f'{s.effect}:{s.target}' for s in r.steps_]}; rejected "
+              f"{[f'{s.effect}:{s.target}' for s in r.rejected_]}; {r.tries_} tried; stopped: {r.stopped_}")
+        print(f"  wall time {wall:.1f} s (target {TARGET:g} s: {'met' if wall < TARGET else 'NOT met'})", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "123")
