@@ -105,7 +105,7 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-start", type=finite_float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
-                   help="iterations at most for iv (default 30) and ml (default 50)")
+                   help="iterations at most for iv (default 30) and ml (default 100)")
     p.set_defaults(func=cmd_estimate)
 
 

@@ -58,6 +58,7 @@ INITIAL_DAMPING = 1e-3  # LM's tau: the first damping, relative to the scaled in
 MIN_GAIN_RATIO = 1e-3  # a step is taken when it achieves this share of its predicted decrease
 MAX_REL_STEP = 0.5  # no step moves a parameter by more than this share of its scale
 STEP_TOL_SE = 1e-3  # converged: the next Gauss-Newton step moves no unknown by this many std errors
+STALL_TOL_SE = 1e-2  # ... or no step lowers the cost and the next would move them by less than this
 RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
 
 
@@ -95,7 +96,7 @@ class ML(Estimator):
     method = "ml"
 
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
-                 max_iter: int = 50, tol: float = 1e-8, estimate_x0: bool = True,
+                 max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
                  verbose: bool = False):
         super().__init__(profile)
@@ -219,7 +220,8 @@ class _Solver:
     matrix; a trial step is taken only when the ratio of the actual to the predicted (quadratic
     model) decrease of the cost exceeds ``MIN_GAIN_RATIO``, and the damping then falls (good
     agreement) or rises (poor); no step may move a parameter by more than a trust radius times its
-    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma = 1/sqrt(M_ii) at the current point), so a far a priori model cannot throw the iteration into another basin. The
+    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma its white Cramér-Rao bound at the
+    current point), so a far a priori model cannot throw the iteration into another basin. The
     radius starts at ``MAX_REL_STEP``, halves after a step with a gain ratio below 0.25 and
     doubles back (never beyond ``MAX_REL_STEP``) after one that reached it with a ratio above 0.75.
     (Letting it grow further was tried: on a noise-free S 61 case with one derivative 60 x off it
@@ -291,11 +293,12 @@ class _Solver:
 
     def _scale(self, M) -> np.ndarray:
         """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma),
-        sigma = 1/sqrt(M_ii) the parameter's white bound with the others held."""
+        sigma its white Cramér-Rao bound at the current point (marginal: correlated parameters may
+        move together by far more than one's bound with the others held)."""
         P = self.prob.p
-        with np.errstate(divide="ignore"):
-            sigma = 1 / np.sqrt(np.diag(M)[:P])
-        return np.maximum(np.maximum(np.abs(self.beta[:P]), self.theta0), np.where(self.active[:P], sigma, 0))
+        cov, _ = _covariance(M, self.active)
+        sigma = np.sqrt(np.clip(np.diag(cov)[:P], 0, None))
+        return np.maximum(np.maximum(np.abs(self.beta[:P]), self.theta0), sigma)
 
     def _converged(self, M, g, r_change) -> str | None:
         """The reason the undamped Gauss-Newton step says we are at the minimum, or None."""
@@ -343,8 +346,18 @@ class _Solver:
             step, ev, c, pred = self._trial(M, g, cost)
             self.iterations += 1
             if ev is None:
-                self.stop = ("stalled: no step lowers the cost although the gradient predicts a "
-                             f"decrease of {pred:.3g}")
+                full = self._predicted(M, g, self._step(M, g, self.active, 0.0))
+                in_se = math.sqrt(max(2 * full, 0.0))
+                # no damped step lowers the cost: at the minimum to the cost's numerical precision,
+                # unless the undamped step would still move the estimates by a noticeable share of
+                # their standard errors (a Jacobian that disagrees with the cost)
+                if in_se < STALL_TOL_SE:
+                    self.converged = True
+                    self.stop = (f"gradient: no step lowers the cost (numerical precision); the next "
+                                 f"would be {in_se:.1e} standard errors")
+                else:
+                    self.stop = ("stalled: no step lowers the cost although the gradient predicts a "
+                                 f"decrease of {full:.3g}")
                 break
             rho = (cost - c) / pred
             self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
