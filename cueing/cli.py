@@ -5,7 +5,8 @@ import os
 import sys
 from pathlib import Path
 
-from identify.cliutil import Parser, run
+from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, output_dir, output_file,
+                               positive_float, positive_int, run)
 
 from .errors import CueingError, RunAborted
 
@@ -160,34 +161,34 @@ def _add_fly_arguments(p) -> None:
     p.add_argument("--source", default="mouse",
                    help="joystick, mouse, keyboard, pilot (simulated), replay:RUN.csv or external:MODULE:FUNCTION "
                         "(default: mouse)")
-    p.add_argument("--preview", type=float, nargs="?", const=3.0, default=0.0, metavar="SECONDS",
+    p.add_argument("--preview", type=nonnegative_float, nargs="?", const=3.0, default=0.0, metavar="SECONDS",
                    help="show the next SECONDS of the sequence (default 3 when given)")
     p.add_argument("--headless", action="store_true", help="off-screen display (no window)")
     p.add_argument("--fullscreen", action="store_true", help="fill the screen (the window is resizable otherwise)")
     p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input")
-    p.add_argument("--noise", type=float, default=0.02, help="measurement noise fraction for --simulate (0.02)")
+    p.add_argument("--noise", type=nonnegative_float, default=0.02, help="measurement noise fraction for --simulate (0.02)")
     p.add_argument("--profile", metavar="PROFILE", help="model for the information score (default: --simulate's)")
     p.add_argument("--seed", type=int, default=None, help="random seed (simulated pilot, noise)")
-    p.add_argument("--skill", type=float, default=0.5, help="simulated pilot's skill, 0..1 (0.5)")
+    p.add_argument("--skill", type=fraction, default=0.5, help="simulated pilot's skill, 0..1 (0.5)")
     p.add_argument("--pilot", help="pilot name (metadata, practice history)")
     p.add_argument("--device", type=int, default=0, help="joystick device index (0)")
     p.add_argument("--axes", default="1,0", help="joystick axis per signal axis (1,0: fore-aft, then lateral)")
-    p.add_argument("--dead-zone", type=float, default=0.05, help="joystick dead zone, fraction of travel (0.05)")
-    p.add_argument("--full-scale", type=float, help="control units at full stick (default 1.5 x amplitude)")
+    p.add_argument("--dead-zone", type=fraction, default=0.05, help="joystick dead zone, fraction of travel (0.05)")
+    p.add_argument("--full-scale", type=positive_float, help="control units at full stick (default 1.5 x amplitude)")
     p.add_argument("--invert", action="store_true", help="reverse the joystick axes")
-    p.add_argument("--calibrate", type=float, default=0.0, metavar="S",
+    p.add_argument("--calibrate", type=nonnegative_float, default=0.0, metavar="S",
                    help="measure the stick's centre and dead zone at rest for S seconds first")
-    p.add_argument("--rate", type=float, default=60.0, help="frame rate in Hz (60)")
-    p.add_argument("--countdown", type=float, default=3.0, help="seconds of countdown before logging starts (3)")
-    p.add_argument("--lead-in", type=float, default=DEFAULT_LEAD_IN, metavar="S",
+    p.add_argument("--rate", type=positive_float, default=60.0, help="frame rate in Hz (60)")
+    p.add_argument("--countdown", type=nonnegative_float, default=3.0, help="seconds of countdown before logging starts (3)")
+    p.add_argument("--lead-in", type=nonnegative_float, default=DEFAULT_LEAD_IN, metavar="S",
                    help=f"seconds logged, quiet, before the signal starts ({DEFAULT_LEAD_IN:g})")
-    p.add_argument("--record", type=float, metavar="S",
+    p.add_argument("--record", type=positive_float, metavar="S",
                    help="seconds logged from the signal's start (default: the record it was designed for)")
-    p.add_argument("--tail", type=float, default=1.0,
+    p.add_argument("--tail", type=nonnegative_float, default=1.0,
                    help="seconds logged at least after the sequence (1), when the record is shorter")
     p.add_argument("--no-audio", action="store_true", help="no ticks at level changes")
-    p.add_argument("--screenshots", metavar="DIR", help="save PNG screenshots here")
-    p.add_argument("--screenshot-every", type=float, metavar="S", help="seconds between screenshots")
+    p.add_argument("--screenshots", type=output_dir, metavar="DIR", help="save PNG screenshots here")
+    p.add_argument("--screenshot-every", type=positive_float, metavar="S", help="seconds between screenshots")
     p.add_argument("--fast", action="store_true", help="no waiting (fake clock): simulated or replayed sources only")
 
 
@@ -195,7 +196,7 @@ def build_parser() -> Parser:
     parser = Parser(prog="cueing", description="Two-needle pilot cueing display for flight-test inputs.")
     sub = parser.add_subparsers(title="commands")
     p = sub.add_parser("demo", help="run the whole pipeline on the default profile, without a window")
-    p.add_argument("--out", default="demo-output", help="output folder (default: demo-output)")
+    p.add_argument("--out", default="demo-output", type=output_dir, help="output folder (default: demo-output)")
     p.add_argument("--profile", default="s61_hover_8state", help="profile path or bundled name")
     p.add_argument("--quick", action="store_true", help="reduced size (shorter runs, shorter search)")
     p.set_defaults(func=cmd_demo)
@@ -204,7 +205,7 @@ def build_parser() -> Parser:
                        description="Fly one run on the two-needle display. Escape or closing the window ends it "
                                    f"early: the data so far is kept, marked aborted, exit status {EXIT_ABORTED}.")
     _add_fly_arguments(p)
-    p.add_argument("--out", required=True, help="run file to write (the frame log grows beside it)")
+    p.add_argument("--out", required=True, type=output_file, help="run file to write (the frame log grows beside it)")
     p.add_argument("--live", metavar="PROFILE", help="identify this profile while flying (recursive "
                    "frequency-domain equation error; response from --simulate or --live-response)")
     p.add_argument("--targets", metavar="LIST", help="--live: parameters and Cramér-Rao %% targets, e.g. "
@@ -215,26 +216,28 @@ def build_parser() -> Parser:
 
     p = sub.add_parser("practice", help="fly a signal several times, score each attempt, keep the history")
     _add_fly_arguments(p)
-    p.add_argument("--attempts", type=int, default=3, help="number of attempts (3)")
-    p.add_argument("--learn", type=float, default=0.3,
+    p.add_argument("--attempts", type=positive_int, default=3, help="number of attempts (3)")
+    p.add_argument("--learn", type=fraction, default=0.3,
                    help="simulated pilot: fraction of the remaining skill gap closed per attempt (0.3)")
     p.add_argument("--history-dir", help="practice history folder (default $PSEUDOSTEP_HISTORY or ~/.pseudostep/practice)")
-    p.add_argument("--out-dir", default="practice", help="folder for the attempts' run files (practice)")
+    p.add_argument("--out-dir", type=output_dir, default="practice", help="folder for the attempts' run files (practice)")
     p.set_defaults(func=cmd_practice)
 
     p = sub.add_parser("history", help="show a pilot's learning curve")
     p.add_argument("pilot", help="pilot name")
     p.add_argument("--history-dir", help="practice history folder")
-    p.add_argument("--plot", metavar="PNG", help="learning-curve image (default PILOT_learning_curve.png)")
+    p.add_argument("--plot", type=output_file, metavar="PNG", help="learning-curve image (default PILOT_learning_curve.png)")
     p.set_defaults(func=cmd_history)
 
     p = sub.add_parser("recover", help="turn a frame log (also of a killed run) into a run file")
     p.add_argument("log", help="frame log (*.frames.csv)")
-    p.add_argument("--out", required=True, help="run file to write")
+    p.add_argument("--out", required=True, type=output_file, help="run file to write")
     p.add_argument("--simulate", metavar="PROFILE", help="add this profile's simulated response")
-    p.add_argument("--noise", type=float, default=0.02)
+    p.add_argument("--noise", type=nonnegative_float, default=0.02)
     p.add_argument("--seed", type=int, default=None)
     p.set_defaults(func=cmd_recover)
+    for p in sub.choices.values():
+        add_threads_option(p)
     return parser
 
 

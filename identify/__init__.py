@@ -4,34 +4,47 @@ Typical use::
 
     from identify import load_profile, LinearModel, read_run
     model = LinearModel(load_profile("s61_hover_8state"))
+
+Names are imported on first use (module ``__getattr__``): ``import identify`` and the command
+lines' ``--help`` stay fast, and scipy.signal, python-control and matplotlib load only when a
+function that needs them runs.
 """
-from .data.runs import Run, read_run, read_runs
-from .errors import EstimationError, ProfileError, PseudostepError, RunError, SimulationError
-from .estimators.result import IdentificationResult
-from .model.linear import LinearModel, Mode, format_modes, modes_of, residualize
-from .model.profile import Profile, load_profile, output_units, parse_profile
-from .model.sensitivity import output_sensitivities
-from .model.simulate import delay_inputs, discretize, perturbed_model, simulate, simulate_run
+from __future__ import annotations
 
-__all__ = ["EstimationError", "ProfileError", "PseudostepError", "RunError", "SimulationError",
-           "LinearModel", "Mode", "format_modes", "modes_of", "residualize", "Profile", "load_profile",
-           "output_units", "parse_profile", "IdentificationResult", "Run", "read_run", "read_runs",
-           "output_sensitivities", "delay_inputs", "discretize", "perturbed_model", "simulate", "simulate_run"]
+import importlib
 
-# data processing and equation-error estimators (plots stay in identify.estimators.plots: matplotlib is slow to import)
-from .data.matfile import read_mat  # noqa: E402
-from .data.preprocess import add_derivatives, cg_correction, processing_steps, replay, smooth, smooth_derivative  # noqa: E402
-from .estimators.equation_error import IV, LS, state_derivatives  # noqa: E402
+from .errors import ConvergenceWarning, EstimationError, ProfileError, PseudostepError, RunError, SimulationError
 
-__all__ += ["IV", "LS", "state_derivatives", "read_mat", "add_derivatives", "cg_correction",
-            "processing_steps", "replay", "smooth", "smooth_derivative"]
+# public name -> submodule that defines it
+_LAZY = {
+    **dict.fromkeys(["Run", "read_run", "read_runs"], "data.runs"),
+    **dict.fromkeys(["IdentificationResult"], "estimators.result"),
+    **dict.fromkeys(["LinearModel", "Mode", "format_modes", "modes_of", "residualize"], "model.linear"),
+    **dict.fromkeys(["Profile", "load_profile", "output_units", "parse_profile"], "model.profile"),
+    **dict.fromkeys(["output_sensitivities"], "model.sensitivity"),
+    **dict.fromkeys(["delay_inputs", "discretize", "perturbed_model", "simulate", "simulate_run"], "model.simulate"),
+    # data processing and estimators (plots stay in identify.estimators.plots)
+    **dict.fromkeys(["read_mat"], "data.matfile"),
+    **dict.fromkeys(["add_derivatives", "cg_correction", "processing_steps", "replay", "smooth",
+                     "smooth_derivative"], "data.preprocess"),
+    **dict.fromkeys(["IV", "LS", "state_derivatives"], "estimators.equation_error"),
+    **dict.fromkeys(["ML"], "estimators.ml"),  # output-error maximum likelihood
+    # frequency-domain equation error, batch and recursive (the cockpit's live estimate)
+    **dict.fromkeys(["FDEE", "RecursiveFDEE"], "estimators.frequency_ee"),
+}
 
-# output-error maximum likelihood
-from .estimators.ml import ML  # noqa: E402
+__all__ = ["ConvergenceWarning", "EstimationError", "ProfileError", "PseudostepError", "RunError",
+           "SimulationError", *_LAZY]
 
-__all__ += ["ML"]
 
-# frequency-domain equation error, batch and recursive (the cockpit's live estimate)
-from .estimators.frequency_ee import FDEE, RecursiveFDEE  # noqa: E402
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'identify' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # once imported, a plain attribute
+    return value
 
-__all__ += ["FDEE", "RecursiveFDEE"]
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -1,7 +1,8 @@
 """``python -m identify``: inspect models and identify them from runs."""
 from __future__ import annotations
 
-from .cliutil import Parser, run
+from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
+                      output_dir, output_file, positive_float, positive_int, run)
 from .errors import EstimationError
 from .model.linear import LinearModel, format_modes, residualize
 from .model.profile import load_profile
@@ -27,6 +28,10 @@ def _print_model(model: LinearModel) -> None:
           f"\n  inputs:  {', '.join(f'{s} [{u}]' for s, u in p.inputs.items())}"
           f"\n  outputs: {', '.join(p.outputs)}"
           f"\n  {len(p.free)} free, {len(p.fixed)} fixed parameters")
+    for kind, values in (("free", p.free), ("fixed", p.fixed)):
+        if values:
+            print(f"\n{kind} parameters:")
+            print("\n".join(f"  {name:<16}{value:13.6g}" for name, value in values.items()))
     print("\nmodes:")
     print(format_modes(model.modes()))
 
@@ -37,11 +42,13 @@ def build_parser() -> Parser:
     p = sub.add_parser("model", help="print a profile's modes (frequency, damping)")
     p.add_argument("profile", help="profile TOML path or bundled profile name")
     p.add_argument("--reduce", metavar="STATES", help="comma-separated states to make instantaneous")
-    p.add_argument("--save-reduced", metavar="TOML", help="write the reduced profile here")
+    p.add_argument("--save-reduced", metavar="TOML", type=output_file, help="write the reduced profile here")
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
     _add_freq_parser(sub)
+    for p in sub.choices.values():
+        add_threads_option(p)
     return parser
 
 
@@ -53,6 +60,8 @@ def cmd_estimate(args) -> int:
     from .estimators.plots import save_plots
     from .estimators.registry import estimator_class
 
+    if args.max_iter is not None and args.method not in ("iv", "ml"):
+        raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
     profile = load_profile(args.profile)
     runs = []
     for r in _read_runs(args.runs, args.channel_map, profile):
@@ -70,16 +79,17 @@ def cmd_estimate(args) -> int:
     def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
         print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
 
-    options = {"ml": dict(progress=show),
-               "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, max_iter=args.max_iter),
+    iterations = {} if args.max_iter is None else {"max_iter": args.max_iter}
+    options = {"ml": dict(progress=show, **iterations),
+               "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
                "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
     est = estimator_class(args.method)(profile, **options)
     result = est.fit(runs).result_
-    print(result.summary())
+    print(result.summary(), flush=True)  # on screen before anything is written
     from .frequency import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
                                                               "a priori": LinearModel(profile)})
-    print("\n" + text)
+    print("\n" + text, flush=True)
     out = result.save(args.out)
     plots = save_plots(result, out)
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
@@ -89,12 +99,13 @@ def cmd_estimate(args) -> int:
 def _add_estimate_parser(sub) -> None:
     p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
     _add_common_options(p, "run files", default_method="iv")
-    p.add_argument("--smooth", type=float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
-    p.add_argument("--diff-cutoff", type=float, metavar="HZ",
+    p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
+    p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
                    help="cut-off of the smoothed differentiator for states without measured derivatives")
-    p.add_argument("--t-start", type=float, metavar="S", help="use samples from this time on")
-    p.add_argument("--t-end", type=float, metavar="S", help="use samples up to this time")
-    p.add_argument("--max-iter", type=int, default=30, help="IV iterations at most (default 30)")
+    p.add_argument("--t-start", type=finite_float, metavar="S", help="use samples from this time on")
+    p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
+    p.add_argument("--max-iter", type=positive_int, metavar="N",
+                   help="iterations at most for iv (default 30) and ml (default 100)")
     p.set_defaults(func=cmd_estimate)
 
 
@@ -116,13 +127,13 @@ def _overlaps(run, t_start, t_end) -> bool:
 
 def _add_common_options(p, runs_help: str, default_method: str) -> None:
     """Options of every command that reads runs (through :mod:`identify.data.io`) and estimates."""
-    from .estimators.registry import METHODS
+    from .estimators.registry import METHOD_NAMES
 
     p.add_argument("runs", nargs="+", help=f"{runs_help} (.csv or .mat)")
     p.add_argument("--profile", required=True, help="a priori profile TOML path or bundled profile name")
-    p.add_argument("--method", choices=tuple(METHODS), default=default_method,
+    p.add_argument("--method", choices=METHOD_NAMES, default=default_method,
                    help=f"estimator (default {default_method})")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--channel-map", metavar="JSON",
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
@@ -144,7 +155,6 @@ def cmd_refine(args) -> int:
                      tau_max=args.tau_max, progress=True)
     refiner.fit(_read_runs(args.runs, args.channel_map, profile),
                 validate=_read_runs(args.validate or [], args.channel_map, profile))
-    out = write(refiner, args.out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
@@ -154,7 +164,8 @@ def cmd_refine(args) -> int:
         print(f"rejected: {s.effect} on {s.target}: {s.reason}")
     for where in refiner.error_before_:
         print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
-              f"{refiner.error_after_[where]['overall']:.4g}")
+              f"{refiner.error_after_[where]['overall']:.4g}", flush=True)
+    out = write(refiner, args.out)  # after the screen output: a failing write loses nothing shown
     print(f"written to {out}: refine.json, report.md, final_profile.toml")
     return 0
 
@@ -165,14 +176,14 @@ def _add_refine_parser(sub) -> None:
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
                    "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")
-    p.add_argument("--max-steps", type=int, default=6, help="effects added at most (default 6)")
+    p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    p.add_argument("--max-steps", type=nonnegative_int, default=6, help="effects added at most (default 6)")
     p.add_argument("--no-zero-shifts", action="store_true",
                    help="do not estimate per-run output zero shifts (then a common bias is a candidate)")
-    p.add_argument("--frequency", type=float, action="append", metavar="HZ",
+    p.add_argument("--frequency", type=positive_float, action="append", metavar="HZ",
                    help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
-    p.add_argument("--f-min", type=float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
-    p.add_argument("--tau-max", type=float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
+    p.add_argument("--f-min", type=nonnegative_float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
+    p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
     p.set_defaults(func=cmd_refine)
 
 
@@ -204,10 +215,10 @@ def _add_freq_parser(sub) -> None:
     p = sub.add_parser("freq", help="frequency responses with coherence (Bode plots, CSV, fit cost J)")
     p.add_argument("runs", nargs="+", help="run files (.csv)")
     p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
     p.add_argument("--identified", metavar="TOML", help="an identified profile to overlay and judge (J) too")
-    p.add_argument("--f-min", type=float, metavar="HZ", help="lowest frequency (default: from the windows)")
-    p.add_argument("--f-max", type=float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
+    p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
+    p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)
 
 

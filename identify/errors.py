@@ -59,3 +59,8 @@ def read_text(path, error: type[PseudostepError], what: str) -> str:
         raise error(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
         raise error(f"{path}: not a {what} (binary, not UTF-8 text)") from None
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative estimator stopped before convergence: its estimates are not final. The result
+    says so too (``info["converged"]`` False, the reason in ``info["stop"]`` and ``summary()``)."""

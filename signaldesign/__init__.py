@@ -1,15 +1,32 @@
 """signaldesign: required frequency band and optimised three-level input signals (before the flight).
 
-Builds on :mod:`identify` (models, sensitivities); never imports :mod:`cueing`.
+Builds on :mod:`identify` (models, sensitivities); never imports :mod:`cueing`. Names are imported
+on first use (module ``__getattr__``), so ``signaldesign --help`` answers at once.
 """
-from .signal import Signal, SignalError, load_signals, save_signals, signals_to_run
-from .band import BandError, required_band
-from .baselines import doublet, m3211, make_signal, multisine, multistep, orthogonal_multisines, prts, step_sequence
-from .design import Flyability, SequenceDesign
-from .evaluate import DesignError, Evaluator, perturbed_models
-from .spectrum import energy_spectrum, half_power_band, in_band_fraction
+from __future__ import annotations
 
-__all__ = ["Signal", "SignalError", "load_signals", "save_signals", "signals_to_run",
-           "BandError", "required_band", "doublet", "m3211", "make_signal", "multisine", "multistep",
-           "orthogonal_multisines", "prts", "step_sequence", "Flyability", "SequenceDesign", "DesignError",
-           "Evaluator", "perturbed_models", "energy_spectrum", "half_power_band", "in_band_fraction"]
+import importlib
+
+_LAZY = {
+    **dict.fromkeys(["Signal", "SignalError", "load_signals", "save_signals", "signals_to_run"], "signal"),
+    **dict.fromkeys(["BandError", "required_band"], "band"),
+    **dict.fromkeys(["doublet", "m3211", "make_signal", "multisine", "multistep", "orthogonal_multisines", "prts",
+                     "step_sequence"], "baselines"),
+    **dict.fromkeys(["Flyability", "SequenceDesign"], "design"),
+    **dict.fromkeys(["DesignError", "Evaluator", "perturbed_models"], "evaluate"),
+    **dict.fromkeys(["energy_spectrum", "half_power_band", "in_band_fraction"], "spectrum"),
+}
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'signaldesign' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -1,7 +1,8 @@
 """``python -m signaldesign``: frequency band, signal design, baselines, comparison, plots."""
 from __future__ import annotations
 
-from identify.cliutil import Parser, progress_bar, run
+from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, output_file, positive_float,
+                               positive_int, progress_bar, run)
 from identify import LinearModel, load_profile
 
 from .band import plot_band, required_band
@@ -161,11 +162,11 @@ def cmd_plot(args) -> int:
 
 
 def _record_options(p):
-    p.add_argument("--record", type=float, default=20.0, help="record length in s (default 20)")
-    p.add_argument("--dt", type=float, default=0.05, help="sample interval in s (default 0.05)")
-    p.add_argument("--min-pulse", type=float, default=MIN_WIDTH,
+    p.add_argument("--record", type=positive_float, default=20.0, help="record length in s (default 20)")
+    p.add_argument("--dt", type=positive_float, default=0.05, help="sample interval in s (default 0.05)")
+    p.add_argument("--min-pulse", type=positive_float, default=MIN_WIDTH,
                    help=f"shortest hold in s, also the baselines' shortest pulse (default {MIN_WIDTH:g})")
-    p.add_argument("--reference-amplitude", type=float, default=0.02,
+    p.add_argument("--reference-amplitude", type=positive_float, default=0.02,
                    help="without [limits] in the profile, the limits are the best-width 3211's peaks at "
                         "this amplitude (default 0.02)")
     p.add_argument("--seed", type=int, default=0)
@@ -178,45 +179,45 @@ def build_parser() -> Parser:
     p = sub.add_parser("band", help="print the frequency band an input must excite")
     p.add_argument("--profile", required=True, help="profile TOML path or bundled profile name")
     p.add_argument("--input", required=True, help="control input (e.g. theta_s)")
-    p.add_argument("--level", type=float, default=0.5, help="fraction of each sensitivity's peak (default 0.5)")
-    p.add_argument("--plot", metavar="PNG", help="draw the sensitivities and the band")
+    p.add_argument("--level", type=fraction, default=0.5, help="fraction of each sensitivity's peak (default 0.5)")
+    p.add_argument("--plot", type=output_file, metavar="PNG", help="draw the sensitivities and the band")
     p.set_defaults(func=cmd_band)
 
     p = sub.add_parser("design", help="optimise a three-level sequence within the response limits and compare it")
     p.add_argument("--profile", required=True)
     p.add_argument("--input", required=True, help="control input, or several comma-separated for one multi-axis run")
-    p.add_argument("--duration", type=float, default=7.0, help="signal length in s (default 7)")
-    p.add_argument("--amplitude", type=float,
+    p.add_argument("--duration", type=positive_float, default=7.0, help="signal length in s (default 7)")
+    p.add_argument("--amplitude", type=positive_float,
                    help="fixed amplitude in rad (default: an outcome, the largest within the limits)")
-    p.add_argument("--grid", type=float, default=0.1, help="level changes on this grid, s (default 0.1)")
-    p.add_argument("--max-changes", type=int, default=12, help="most level changes per axis (default 12)")
+    p.add_argument("--grid", type=positive_float, default=0.1, help="level changes on this grid, s (default 0.1)")
+    p.add_argument("--max-changes", type=positive_int, default=12, help="most level changes per axis (default 12)")
     p.add_argument("--no-double-jumps", action="store_true", help="forbid +1 to -1 without a hold at 0")
     p.add_argument("--criterion", choices=CRITERIA, default="robust",
                    help="robust (default): expected plus worst D-efficiency over models around the a priori "
                         "(each against the 3211 tuned on it), at least 1.25x the best tuned 3211/doublet on "
                         "the a priori; mean: expected log det only; worst: worst D-efficiency only; "
                         "nominal: the a priori only")
-    p.add_argument("--out", metavar="JSON", help="write the optimised signal here")
-    p.add_argument("--plot", metavar="PNG", help="draw it against the best 3211 with spectra and the band")
+    p.add_argument("--out", type=output_file, metavar="JSON", help="write the optimised signal here")
+    p.add_argument("--plot", type=output_file, metavar="PNG", help="draw it against the best 3211 with spectra and the band")
     _record_options(p)
     p.set_defaults(func=cmd_design)
 
     p = sub.add_parser("make", help="write a baseline signal (doublet, 3211, multistep, steps, multisine, prts)")
     p.add_argument("kind", help="doublet, 3211 (or any digits, e.g. 2121), multistep, steps, multisine, prts")
-    p.add_argument("--width", type=float, help="pulse / step width in s")
-    p.add_argument("--amplitude", type=float, default=0.02, help="amplitude in rad (default 0.02)")
+    p.add_argument("--width", type=positive_float, help="pulse / step width in s")
+    p.add_argument("--amplitude", type=positive_float, default=0.02, help="amplitude in rad (default 0.02)")
     p.add_argument("--input", default="theta_s", help="control input (default theta_s)")
-    p.add_argument("--duration", type=float, default=7.0, help="multisine / PRTS length in s (default 7)")
+    p.add_argument("--duration", type=positive_float, default=7.0, help="multisine / PRTS length in s (default 7)")
     p.add_argument("--band", help="multisine band low,high in rad/s")
     p.add_argument("--pulses", help="multistep pulse counts, e.g. 3,2,1,1")
     p.add_argument("--levels", help="step levels, e.g. 1,1,0,-1,0")
-    p.add_argument("--order", type=int, default=3, help="PRTS order (period 3^order - 1, default 3)")
-    p.add_argument("--dt", type=float, default=0.05, help="multisine time step in s (default 0.05)")
-    p.add_argument("--delay", type=float, default=0.0, help="start time in s (default 0)")
-    p.add_argument("--out", required=True, metavar="JSON")
-    p.add_argument("--csv", metavar="CSV", help="also write a run-compatible CSV of the input")
-    p.add_argument("--csv-dt", type=float, default=0.01, help="CSV sample interval in s (default 0.01)")
-    p.add_argument("--record", type=float, default=0.0, help="CSV length in s (default: the signal's)")
+    p.add_argument("--order", type=positive_int, default=3, help="PRTS order (period 3^order - 1, default 3)")
+    p.add_argument("--dt", type=positive_float, default=0.05, help="multisine time step in s (default 0.05)")
+    p.add_argument("--delay", type=nonnegative_float, default=0.0, help="start time in s (default 0)")
+    p.add_argument("--out", type=output_file, required=True, metavar="JSON")
+    p.add_argument("--csv", type=output_file, metavar="CSV", help="also write a run-compatible CSV of the input")
+    p.add_argument("--csv-dt", type=positive_float, default=0.01, help="CSV sample interval in s (default 0.01)")
+    p.add_argument("--record", type=nonnegative_float, default=0.0, help="CSV length in s (default: the signal's)")
     p.set_defaults(func=cmd_make)
 
     p = sub.add_parser("compare", help="score signal files on a profile (first file is the reference)")
@@ -227,9 +228,11 @@ def build_parser() -> Parser:
 
     p = sub.add_parser("plot", help="draw signals and their power spectra (PNG)")
     p.add_argument("signals", nargs="+", metavar="JSON")
-    p.add_argument("--out", default="signals.png", metavar="PNG", help="output PNG (default signals.png)")
+    p.add_argument("--out", type=output_file, default="signals.png", metavar="PNG", help="output PNG (default signals.png)")
     p.add_argument("--profile", help="shade the required band of this profile")
     p.set_defaults(func=cmd_plot)
+    for p in sub.choices.values():
+        add_threads_option(p)
     return parser
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import fftconvolve
 
 from identify import LinearModel, output_sensitivities, perturbed_model
 from identify.errors import DesignError
@@ -161,6 +160,7 @@ class Evaluator:
         return self._cache[key][1]
 
     def _responses(self, signals, model: LinearModel | None):
+        from scipy.signal import fftconvolve  # here: scipy.signal takes 0.4 s to import
         model = model or self.model
         u = record_inputs(model, _as_list(signals), self.record, self.dt)
         units = self._unit_responses(model)

@@ -92,3 +92,31 @@ def test_import_identify_leaves_out_the_slow_optional_libraries():
                           env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("package, heavy", [
+    ("identify", ("control", "matplotlib", "scipy.signal", "scipy.stats")),
+    ("signaldesign", ("control", "matplotlib", "scipy.signal")),
+    ("identify.cli", ("control", "matplotlib", "scipy", "identify.estimators.ml")),
+    ("signaldesign.cli", ("control", "matplotlib", "scipy.signal")),
+])
+def test_imports_and_help_load_no_heavy_library(package, heavy):
+    """``import identify`` and the command lines' parsers (``--help``) load none of the slow
+    libraries (python-control 0.65 s, scipy.signal 0.4 s, matplotlib): names are imported on
+    first use. Their timings are printed by benchmarks/ml_speed.py, not asserted here."""
+    code = (f"import sys, importlib; m = importlib.import_module({package!r}); "
+            f"getattr(m, 'build_parser', lambda: None)(); "
+            f"print(','.join(h for h in {heavy!r} if h in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"{package} loads {out.stdout.strip()}"
+
+
+def test_lazy_names_resolve():
+    import identify
+    import signaldesign
+    for name in identify.__all__:
+        assert getattr(identify, name) is not None, name
+    for name in signaldesign.__all__:
+        assert getattr(signaldesign, name) is not None, name

@@ -15,6 +15,7 @@ variable or column.
 from __future__ import annotations
 
 import json
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -98,8 +99,10 @@ def _load(path: Path) -> tuple[dict, str]:
         raw = loadmat(path, simplify_cells=True)
     except NotImplementedError as exc:  # a v7.3 file whose HDF5 signature was not found
         raise RunError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
-    except (MatReadError, ValueError, OSError, TypeError) as exc:
-        raise RunError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
+    except (MatReadError, ValueError, OSError, TypeError, IndexError, KeyError, EOFError,
+            zlib.error) as exc:  # what scipy's reader raises on a damaged file
+        raise RunError(f"{path}: not a readable MATLAB .mat file "
+                       f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
     return _flatten({k: v for k, v in raw.items() if not k.startswith("__")}), "v5"
 
 

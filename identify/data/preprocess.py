@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from scipy.signal import butter, fftconvolve, sosfiltfilt
 
 from ..errors import RunError
 from .runs import Run
@@ -92,6 +91,8 @@ def lowpass(x: np.ndarray, dt: float, cutoff_hz: float, order: int = 4, source: 
     """
     _check_cutoff(cutoff_hz, dt, source)
     x = np.asarray(x, dtype=float)
+    from scipy.signal import butter, sosfiltfilt  # here: scipy.signal takes 0.4 s to import
+
     sos = butter(order, cutoff_hz, fs=1.0 / dt, output="sos")
     padlen = min(3 * (2 * len(sos) + 1) * 4, x.shape[0] - 1)  # long pad: less start-up transient
     return sosfiltfilt(sos, x, axis=0, padlen=padlen)
@@ -136,6 +137,8 @@ def smooth_derivative(x: np.ndarray, dt: float, cutoff_hz: float) -> np.ndarray:
     tail = 2 * flat[-1:] - flat[-2:-K - 2:-1]
     padded = np.vstack([head, flat, tail])
     # y[n] = sum_k taps[K + k] x[n + k]: a correlation, i.e. convolution with the reversed taps
+    from scipy.signal import fftconvolve  # here: scipy.signal takes 0.4 s to import
+
     out = fftconvolve(padded, taps[::-1, None], mode="valid", axes=0)
     return out.reshape(x.shape)
 

@@ -35,13 +35,14 @@ iteration cannot cycle between two instrument sets).
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..data.preprocess import processing_steps, smooth_derivative
 from ..data.runs import Run
-from ..errors import EstimationError, SimulationError
+from ..errors import ConvergenceWarning, EstimationError, SimulationError
 from ..model.linear import LinearModel
 from ..model.profile import DOT, Profile
 from ..model.simulate import discretize
@@ -357,7 +358,8 @@ class _EquationError(Estimator):
             longest = max(d.run.duration for d in data)
             segment = _segment(model, "auto" if self.reinit is None else self.reinit, longest) or MIN_SEGMENT
             ys = outputs(self._simulate(model, data, biases, segment))
-            how = f"simulation restarted from the measured states every {segment:.3g} s (plain one drifts)"
+            how = (f"simulations restarted from the measured states every {segment:.3g} s (a plain "
+                   f"simulation drifts away), so the RMS errors are of {segment:.3g} s predictions")
         return measured, ys, how
 
     def _result(self, data, theta, cov_col, cov_white, biases, info) -> IdentificationResult:
@@ -379,7 +381,7 @@ class _EquationError(Estimator):
             "processing": [processing_steps(d.run) for d in data],
         })
         return IdentificationResult(
-            method=self.method, profile=p, theta=theta, std=np.sqrt(np.diag(cov)),
+            method=self.method, profile=p, theta=theta, std=np.sqrt(np.diag(cov)), covariance=cov,
             fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
             runs=[d.run.source for d in data], time=[d.run.time for d in data],
             measured=measured, modelled=modelled)
@@ -458,6 +460,11 @@ class IV(_EquationError):
             if change < self.tol:
                 converged = True
                 break
-        info = {"iterations": len(history), "converged": converged, "change_history": history,
+        stop = (f"parameter change {history[-1]:.2g} < tol {self.tol:g}" if converged else
+                f"max_iter: {self.max_iter} iterations, last parameter change {history[-1]:.2g} (tol {self.tol:g})")
+        if not converged:
+            warnings.warn(f"IV did not converge: {stop}; the estimates are not final (raise max_iter)",
+                          ConvergenceWarning, stacklevel=3)
+        info = {"iterations": len(history), "converged": converged, "stop": stop, "change_history": history,
                 "start": self.start, "instrument_segment_s": segment, "residual_std": rstd}
         return self._result(data, theta, cc, cw, biases, info)

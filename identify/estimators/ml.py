@@ -7,7 +7,7 @@ minimising the negative log-likelihood for white Gaussian measurement noise of c
 
 Newton-Raphson with the Gauss-Newton approximation of the Hessian (``M = J^T R^-1 J``, the Fisher
 information) moves the derivatives ``theta``, the initial states ``x0`` and the output zero shifts
-``b`` together; a Levenberg-Marquardt damping takes over when a step does not lower the cost. R is
+``b`` together under Levenberg-Marquardt trust-region control (:class:`_Solver`). R is
 estimated by *relaxation*: after each step, R = diag(mean residual^2), the R that minimises J for
 the current residuals. The Cramér-Rao bounds are the square roots of the diagonal of M^-1 (the
 full matrix, initial states and zero shifts included as nuisance parameters).
@@ -45,7 +45,7 @@ import numpy as np
 import scipy.linalg
 
 from ..data.runs import Run
-from ..errors import EstimationError, SimulationError
+from ..errors import ConvergenceWarning, EstimationError, SimulationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile
 from .base import Estimator
@@ -54,6 +54,11 @@ from .result import IdentificationResult, fit_metrics
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
 MAX_DAMPING = 1e10
+INITIAL_DAMPING = 1e-3  # LM's tau: the first damping, relative to the scaled information's diagonal
+MIN_GAIN_RATIO = 1e-3  # a step is taken when it achieves this share of its predicted decrease
+MAX_REL_STEP = 0.5  # no step moves a parameter by more than this share of its scale
+STEP_TOL_SE = 1e-3  # converged: the next Gauss-Newton step moves no unknown by this many std errors
+STALL_TOL_SE = 1e-2  # ... or no step lowers the cost and the next would move them by less than this
 RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
 
 
@@ -62,10 +67,12 @@ class ML(Estimator):
 
     ``segment``: None (automatic: plain output error for a stable model, multiple shooting for an
     unstable one), a segment length in s, or ``math.inf``/``"plain"`` (one segment per run).
-    ``max_iter``: Gauss-Newton iterations; ``tol``: convergence on the relative parameter step or
-    the relative cost decrease. ``estimate_x0``/``estimate_bias``: estimate initial states (of
-    every segment) and per-run output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the
-    measurement-noise covariance, (ny,) variances or (ny, ny), in output units squared.
+    ``max_iter``: iterations at most (not converged by then: a :class:`ConvergenceWarning`,
+    ``info["converged"]`` False with the reason in ``info["stop"]``); convergence when the next
+    Gauss-Newton step is under 1e-3 standard errors, or under ``tol`` relative to the parameters.
+    ``estimate_x0``/``estimate_bias``: estimate initial states (of every segment) and per-run
+    output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the measurement-noise
+    covariance, (ny,) variances or (ny, ny), in output units squared.
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
 
@@ -89,7 +96,7 @@ class ML(Estimator):
     method = "ml"
 
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
-                 max_iter: int = 50, tol: float = 1e-8, estimate_x0: bool = True,
+                 max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
                  verbose: bool = False):
         super().__init__(profile)
@@ -134,6 +141,10 @@ class ML(Estimator):
                                   f"use {hint} or better a priori values") from None
         solver = _Solver(self, prob, ev, z)
         solver.run()
+        if not solver.converged:
+            warnings.warn(f"ML ({form}) did not converge: {solver.stop}; the estimates are not final "
+                          f"(raise max_iter, or start from better a priori values)", ConvergenceWarning,
+                          stacklevel=3)
         self.problem_, self.beta_ = prob, solver.beta
         return self._result(runs, prob, solver, form, segment, _time.perf_counter() - started)
 
@@ -171,6 +182,11 @@ class ML(Estimator):
             "weighted_cost": sv.wls_history,  # 1/2 sum e^T R^-1 e with that iteration's R
             "log_det_R": sv.log_det_history,
             "damping": sv.lam,
+            "rejected_steps": sv.rejected,
+            "max_relative_step": sv.max_rel_step,  # largest step taken, share of the parameter scale
+            "gauss_newton_step_se": sv.step_history,  # length of the next undamped step, std errors
+            "modelled": "simulated over each whole run" if form == "plain" else
+            f"restarted at every multiple-shooting segment (every {segment:.3g} s) from its estimated initial state",
             "initial_states": [s["x0"] for s in first],
             "segments": segments,
             "zero_shifts": [dict(zip(p.outputs, map(float, b[:, r]))) for r in range(len(runs))],
@@ -191,20 +207,39 @@ class ML(Estimator):
         }
         return IdentificationResult(
             method=self.method, profile=p, theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
+            covariance=cov[:P, :P].copy(),
             fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
             time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
 
 
 class _Solver:
-    """The damped Gauss-Newton iteration with noise-covariance relaxation."""
+    """Levenberg-Marquardt on the Gauss-Newton normal equations, with noise-covariance relaxation.
+
+    Trust-region control (Madsen, Nielsen & Tingleff's LM, on Marquardt's scaled system):
+    the damping starts at ``INITIAL_DAMPING`` times the largest diagonal of the scaled information
+    matrix; a trial step is taken only when the ratio of the actual to the predicted (quadratic
+    model) decrease of the cost exceeds ``MIN_GAIN_RATIO``, and the damping then falls (good
+    agreement) or rises (poor); no step may move a parameter by more than a trust radius times its
+    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma its white Cramér-Rao bound at the
+    current point), so a far a priori model cannot throw the iteration into another basin. The
+    radius starts at ``MAX_REL_STEP``, halves after a step with a gain ratio below 0.25 and
+    doubles back (never beyond ``MAX_REL_STEP``) after one that reached it with a ratio above 0.75.
+    (Letting it grow further was tried: on a noise-free S 61 case with one derivative 60 x off it
+    took 8-fold steps into a worse basin and did not converge in 200 iterations; capped, 31.)
+    Convergence is judged on the undamped Gauss-Newton step: it must move no unknown by more
+    than ``STEP_TOL_SE`` of its standard error (or no parameter by more than ``tol`` relative),
+    with the relaxed noise covariance settled. Anything else is not convergence: ``max_iter``
+    reached, or no step lowering the cost while the gradient still predicts a decrease.
+    """
 
     def __init__(self, ml: ML, prob: OutputError, ev, z):
         self.ml, self.prob, self.ev, self.beta = ml, prob, ev, ev.beta.copy()
         self.relax = ml.noise_cov_ is None
         self.ms = np.array([np.mean(zr ** 2, axis=0) for zr in z]).mean(axis=0)
         self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov_)
-        self.history, self.wls_history, self.log_det_history = [], [], []
+        self.history, self.wls_history, self.log_det_history, self.step_history = [], [], [], []
         self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
+        self.rejected, self.max_rel_step, self.radius = 0, 0.0, MAX_REL_STEP
         M, _ = prob.normal_equations(ev, self.Wh)
         d = np.diag(M)
         # a parameter no input excites has no influence at all: hold it, report std = inf
@@ -213,6 +248,7 @@ class _Solver:
             raise EstimationError("ML: no free parameter influences the outputs of these runs "
                                   "(are the inputs all zero?)")
         self.M = M
+        self.theta0 = np.abs(ev.beta[:prob.p])
 
     def _relaxed_weighting(self) -> np.ndarray:
         r = np.sum(self.ev.e ** 2, axis=(0, 2)) / self.prob.mask.sum()
@@ -224,6 +260,7 @@ class _Solver:
         return self.prob.cost(ev, self.Wh)
 
     def _step(self, M, g, active, lam) -> np.ndarray:
+        """Solve ``(Ms + lam I) s = g / d`` on the active unknowns, Ms = M scaled to unit diagonal."""
         i = np.flatnonzero(active)
         Ma, ga = M[np.ix_(i, i)], g[i]
         d = np.sqrt(np.diag(Ma))
@@ -239,12 +276,46 @@ class _Solver:
         return step
 
     def _try(self, beta):
+        """Residuals at a trial point (no sensitivities: most trials of a hard start are rejected,
+        and a long record holds one set of sensitivities at a time); the caller takes
+        :meth:`_accept` of the one it keeps."""
         try:
-            ev = self.prob.evaluate(beta)
+            ev = self.prob.evaluate(beta, jacobian=False)
         except SimulationError:
             return None, np.inf
         c = self._cost(ev)
         return ev, (c if np.isfinite(c) else np.inf)
+
+    @staticmethod
+    def _predicted(M, g, step) -> float:
+        """Decrease of the cost the Gauss-Newton (quadratic) model predicts for ``step``."""
+        return float(g @ step - 0.5 * step @ M @ step)
+
+    def _scale(self, M) -> np.ndarray:
+        """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma),
+        sigma its white Cramér-Rao bound at the current point (marginal: correlated parameters may
+        move together by far more than one's bound with the others held)."""
+        P = self.prob.p
+        cov, _ = _covariance(M, self.active)
+        sigma = np.sqrt(np.clip(np.diag(cov)[:P], 0, None))
+        return np.maximum(np.maximum(np.abs(self.beta[:P]), self.theta0), sigma)
+
+    def _converged(self, M, g, r_change) -> str | None:
+        """The reason the undamped Gauss-Newton step says we are at the minimum, or None."""
+        if self.relax and r_change >= R_CHANGE_TOL:
+            return None
+        step = self._step(M, g, self.active, 0.0)
+        P = self.prob.p
+        # the step's length in the information metric bounds every unknown's move in standard
+        # errors (|step_i| / sigma_i <= sqrt(step^T M step), Cauchy-Schwarz); twice the predicted decrease
+        in_se = math.sqrt(max(float(g @ step), 0.0))
+        rel = float(np.max(np.abs(step[:P]) / (np.abs(self.beta[:P]) + 1e-6)))
+        self.step_history.append(in_se)
+        if in_se < STEP_TOL_SE:
+            return f"gradient: the next step is {in_se:.1e} standard errors"
+        if rel < self.ml.tol:
+            return f"step: the next step is {rel:.1e} of the parameters"
+        return None
 
     def run(self) -> None:
         prob, ml = self.prob, self.ml
@@ -256,32 +327,47 @@ class _Solver:
             M, g = prob.normal_equations(self.ev, self.Wh)
             ev, c = self._try(self.beta + self._step(M, g, nuisance, 0.0))
             if ev is not None and c < self._cost(self.ev):
-                self.ev, self.beta = ev, ev.beta.copy()
+                self._accept(ev)
             if self.relax:
                 self.Wh = self._relaxed_weighting()
         cost = self._cost(self.ev)
         self._record(cost)
-        while self.iterations < ml.max_iter:
-            M, g = prob.normal_equations(self.ev, self.Wh)
-            while True:
-                step = self._step(M, g, self.active, self.lam)
-                ev, c = self._try(self.beta + step)
-                if c < cost:
-                    break
-                self.lam = 1e-3 if self.lam == 0 else 10 * self.lam
-                if self.lam > MAX_DAMPING:
-                    break
-            self.iterations += 1
-            if self.lam > MAX_DAMPING:  # no step lowers the cost: at the minimum if none was predicted to
-                predicted = 0.5 * float(g @ self._step(M, g, self.active, 0.0))
-                self.lam, self.converged = 0.0, predicted <= math.sqrt(ml.tol) * max(cost, 1e-300)
-                self.stop = "no further decrease" if self.converged else "stalled: no step lowers the cost"
+        r_change = np.inf
+        M, g = prob.normal_equations(self.ev, self.Wh)
+        self.lam = INITIAL_DAMPING  # Ms has unit diagonal: tau times its largest diagonal element
+        while True:
+            reason = self._converged(M, g, r_change)
+            if reason:
+                self.converged, self.stop = True, reason
                 break
-            theta = self.beta[:P]
-            rel_step = np.max(np.abs(step[:P]) / (np.abs(theta) + 1e-6))
-            decrease = (cost - c) / max(c, 1e-300)
-            self.ev, self.beta = ev, ev.beta.copy()
-            self.lam = self.lam / 10 if self.lam > 1e-6 else 0.0
+            if self.iterations >= ml.max_iter:
+                self.stop = f"max_iter: {ml.max_iter} iterations without convergence"
+                break
+            step, ev, c, pred = self._trial(M, g, cost)
+            self.iterations += 1
+            if ev is None:
+                full = self._predicted(M, g, self._step(M, g, self.active, 0.0))
+                in_se = math.sqrt(max(2 * full, 0.0))
+                # no damped step lowers the cost: at the minimum to the cost's numerical precision,
+                # unless the undamped step would still move the estimates by a noticeable share of
+                # their standard errors (a Jacobian that disagrees with the cost)
+                if in_se < STALL_TOL_SE:
+                    self.converged = True
+                    self.stop = (f"gradient: no step lowers the cost (numerical precision); the next "
+                                 f"would be {in_se:.1e} standard errors")
+                else:
+                    self.stop = ("stalled: no step lowers the cost although the gradient predicts a "
+                                 f"decrease of {full:.3g}")
+                break
+            rho = (cost - c) / pred
+            self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
+            rel_step = float(np.max(np.abs(step[:P]) / self._scale(M)))
+            self.max_rel_step = max(self.max_rel_step, rel_step)
+            if rho > 0.75 and rel_step >= 0.99 * self.radius:
+                self.radius = min(2 * self.radius, MAX_REL_STEP)
+            elif rho < 0.25:
+                self.radius = max(0.5 * self.radius, 1e-6)
+            self._accept(ev)
             r_change = 0.0
             if self.relax:
                 r_old = self._r
@@ -290,15 +376,53 @@ class _Solver:
                 c = self._cost(self.ev)
             cost = c
             self._record(cost)
+            M, g = prob.normal_equations(self.ev, self.Wh)
             if ml.progress is not None:
                 ml.progress(self.iterations, self.history[-1], self.beta[:P].copy())
             if ml.verbose:
                 print(f"ML iteration {self.iterations:3d}: -log likelihood {self.history[-1]:.10g}  "
-                      f"step {rel_step:.2e}  damping {self.lam:.1e}")
-            if rel_step < ml.tol or (decrease < ml.tol and r_change < R_CHANGE_TOL):
-                self.converged, self.stop = True, "step" if rel_step < ml.tol else "cost"
-                break
-        self.M, _ = prob.normal_equations(self.ev, self.Wh)
+                      f"step {rel_step:.2e}  damping {self.lam:.1e}  gain ratio {rho:.2f}")
+        self.M = M
+        if not self.converged:
+            self.stop += self._drifting(M)
+
+    def _drifting(self, M) -> str:
+        """When not converged: the parameters the runs cannot determine (white std error over
+        10 x the estimate), along which the likelihood may keep rising (an estimate running off to
+        infinity, e.g. a rotor time constant that the data cannot tell from instantaneous)."""
+        P = self.prob.p
+        cov, _ = _covariance(M, self.active)
+        rel = np.sqrt(np.clip(np.diag(cov)[:P], 0, None)) / np.maximum(np.abs(self.beta[:P]), 1e-300)
+        bad = [self.prob.model0.names[i] for i in np.argsort(-rel)[:4] if rel[i] > 10]
+        return (f"; not determined by these runs (std error > 10 x estimate), the likelihood may rise "
+                f"without bound along them: {', '.join(bad)}" if bad else "")
+
+    def _accept(self, ev) -> None:
+        """Move to the trial point ``ev``, with its sensitivities."""
+        self.ev = None  # the old sensitivities go before the new ones are computed
+        self.ev = self.prob.evaluate(ev.beta)
+        self.beta = ev.beta.copy()
+
+    def _trial(self, M, g, cost):
+        """The damped step, shortened to the step bound, that lowers the cost by at least
+        ``MIN_GAIN_RATIO`` of the decrease predicted for it: ``(step, evaluation, cost, predicted
+        decrease)``; evaluation None when the damping limit is reached first (the damping ``lam``
+        rises along the way)."""
+        P, nu = self.prob.p, 2.0
+        scale = self._scale(M)
+        pred = 0.0
+        while self.lam <= MAX_DAMPING:
+            step = self._step(M, g, self.active, self.lam)
+            # bounded relative step: shorten along the same (descent) direction, keep the damping
+            step *= min(1.0, self.radius / max(float(np.max(np.abs(step[:P]) / scale)), 1e-300))
+            pred = self._predicted(M, g, step)
+            if pred > 0:
+                ev, c = self._try(self.beta + step)
+                if ev is not None and (cost - c) > MIN_GAIN_RATIO * pred:
+                    return step, ev, c, pred
+                self.rejected += 1
+            self.lam, nu = max(self.lam, INITIAL_DAMPING) * nu, 2 * nu
+        return None, None, np.inf, pred
 
     def _record(self, cost: float) -> None:
         """Log the weighted cost, log det R and the negative log-likelihood they make."""

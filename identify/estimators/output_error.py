@@ -43,6 +43,9 @@ MAX_SEGMENT = 5.0  # s: longer segments of an unstable model grow too nonlinear 
 COLOUR_MAX_ITER = 30  # passes of the coloured-noise autocorrelation correction (see coloured_information)
 COLOUR_TOL = 1e-2  # ... until no variance changes by more than this (relative)
 OUTPUT_LIMIT = 1e3  # a modelled output this many times the largest measured one has diverged
+BLOCK_FLOATS = 2_000_000  # time blocks of the sensitivity work hold about this many floats (16 MB)
+COLOUR_CHUNK_FLOATS = 3_000_000  # Jacobian columns per FFT in the coloured correction: ~24 MB of spectra
+COLOUR_CACHE = 8_000_000  # spectra kept between passes up to this many floats (64 MB)
 
 
 def auto_segment(model: LinearModel, duration: float) -> float:
@@ -213,16 +216,37 @@ class OutputError:
         e = np.where(self.mask[:, None, :] > 0, self.Z - y, 0.0)  # padding may hold inf
         ev = Response(beta, e, y)
         if jacobian:
-            p, ny = self.p, self.ny
-            # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (L, n, p, S)
-            forcing = ((dPhi.reshape(p * n, n) @ x + dGamma.reshape(p * n, self.m) @ self.U)
-                       .reshape(L, p, n, S).transpose(0, 2, 1, 3).reshape(L, n, p * S))
-            sens = propagate(Phi, forcing, np.zeros((n, p * S)))
-            direct = (model.dC.reshape(p * ny, n) @ x + model.dD.reshape(p * ny, self.m) @ self.U)
-            ev.dy_theta = (C @ sens).reshape(L, ny, p, S) + direct.reshape(L, p, ny, S).transpose(0, 2, 1, 3)
-            powers = propagate(Phi, np.zeros((L, n, n)), np.eye(n))  # Phi^k
-            ev.dy_x0 = C @ powers
+            self._sensitivities(ev, model, Phi, dPhi, dGamma, x)
         return ev
+
+    def _blocks(self, columns: int):
+        """Time blocks ``(k0, k1)`` over the padded length, each holding about BLOCK_FLOATS floats
+        of a (block, n, columns) array: long records never hold the sensitivity work whole."""
+        L = self.layout.L
+        size = max(64, BLOCK_FLOATS // max(self.n * columns, 1))
+        return [(k0, min(L, k0 + size)) for k0 in range(0, L, size)]
+
+    def _sensitivities(self, ev: Response, model: LinearModel, Phi, dPhi, dGamma, x) -> None:
+        """``ev.dy_theta`` (L, ny, p, S) and ``ev.dy_x0`` (L, ny, n): the sensitivity recursion
+        ``S[k+1] = Phi S[k] + dPhi_i x[k] + dGamma_i u[k]`` run block by block in time (the
+        state carried across), so its forcing and states exist one block at a time."""
+        L, S, n, p, ny = self.layout.L, self.layout.n_segments, self.n, self.p, self.ny
+        C = model.C
+        ev.dy_theta = np.empty((L, ny, p, S))
+        ev.dy_x0 = np.empty((L, ny, n))
+        sens, power = np.zeros((n, p * S)), np.eye(n)
+        for k0, k1 in self._blocks(p * S):
+            xb, ub = x[k0:k1], self.U[k0:k1]
+            # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (l, n, p, S)
+            forcing = ((dPhi.reshape(p * n, n) @ xb + dGamma.reshape(p * n, self.m) @ ub)
+                       .reshape(k1 - k0, p, n, S).transpose(0, 2, 1, 3).reshape(k1 - k0, n, p * S))
+            block = propagate(Phi, forcing, sens)
+            direct = model.dC.reshape(p * ny, n) @ xb + model.dD.reshape(p * ny, self.m) @ ub
+            ev.dy_theta[k0:k1] = ((C @ block).reshape(k1 - k0, ny, p, S)
+                                  + direct.reshape(k1 - k0, p, ny, S).transpose(0, 2, 1, 3))
+            powers = propagate(Phi, np.zeros((k1 - k0, n, n)), power)  # Phi^k
+            ev.dy_x0[k0:k1] = C @ powers
+            sens, power = Phi @ block[-1] + forcing[-1], Phi @ powers[-1]
 
     def initial_state_response(self, theta: np.ndarray) -> np.ndarray:
         """``dy/dx0 = C Phi^k`` (L, ny, n), the same for every segment (without the parameter
@@ -260,16 +284,22 @@ class OutputError:
         """Whitened residuals at ``beta`` (what a general least-squares solver minimises)."""
         return self.whitened(self.evaluate(beta, jacobian=False), Wh)
 
-    def _local_jacobian(self, ev: Response, Wh: np.ndarray) -> np.ndarray:
-        """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment,
-        (S, L, ny, p + n + ny), 0 on padding."""
-        L, ny, S = ev.e.shape
-        p, n = self.p, self.n
-        Jloc = np.empty((S, L, ny, p + n + ny))
-        Jloc[..., :p] = (Wh @ ev.dy_theta.reshape(L, ny, p * S)).reshape(L, ny, p, S).transpose(3, 0, 1, 2)
-        Jloc[..., p:p + n] = (Wh @ ev.dy_x0)[None]
+    def _local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None,
+                        segment: int | None = None) -> np.ndarray:
+        """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment (or of
+        ``segment`` alone) over the samples k0..k1 (default all), (S, k1 - k0, ny, p + n + ny),
+        0 on padding."""
+        _, ny, S = ev.e.shape
+        k1 = ev.e.shape[0] if k1 is None else k1
+        segs = slice(None) if segment is None else slice(segment, segment + 1)
+        S = S if segment is None else 1
+        p, n, l = self.p, self.n, k1 - k0
+        Jloc = np.empty((S, l, ny, p + n + ny))
+        Jloc[..., :p] = ((Wh @ ev.dy_theta[k0:k1, ..., segs].reshape(l, ny, p * S)).reshape(l, ny, p, S)
+                         .transpose(3, 0, 1, 2))
+        Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1])[None]
         Jloc[..., p + n:] = Wh
-        Jloc[self.mask.T == 0] = 0.0  # not a product: padding may hold inf
+        Jloc[self.mask[k0:k1, segs].T == 0] = 0.0  # not a product: padding may hold inf
         return Jloc
 
     def _scatter(self, Ml: np.ndarray, gl: np.ndarray | None = None):
@@ -287,11 +317,15 @@ class OutputError:
     def normal_equations(self, ev: Response, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Information matrix ``M = J^T R^-1 J`` (n_beta, n_beta) and ``g = J^T R^-1 e`` (n_beta,),
         J = dy/dbeta; accumulated per segment from its local Jacobian."""
-        L, ny, S = ev.e.shape
-        Jloc = self._local_jacobian(ev, Wh).reshape(S, L * ny, -1)
-        ew = (Wh @ ev.e).transpose(2, 0, 1).reshape(S, L * ny, 1)
-        Ml = Jloc.transpose(0, 2, 1) @ Jloc
-        gl = (Jloc.transpose(0, 2, 1) @ ew)[..., 0]
+        _, ny, S = ev.e.shape
+        k = self.p + self.n + ny
+        Ml, gl = np.zeros((S, k, k)), np.zeros((S, k))
+        for k0, k1 in self._blocks(S * k):  # block by block in time: bounded memory for long records
+            Jloc = self._local_jacobian(ev, Wh, k0, k1).reshape(S, (k1 - k0) * ny, k)
+            ew = (Wh @ ev.e[k0:k1]).transpose(2, 0, 1).reshape(S, (k1 - k0) * ny, 1)
+            Jt = Jloc.transpose(0, 2, 1)
+            Ml += Jt @ Jloc
+            gl += (Jt @ ew)[..., 0]
         return self._scatter(Ml, gl)
 
     def coloured_information(self, ev: Response, Wh: np.ndarray, cov: np.ndarray,
@@ -317,42 +351,79 @@ class OutputError:
         FFT convolutions over time, all columns of a segment at once.
 
         Returns ``B``, ``rho`` (L, ny) (lag 0 first) and the number of passes.
+
+        Memory: the columns of each segment's Jacobian go through the FFTs a chunk at a time
+        (COLOUR_CHUNK_FLOATS); their spectra are kept between passes only while they are small
+        (COLOUR_CACHE), else recomputed, so an hour at 100 Hz stays within a few hundred MB.
         """
         L, ny, S = ev.e.shape
         n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
+        F = n_fft // 2 + 1
         count = max(float(self.mask.sum()), 1.0)
         r = np.fft.irfft(power(Wh @ ev.e, n_fft).sum(axis=2) / count, n_fft, axis=0)  # (n_fft, ny)
-        Jloc = self._local_jacobian(ev, Wh)  # (S, L, ny, k), 0 on padding
+        k_loc = self.p + self.n + ny
+        # columns of each segment's Jacobian are taken a chunk at a time, so that the spectra of a
+        # long record (n_fft ~ 2 N) never exist for all columns at once; spectra are kept between
+        # passes while they fit in COLOUR_CACHE floats (short segments: always)
+        width = max(1, min(k_loc, COLOUR_CHUNK_FLOATS // (2 * F * ny)))  # complex: 2 floats
+        cache_ok = S * F * ny * k_loc * 4 <= COLOUR_CACHE  # two complex spectra per column
+        Jloc = self._local_jacobian(ev, Wh) if cache_ok else None  # (S, L, ny, k), 0 on padding
         segs = []
         for s in range(S):
-            idx = self.local_index[s]
-            keep = idx >= 0
-            i = idx[keep]
-            Js = Jloc[s, :self.layout.length[s]][..., keep]  # (l, ny, k)
-            segs.append((i, keep, Js, np.fft.rfft(Js, n_fft, axis=0),
-                         np.conj(np.fft.rfft(Js @ cov[np.ix_(i, i)], n_fft, axis=0))))
-        k_loc = Jloc.shape[-1]
+            keep = self.local_index[s] >= 0
+            whole = None if Jloc is None else Jloc[s, :self.layout.length[s]][..., keep]
+            segs.append((self.local_index[s][keep], keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)))
+        cache = {}
+
+        def spectra(s, c, J, cov_ii):
+            """rfft of the columns c of J and of (J cov)[:, c]. The FFT is linear: with all columns
+            at once the latter is rfft(J) cov, a small product instead of another FFT."""
+            key = (s, c.start, c.stop)  # slices are not hashable before Python 3.12
+            if key in cache:
+                return cache[key]
+            if c == slice(None):
+                FJ = np.fft.rfft(J.whole if J.whole is not None else J.apply(np.eye(J.q)), n_fft, axis=0)
+                FG = FJ @ cov_ii
+            else:
+                FJ = np.fft.rfft(J.apply(np.eye(J.q)[:, c]), n_fft, axis=0)
+                FG = np.fft.rfft(J.apply(cov_ii[:, c]), n_fft, axis=0)
+            if cache_ok:
+                cache[key] = FJ, np.conj(FG)
+            return FJ, np.conj(FG)
+
+        def chunks(q):
+            return [slice(None)] if width >= q else [slice(a, min(q, a + width)) for a in range(0, q, width)]
+
         rho = np.zeros_like(r)
         rho[0] = r[0]  # start: white noise of the residuals' variance
         var_old = None
         for passes in range(1, max_iter + 1):
-            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)  # a covariance: PSD
-            Bl, TJs = np.zeros((S, k_loc, k_loc)), []
-            for s, (i, keep, Js, FJ, _) in enumerate(segs):
-                TJ = np.fft.irfft(spectrum[:, :, None] * FJ, n_fft, axis=0)[:len(Js)]
-                TJs.append(TJ)
-                q = Js.shape[-1]
-                Bl[s][np.ix_(keep, keep)] = Js.reshape(-1, q).T @ TJ.reshape(-1, q)
+            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)[:, :, None]  # a covariance: PSD
+            Bl = np.zeros((S, k_loc, k_loc))
+            corr = np.zeros((F, ny))
+            for s, (i, keep, J) in enumerate(segs):
+                cov_ii = cov[np.ix_(i, i)]
+                block = np.zeros((J.q, J.q))
+                for c in chunks(J.q):
+                    FJ, FGc = spectra(s, c, J, cov_ii)
+                    TJ = np.fft.irfft(spectrum * FJ, n_fft, axis=0)[:J.length]
+                    block[:, c] = J.gram(TJ)
+                    corr += 2 * np.einsum("fyq,fyq->fy", FGc, np.fft.rfft(TJ, n_fft, axis=0)).real
+                    del FJ, FGc, TJ
+                Bl[s][np.ix_(keep, keep)] = block
             B, _ = self._scatter(0.5 * (Bl + Bl.transpose(0, 2, 1)))
             cov_c = cov @ B @ cov
             var = np.diag(cov_c)[:self.p]  # converged on the parameters (the nuisances follow)
             if var_old is not None and np.all(np.abs(var - var_old) <= tol * np.abs(var_old)):
                 break
             var_old = var
-            corr = np.zeros((n_fft // 2 + 1, ny))
-            for (i, keep, Js, FJ, FGc), TJ in zip(segs, TJs):
-                FC = np.conj(np.fft.rfft(Js @ cov_c[np.ix_(i, i)], n_fft, axis=0))
-                corr += np.sum(2 * FGc * np.fft.rfft(TJ, n_fft, axis=0) - FC * FJ, axis=-1).real
+            for s, (i, keep, J) in enumerate(segs):
+                cc = cov_c[np.ix_(i, i)]
+                for c in chunks(J.q):
+                    FJ = spectra(s, c, J, cov[np.ix_(i, i)])[0]
+                    FC = FJ @ cc if c == slice(None) else np.fft.rfft(J.apply(cc[:, c]), n_fft, axis=0)
+                    corr -= np.einsum("fyq,fyq->fy", np.conj(FC), FJ).real
+                    del FJ, FC
             rho = r + np.fft.irfft(corr / count, n_fft, axis=0)
         return B, rho[:L], passes
 
@@ -364,3 +435,38 @@ class OutputError:
         for s in range(lay.n_segments):
             out[lay.run[s]].append(arr[:lay.length[s], :, s])
         return [np.vstack(parts) for parts in out]
+
+
+class _SegmentJacobian:
+    """The whitened local Jacobian (l, ny, q) of one segment (its estimated columns ``keep``),
+    either held ``whole`` or rebuilt from the stored sensitivities a time block at a time, so
+    that a long record's Jacobian never exists whole: its products are all it offers."""
+
+    def __init__(self, prob: OutputError, ev: Response, Wh: np.ndarray, segment: int, keep: np.ndarray,
+                 whole: np.ndarray | None = None):
+        self.prob, self.ev, self.Wh, self.segment, self.keep, self.whole = prob, ev, Wh, segment, keep, whole
+        self.length, self.q, self.ny = int(prob.layout.length[segment]), int(keep.sum()), ev.e.shape[1]
+
+    def _blocks(self):
+        if self.whole is not None:
+            yield 0, self.length, self.whole
+            return
+        for k0, k1 in self.prob._blocks(len(self.keep)):
+            if k0 >= self.length:
+                break
+            k1 = min(k1, self.length)
+            yield k0, k1, self.prob._local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
+
+    def apply(self, C: np.ndarray) -> np.ndarray:
+        """``J C`` (l, ny, w) for C (q, w)."""
+        out = np.empty((self.length, self.ny, C.shape[1]))
+        for k0, k1, J in self._blocks():
+            out[k0:k1] = J @ C
+        return out
+
+    def gram(self, T: np.ndarray) -> np.ndarray:
+        """``J^T T`` (q, w) summed over time and outputs, T (l, ny, w)."""
+        acc = np.zeros((self.q, T.shape[-1]))
+        for k0, k1, J in self._blocks():
+            acc += J.reshape(-1, self.q).T @ T[k0:k1].reshape(-1, T.shape[-1])
+        return acc

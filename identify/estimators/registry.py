@@ -1,17 +1,30 @@
-"""Method name -> estimator class, the one table used by the command line and by refine."""
+"""Method name -> estimator class, the one table used by the command line and by refine.
+
+The classes are imported when asked for (:func:`estimator_class`): the command line lists the
+method names in ``--help`` without loading the estimators (and scipy.signal with them).
+"""
 from __future__ import annotations
 
-from ..errors import EstimationError
-from .equation_error import IV, LS
-from .frequency_ee import FDEE
-from .ml import ML
+import importlib
 
-METHODS = {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE}
+from ..errors import EstimationError
+
+# method name -> (module under identify.estimators, class)
+_CLASSES = {"ml": ("ml", "ML"), "ls": ("equation_error", "LS"), "iv": ("equation_error", "IV"),
+            "fdee": ("frequency_ee", "FDEE")}
+METHOD_NAMES = tuple(_CLASSES)
 
 
 def estimator_class(method: str):
     """The estimator class of a method name (``ml``, ``ls``, ``iv``, ``fdee``)."""
     try:
-        return METHODS[method]
+        module, name = _CLASSES[method]
     except KeyError:
-        raise EstimationError(f"unknown method '{method}' (choose from {', '.join(METHODS)})") from None
+        raise EstimationError(f"unknown method '{method}' (choose from {', '.join(_CLASSES)})") from None
+    return getattr(importlib.import_module(f".{module}", __package__), name)
+
+
+def __getattr__(name: str):
+    if name == "METHODS":  # {name: class}: imports every estimator
+        return {m: estimator_class(m) for m in _CLASSES}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -4,6 +4,11 @@ Every estimator returns an :class:`IdentificationResult`, in the spirit of a sta
 object: ``summary()`` prints a table an engineer can paste into a report; ``to_dict()`` /
 ``save()`` give ``result.json`` and the identified model as a profile TOML, which can be the next a
 priori model.
+
+``result.json`` is strict JSON (``allow_nan=False``): a value that is not finite (the infinite
+standard error of a parameter no input excites, a NaN) is written as ``null``, as its ``notes``
+say; long per-sample or per-segment arrays are summarised so that the file stays small (well
+under 1 MB for an hour of data) — the time histories themselves belong in the plots and runs.
 """
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ import numpy as np
 
 from ..model.linear import LinearModel, format_modes
 from ..model.profile import Profile
+from . import identifiability
 
 
 def theil(measured: np.ndarray, modelled: np.ndarray) -> float:
@@ -49,6 +55,8 @@ class IdentificationResult:
     fit: dict[str, dict[str, float]] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     runs: list[str] = field(default_factory=list)
+    # (p, p) covariance of theta (std = sqrt of its diagonal); None: only the stds are known
+    covariance: np.ndarray | None = field(default=None, repr=False)
     # per run, for plots and residual analysis (not written to JSON): time (N,), measured and
     # modelled outputs (N, ny) in the order of profile.outputs
     time: list[np.ndarray] = field(default_factory=list, repr=False)
@@ -77,6 +85,24 @@ class IdentificationResult:
     def model(self) -> LinearModel:
         return LinearModel(self.profile, self.theta)
 
+    @property
+    def converged(self) -> bool:
+        """False only when an iterative estimator stopped before convergence."""
+        return bool(self.info.get("converged", True))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """(p, p) parameter correlation matrix (identity where only the stds are known)."""
+        return identifiability.correlation(self._cov())
+
+    def identifiability(self) -> dict:
+        """Correlated pairs, poorly determined parameters and modes whose stability these runs do
+        not determine (:func:`identify.identifiability.assess`)."""
+        return identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+
+    def _cov(self) -> np.ndarray:
+        return np.diag(self.std ** 2) if self.covariance is None else self.covariance
+
     def parameters(self) -> dict[str, float]:
         return dict(zip(self.names, map(float, self.theta)))
 
@@ -96,11 +122,24 @@ class IdentificationResult:
                 row += f"{truth.get(name, float('nan')):12.5g}"
             lines.append(row)
         lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
+        lines.append(self._convergence_line())
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
+            if self.info.get("modelled"):
+                lines.append(f"(modelled outputs: {self.info['modelled']})")
         lines += ["", "modes of the identified model:", format_modes(self.model.modes())]
-        return "\n".join(lines)
+        check = identifiability.report_lines(self.identifiability())
+        return "\n".join(lines + ([""] + check if check else []))
+
+    def _convergence_line(self) -> str:
+        if "converged" not in self.info:
+            return "convergence: not iterative (one least-squares solution)"
+        it, stop = self.info.get("iterations"), self.info.get("stop", "")
+        if self.info["converged"]:
+            return f"convergence: converged after {it} iterations ({stop})" if stop else \
+                f"convergence: converged after {it} iterations"
+        return f"convergence: NOT CONVERGED after {it} iterations ({stop}): the estimates are not final"
 
     def markdown(self, truth: dict[str, float] | None = None) -> str:
         """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes."""
@@ -121,26 +160,61 @@ class IdentificationResult:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
+        """A JSON-ready dict: non-finite floats become None (strict JSON), long arrays summaries."""
+        check = self.identifiability()
         modes = [{"real": m.eigenvalue.real, "imag": m.eigenvalue.imag, "frequency": m.frequency,
                   "damping": m.damping} for m in self.model.modes()]
-        return {
+        for m, u in zip(modes, check["modes"]):  # both slowest first, one per conjugate pair
+            m.update(std_real=u["std_real"], std_imag=u["std_imag"],
+                     stability_determined=u["stability_determined"])
+        out = {
             "method": self.method,
             "profile": self.profile.name,
             "runs": self.runs,
+            "converged": self.converged,
             "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a)}
                            for n, v, s, a in zip(self.names, self.theta, self.std, self.apriori)},
+            "correlation": {"names": self.names, "matrix": self.correlation},
+            "identifiability": check,
             "fit": self.fit,
             "eigenvalues": modes,
-            "info": _jsonable(self.info),
+            "info": _summarised(self.info),
+            "notes": [NULL_NOTE],
         }
+        return _jsonable(out)
 
     def save(self, outdir: str | Path) -> Path:
         """Write ``result.json`` and ``identified_profile.toml`` into ``outdir``."""
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
-        (outdir / "result.json").write_text(json.dumps(self.to_dict(), indent=2))
+        (outdir / "result.json").write_text(dumps(self.to_dict()))
         self.identified_profile().save(outdir / "identified_profile.toml")
         return outdir
+
+
+NULL_NOTE = "null stands for a value that is not finite: an infinite standard error (a parameter no input excites) or NaN"
+MAX_LAGS = 200  # noise autocorrelation lags kept in result.json
+MAX_LISTED = 100  # per-segment entries kept in result.json
+
+
+def dumps(obj) -> str:
+    """Strict JSON text (no NaN/Infinity: they must be None already, see :func:`_jsonable`)."""
+    return json.dumps(_jsonable(obj), indent=1, allow_nan=False)
+
+
+def _summarised(info: dict) -> dict:
+    """``info`` with the long arrays cut: the noise autocorrelation to its first MAX_LAGS lags,
+    the per-segment list to its first MAX_LISTED entries (the count and a note say so)."""
+    info = dict(info)
+    acf = info.get("noise_autocorrelation")
+    if acf is not None and len(acf) > MAX_LAGS:
+        info["noise_autocorrelation"] = np.asarray(acf)[:MAX_LAGS]
+        info["noise_autocorrelation_note"] = f"first {MAX_LAGS} of {len(acf)} lags"
+    segs = info.get("segments")
+    if segs is not None and len(segs) > MAX_LISTED:
+        info["segments"] = segs[:MAX_LISTED]
+        info["segments_note"] = f"first {MAX_LISTED} of {len(segs)} segments listed"
+    return info
 
 
 def _jsonable(obj):
@@ -150,8 +224,10 @@ def _jsonable(obj):
         return [_jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return _jsonable(obj.item())
     if isinstance(obj, float) and not np.isfinite(obj):
-        return str(obj)
+        return None
+    if isinstance(obj, complex):
+        return {"real": _jsonable(obj.real), "imag": _jsonable(obj.imag)}
     return obj
