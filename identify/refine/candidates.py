@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..data.runs import Run
-from ..errors import EstimationError, ProfileError, PseudostepError
+from ..errors import EstimationError, ProfileError, PseudostepError, SimulationError
 from ..model import pseudo_inputs as pi
 from ..model.profile import Profile
 from ..model.pseudo_inputs import delay_run
@@ -254,8 +254,11 @@ class Delay(Candidate):
                 if key not in fits:
                     # warm start from the nearest delay fitted so far: a few iterations, not twenty
                     start = fits[min(fits, key=lambda k: abs(k - key))][1] if fits else p
-                    prof, res = loop.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
-                    fits[key] = (0.5 * noise.cost(loop.residuals(prof)), prof, res)
+                    try:
+                        prof, res = loop.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
+                        fits[key] = (0.5 * noise.cost(loop.residuals(prof)), prof, res)
+                    except (EstimationError, SimulationError):  # a delay whose fit diverges is not the likeliest one
+                        fits[key] = (math.inf, start, None)
                 return fits[key]
 
             # the profile likelihood in the metric of the test's noise model (under turbulence the
