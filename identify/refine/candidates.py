@@ -264,12 +264,15 @@ class Delay(Candidate):
             # the profile likelihood in the metric of the test's noise model (under turbulence the
             # white one is biased: 0.088 s for a 0.1 s delay, 10 standard errors off)
             tau = _search_delay(lambda t: at(t)[0], hint or 0.0, dt, loop.tau_max)
+            if not math.isfinite(at(tau)[0]):
+                raise EstimationError(f"delay on '{self.target}': the fit diverged at every delay tried")
             prof, res = loop.refit(at(tau)[1], p)  # the same fit, with its bounds
             # the bound from the curvature (central difference, shifted off the bound tau = 0)
             h = max(dt / 2, 0.05 * tau)
             c = tau if tau >= h else h
             curv = (at(c + h)[0] - 2 * at(c)[0] + at(c - h)[0]) / h ** 2
-            std = 1 / math.sqrt(curv) if curv > 0 else math.inf
+            # a neighbour whose fit diverged leaves the curvature undetermined: no bound, not zero
+            std = 1 / math.sqrt(curv) if math.isfinite(curv) and curv > 0 else math.inf
             options.append((prof, res, {self.params[0]: {"value": tau, "std": std}}, "delay"))
         if self.spec["_lag"]:
             tau0 = options[0][2][self.params[0]]["value"] if options else 0.1
