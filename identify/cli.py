@@ -162,6 +162,9 @@ def cmd_refine(args) -> int:
         print(f"step {i}: {s.effect} on {s.target}: {params} (score {s.statistic:.4g} > {s.threshold:.4g})")
     for s in refiner.rejected_:
         print(f"rejected: {s.effect} on {s.target}: {s.reason}")
+    if refiner.unconverged_:
+        print(f"warning: {len(refiner.unconverged_)} fit(s) inside refine did not converge "
+              f"(listed in report.md): {refiner.unconverged_[0]}")
     for where in refiner.error_before_:
         print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
               f"{refiner.error_after_[where]['overall']:.4g}", flush=True)

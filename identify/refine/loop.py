@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -37,7 +38,7 @@ import numpy as np
 from scipy import stats
 
 from ..data.runs import Run
-from ..errors import EstimationError, PseudostepError
+from ..errors import ConvergenceWarning, EstimationError, PseudostepError
 from ..estimators.output_error import auto_segment
 from ..estimators.registry import estimator_class
 from ..estimators.result import IdentificationResult
@@ -81,34 +82,26 @@ class Refine:
                  max_steps: int = 6, zero_shifts: bool = True, frequencies=None, f_min: float = 0.5,
                  tau_max: float = 0.5, nonlinear_products: bool = True, segment=None, coloured: bool = True,
                  progress: bool = False, verbose: bool = False):
-        self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
-        unknown = set(kinds) - set(KINDS)
-        if unknown:
-            raise EstimationError(f"unknown effect kind(s) {', '.join(sorted(unknown))} "
-                                  f"(catalogue: {', '.join(KINDS)})")
-        if not 0 < alpha < 1:
-            raise EstimationError(f"alpha must be between 0 and 1, got {alpha}")
-        if not (isinstance(max_steps, (int, np.integer)) and max_steps >= 1):
-            raise EstimationError(f"max_steps must be a positive integer, got {max_steps!r}")
-        if not (tau_max > 0 and f_min >= 0 and all(f > 0 for f in (frequencies or []))):
-            raise EstimationError("tau_max and the disturbance frequencies must be positive, f_min not negative")
+        self.profile = profile
         self.method = method
         self.estimator = estimator
-        self.estimator_options = dict(estimator_options or {})
-        self.alpha, self.kinds, self.max_steps = alpha, tuple(kinds), max_steps
+        self.estimator_options = estimator_options
+        self.alpha, self.kinds, self.max_steps = alpha, kinds, max_steps
         self.zero_shifts = zero_shifts
-        self.frequencies = list(frequencies or [])
+        self.frequencies = frequencies
         self.f_min, self.tau_max = f_min, tau_max
         self.nonlinear_products = nonlinear_products
         self.segment = segment
         self.coloured = coloured
-        self.progress = progress or verbose
+        self.progress = progress
+        self.verbose = verbose
 
     # -- public -------------------------------------------------------------------------------
     def fit(self, runs, validate=None) -> "Refine":
         runs = [runs] if isinstance(runs, Run) else list(runs)
         validate = [validate] if isinstance(validate, Run) else list(validate or [])
         self._started = time.perf_counter()
+        self._validate_options()
         self._check(runs, validate)
         choose, judge = split_validation(validate)
         self._data = {"fit": runs, "choosing": choose, "validation": judge}
@@ -118,15 +111,15 @@ class Refine:
         self.data_ = {key: [r.source for r in rs] for key, rs in self._data.items()}
         self.segment_ = self._segment(runs)
         # a priori values: before spending a fit on it
-        check_identifiable(self.profile, prepare_runs(self.profile, runs), self.zero_shifts, self.segment_)
-        self._say(f"fitting the declared model ({len(self.profile.free)} parameters, {len(runs)} runs)")
-        current, est = self.refit(self.profile, self.profile)
+        check_identifiable(self.declared_, prepare_runs(self.declared_, runs), self.zero_shifts, self.segment_)
+        self._say(f"fitting the declared model ({len(self.declared_.free)} parameters, {len(runs)} runs)")
+        current, est = self.refit(self.declared_, self.declared_)
         if self._segment(runs, current) < self.segment_:  # the fit diverges faster than the a priori
             self.segment_ = self._segment(runs, current)
             self._say(f"the fitted model diverges faster: segments cut to {self.segment_:.3g} s, re-fitting")
-            current, est = self.refit(self.profile, self.profile)
+            current, est = self.refit(self.declared_, self.declared_)
         self.initial_result_ = est
-        self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.profile.outputs])
+        self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.declared_.outputs])
         self.steps_, self.rejected_ = [], []
         excluded: set[str] = set()
         ev0 = self._eval(current)
@@ -184,15 +177,32 @@ class Refine:
         return not self.steps_
 
     def _say(self, msg: str) -> None:
-        if self.progress:
+        if self.progress or self.verbose:
             print(f"refine [{time.perf_counter() - self._started:7.1f} s] {msg}", file=sys.stderr, flush=True)
 
     # -- checks ------------------------------------------------------------------------------
+    def _validate_options(self) -> None:
+        """Options checked and normalised at ``fit`` (scikit-learn style: ``__init__`` only stores)."""
+        unknown = set(self.kinds) - set(KINDS)
+        if unknown:
+            raise EstimationError(f"unknown effect kind(s) {', '.join(sorted(unknown))} "
+                                  f"(catalogue: {', '.join(KINDS)})")
+        if not 0 < self.alpha < 1:
+            raise EstimationError(f"alpha must be between 0 and 1, got {self.alpha}")
+        if not (isinstance(self.max_steps, (int, np.integer)) and self.max_steps >= 1):
+            raise EstimationError(f"max_steps must be a positive integer, got {self.max_steps!r}")
+        if not (self.tau_max > 0 and self.f_min >= 0 and all(f > 0 for f in (self.frequencies or []))):
+            raise EstimationError("tau_max and the disturbance frequencies must be positive, f_min not negative")
+        self.declared_ = self.profile if isinstance(self.profile, Profile) else load_profile(self.profile)
+        self._kinds, self._frequencies = tuple(self.kinds), tuple(self.frequencies or ())
+        self._estimator_options = dict(self.estimator_options or {})
+        self.unconverged_: list[str] = []
+
     def _check(self, runs: list[Run], validate: list[Run]) -> None:
         if not runs:
             raise EstimationError("refine: no runs given")
-        for run in prepare_runs(self.profile, runs + validate):
-            run.require(self.profile.channels, f"profile '{self.profile.name}'")
+        for run in prepare_runs(self.declared_, runs + validate):
+            run.require(self.declared_.channels, f"profile '{self.declared_.name}'")
             if len(run) < MIN_SAMPLES:
                 raise EstimationError(f"{run.source}: only {len(run)} samples; refine needs at least "
                                       f"{MIN_SAMPLES} per run to test the residuals")
@@ -202,9 +212,9 @@ class Refine:
         """One segmentation for every fit and test of the loop (ML's automatic choice for the
         declared model, or for its first ``fitted`` model where that diverges faster, unless
         given), so that costs before and after a step compare."""
-        seg = self.estimator_options.get("segment", self.segment)
+        seg = self._estimator_options.get("segment", self.segment)
         if seg is None:
-            seg = auto_segment(LinearModel(fitted or self.profile), max(r.duration for r in runs)) \
+            seg = auto_segment(LinearModel(fitted or self.declared_), max(r.duration for r in runs)) \
                 if self.estimator is None and self.method == "ml" else math.inf
         return math.inf if seg == "plain" else float(seg)
 
@@ -212,7 +222,7 @@ class Refine:
         """Fit ``profile``; ``bounds=False`` when only the estimate and its likelihood are used
         (the fits inside a delay search), which spares ML's coloured-residual correction."""
         cls = self.estimator or estimator_class(self.method)
-        options = dict(self.estimator_options)
+        options = dict(self._estimator_options)
         if self.estimator is None and self.method == "ml":
             if not bounds:
                 options.setdefault("coloured", False)
@@ -220,7 +230,16 @@ class Refine:
             # that likelihoods before and after a step compare
             options.setdefault("estimate_bias", self.zero_shifts)
             options.setdefault("segment", self.segment_)
-        return cls(profile, **options).fit(runs).result_
+        with warnings.catch_warnings():
+            # recorded below, once per fit, instead of interleaved with the progress lines
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            result = cls(profile, **options).fit(runs).result_
+        if not result.converged:
+            free = ", ".join(n for n in result.names if n not in self.declared_.free) or "declared model"
+            note = f"fit with {free} did not converge ({result.info.get('stop', 'no reason given')})"
+            self.unconverged_.append(note)
+            self._say(f"  warning: {note}")
+        return result
 
     def _eval(self, p: Profile, data: str = "fit") -> ModelFit:
         """The profile on one data set (``fit``, ``choosing``, ``validation``) with the loop's
@@ -238,8 +257,8 @@ class Refine:
 
     # -- score tests -------------------------------------------------------------------------
     def _candidates(self, p: Profile, runs: list[Run], ev: ModelFit, excluded: set[str]) -> list[Candidate]:
-        context = Context(runs, ev.residuals, self.dt, self.f_min, tuple(self.frequencies), self.nonlinear_products)
-        return [c for c in catalogue(p, context, self.kinds) if c.name not in excluded]
+        context = Context(runs, ev.residuals, self.dt, self.f_min, self._frequencies, self.nonlinear_products)
+        return [c for c in catalogue(p, context, self._kinds) if c.name not in excluded]
 
     def _score(self, p: Profile, excluded: set[str]) -> list[dict]:
         """Score statistic, threshold and p-value of every candidate at the fitted profile ``p``.

@@ -25,7 +25,7 @@ from .loop import Refine
 def to_dict(r: Refine) -> dict:
     """Everything ``refine.json`` holds (plain JSON types)."""
     return _jsonable({
-        "profile": r.profile.name,
+        "profile": r.declared_.name,
         "method": r.method if r.estimator is None else getattr(r.estimator, "__name__", str(r.estimator)),
         "runs": [run.source for run in r._raw],
         "validation_runs": [run.source for run in r._val],
@@ -36,7 +36,8 @@ def to_dict(r: Refine) -> dict:
         "noise_model_white": r.noise_white_,
         "tries": r.tries_,
         "evaluations": r.evaluations_,
-        "catalogue": list(r.kinds),
+        "catalogue": list(r._kinds),
+        "unconverged_fits": r.unconverged_,
         "segment_s": r.segment_ if np.isfinite(r.segment_) else None,
         "nothing_found": r.nothing_found,
         "stopped": r.stopped_,
@@ -102,9 +103,9 @@ def _names(runs: list[str]) -> str:
 def markdown(r: Refine, data: dict, figures: list[str]) -> str:
     """The human report: verdict, data roles, errors before/after, each try's evidence,
     diagnostics, plots."""
-    outputs = list(r.profile.outputs)
+    outputs = list(r.declared_.outputs)
     d = data["data"]
-    lines = [f"# Model refinement: {r.profile.name}", ""]
+    lines = [f"# Model refinement: {r.declared_.name}", ""]
     orders = ", ".join(f"{o}" + ("" if w else " (its limit: innovations still not white)")
                        for o, w in zip(r.noise_orders_, r.noise_white_))
     lines += ["## Data and tests", "",
@@ -113,14 +114,17 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
               f"{_names(d['choosing'])}",
               f"- **judging** (only confirms a candidate the rest has chosen, once; the `validation` "
               f"errors below): {_names(d['validation'])}",
-              f"- method {data['method']}; candidates of {', '.join(r.kinds)}; family-wise false-alarm "
+              f"- method {data['method']}; candidates of {', '.join(r._kinds)}; family-wise false-alarm "
               f"level alpha = {r.alpha} per step (Šidák over all candidates tested)",
               "- tests " + ("valid for coloured residuals: score and likelihood-ratio statistics in the metric "
                             "of a vector autoregressive noise model of the residuals (orders per step: "
                             f"{orders or '-'})" if r.coloured else
                             "for white residuals (`coloured=False`)"),
               f"- {r.tries_} candidate(s) tried: {len(r.steps_)} accepted, {len(r.rejected_)} rejected; "
-              f"stopped: {r.stopped_}", ""]
+              f"stopped: {r.stopped_}"]
+    lines += [f"- **warning**: {len(r.unconverged_)} fit(s) did not converge: " + "; ".join(r.unconverged_)
+              ] if r.unconverged_ else []
+    lines.append("")
     if r.nothing_found:
         lines.append("**Nothing found**: no candidate effect is significant and confirmed; the residuals are "
                      "consistent with the noise model at this level. `steps` is empty.")
@@ -189,7 +193,7 @@ def _evidence(s) -> list[str]:
 
 
 def _plots(r: Refine, outdir: Path) -> list[str]:
-    outputs = list(r.profile.outputs)
+    outputs = list(r.declared_.outputs)
     ev = r.final_evaluation_
     before, after = ev["before"].residuals, ev["fit"].residuals
     _before_after(ev["time"][0], before[0], after[0], outputs, "time [s]",

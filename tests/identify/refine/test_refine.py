@@ -444,3 +444,23 @@ def test_state_built_terms_come_from_the_simulated_states():
         q_sim = mod[:, 1] - b[1]
         assert np.allclose(run["q_absq"], q_sim * np.abs(q_sim), atol=1e-9 * np.max(q_sim ** 2))
         assert not np.allclose(run["q_absq"], run["q"] * np.abs(run["q"]), atol=1e-3 * np.max(q_sim ** 2))
+
+
+def test_options_are_checked_at_fit_not_at_construction():
+    """scikit-learn style: the constructor stores, ``fit`` validates (one clear line)."""
+    r = Refine(PROFILE, alpha=2.0)
+    assert r.alpha == 2.0 and r.profile is PROFILE
+    with pytest.raises(EstimationError, match="alpha"):
+        r.fit(make_runs()[0])
+
+
+def test_unconverged_internal_fits_are_recorded_not_silent(tmp_path):
+    """ML stopped after one iteration cannot converge: every such fit is listed, and the report says so."""
+    from identify.refine.report import write
+
+    fit, val = make_runs()
+    r = Refine(PROFILE, estimator_options={"max_iter": 1}, kinds=("drift",), max_steps=1).fit(fit, validate=val)
+    assert r.unconverged_ and all("did not converge" in note for note in r.unconverged_)
+    assert not r.initial_result_.converged
+    write(r, tmp_path, plots=False)
+    assert "did not converge" in (tmp_path / "report.md").read_text()
