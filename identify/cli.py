@@ -1,6 +1,8 @@
 """``python -m identify``: inspect models and identify them from runs."""
 from __future__ import annotations
 
+import sys
+
 from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
                       output_dir, output_file, positive_float, positive_int, run)
 from .errors import EstimationError
@@ -54,8 +56,6 @@ def build_parser() -> Parser:
 
 def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
-    import sys
-
     from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
     from .estimators.registry import estimator_class
@@ -83,8 +83,7 @@ def cmd_estimate(args) -> int:
     options = {"ml": dict(progress=show, **iterations),
                "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
                "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
-    est = estimator_class(args.method)(profile, **options)
-    result = est.fit(runs).result_
+    result = _fit(estimator_class(args.method), options, profile, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
     from .frequency import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
@@ -94,6 +93,23 @@ def cmd_estimate(args) -> int:
     plots = save_plots(result, out)
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
     return 0
+
+
+def _fit(cls, options: dict, profile, runs):
+    """The estimator's result; a refined profile's state-built nonlinear terms (ML only) from the
+    model's simulated states, as refine fitted them, so that its estimates are reproduced."""
+    from .refine.evaluation import state_terms
+
+    if not (state_terms(profile) and cls.__name__ == "ML"):
+        return cls(profile, **options).fit(runs).result_
+    from .estimators.output_error import auto_segment
+    from .refine.evaluation import fit_state_terms
+
+    segment = auto_segment(LinearModel(profile), max(r.duration for r in runs))
+    print(f"note: {', '.join(state_terms(profile))} built from the model's simulated states (re-fitted until "
+          f"the estimates settle)", file=sys.stderr)
+    return fit_state_terms(lambda p: cls(p, segment=segment, **options), profile, runs,
+                           segment=segment)[1]
 
 
 def _add_estimate_parser(sub) -> None:

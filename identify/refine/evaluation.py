@@ -209,6 +209,19 @@ def settle(refit, profile: Profile, max_fits: int = REFITS):
                           f"tenths of a standard error)")
 
 
+def fit_state_terms(estimator, profile: Profile, runs: list[Run], zero_shifts: bool = True,
+                    segment: float = math.inf):
+    """``(fitted profile, result)`` of ``estimator(profile).fit(runs)`` for a profile with state-built
+    terms, fitted as refine fits them: the terms from the simulated states of the model being
+    fitted (:func:`predict`), re-fitted until the estimates settle (:func:`settle`). Measured
+    states would put their noise into the terms (an errors-in-variables bias)."""
+    def fit(prof: Profile):
+        result = estimator(prof).fit(predict(prof, runs, zero_shifts, segment).runs).result_
+        return result.identified_profile(prof.name), result
+
+    return settle(fit, profile)
+
+
 def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance: list[np.ndarray],
                 sigma: np.ndarray) -> list[np.ndarray]:
     """Residuals (N_r, ny) per run minus their least-squares fit on the columns ``shared``
@@ -293,6 +306,6 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["ModelFit", "evaluate", "predict", "settle", "state_terms", "simulated_terms", "errors",
+__all__ = ["ModelFit", "evaluate", "predict", "settle", "fit_state_terms", "state_terms", "simulated_terms", "errors",
            "neg_log_likelihood", "unexplained", "split_validation",
            "input_response", "check_identifiable", "MIN_SAMPLES"]

@@ -464,3 +464,28 @@ def test_unconverged_internal_fits_are_recorded_not_silent(tmp_path):
     assert not r.initial_result_.converged
     write(r, tmp_path, plots=False)
     assert "did not converge" in (tmp_path / "report.md").read_text()
+
+
+def test_estimate_on_a_refined_profile_builds_state_terms_as_refine_does(tmp_path):
+    """``identify estimate --method ml`` with a final profile holding q|q| reproduces refine's own
+    fit (the term from the model's simulated states, re-fitted until it settles), not a fit with
+    the noisy measured q in the term."""
+    import json
+
+    from identify.refine.candidates import Nonlinear
+    from tests.helpers import run_cli
+
+    fit, _ = nonlinear_runs(-20.0, noise=0.10)
+    p = parse_profile(Nonlinear("M", "q_absq", ("q",), "absq").profile(PROFILE, {"M_q_absq": -10.0}).to_toml())
+    files = [r.to_csv(tmp_path / f"run{i}.csv", ["eta", "u", "q", "theta"]) for i, r in enumerate(fit)]
+    proc = run_cli("identify", "estimate", *files, "--profile", p.save(tmp_path / "final_profile.toml"),
+                   "--method", "ml", "--out", tmp_path / "out")
+    assert proc.returncode == 0, proc.stderr
+    assert "q_absq built from the model's simulated states" in proc.stderr
+    cli = json.loads((tmp_path / "out" / "result.json").read_text())["parameters"]["M_q_absq"]
+    loop = Refine(p)
+    loop.fit(fit)  # sets up the loop's data; its own refit of p is the reference
+    _, ref = loop.refit(p, p)
+    i = ref.names.index("M_q_absq")
+    assert abs(cli["value"] - ref.theta[i]) < 0.2 * ref.std[i], (cli, ref.theta[i], ref.std[i])
+    assert abs(cli["value"] + 20.0) < 3 * cli["std"], cli
