@@ -26,6 +26,7 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError
 from ..estimators.output_error import OutputError, cut
+from ..estimators.result import IdentificationResult
 from ..model import pseudo_inputs as pi
 from ..model.linear import LinearModel
 from ..model.profile import Profile
@@ -153,14 +154,16 @@ def simulated_terms(p: Profile, runs: list[Run], ev: ModelFit, terms: dict[str, 
     return out
 
 
-def predict(profile: Profile, runs: list[Run], zero_shifts: bool = True, segment: float = math.inf) -> ModelFit:
+def predict(profile: Profile, runs: list[Run], zero_shifts: bool = True, segment: float = math.inf,
+            start: list[Run] | None = None) -> ModelFit:
     """:func:`evaluate` as a true prediction: the pseudo-inputs built from states (:func:`state_terms`)
     computed from the model's own simulated states (:func:`simulated_terms`), alternating with the
     least-squares fit of the initial states and zero shifts until the terms settle; ``ModelFit.runs``
     holds the runs with those channels. Raises :class:`EstimationError` if they do not (a term
-    that makes the model diverge)."""
+    that makes the model diverge). ``start``: runs holding the terms to start from (a nearby model's)."""
     terms = state_terms(profile)
-    current = [r.with_channels({n: np.zeros(len(r)) for n in terms}) for r in runs] if terms else runs
+    current = runs if not terms else start if start is not None else \
+        [r.with_channels({n: np.zeros(len(r)) for n in terms}) for r in runs]
     ev = evaluate(profile, current, zero_shifts, segment)
     change = 0.0
     for _ in range(PREDICT_ITER if terms else 0):
@@ -219,7 +222,46 @@ def fit_state_terms(estimator, profile: Profile, runs: list[Run], zero_shifts: b
         result = estimator(prof).fit(predict(prof, runs, zero_shifts, segment).runs).result_
         return result.identified_profile(prof.name), result
 
-    return settle(fit, profile)
+    fitted, result = settle(fit, profile)
+    return fitted, feedback_bounds(result, fitted, runs, zero_shifts, segment)
+
+
+def feedback_bounds(result: IdentificationResult, fitted: Profile, runs: list[Run], zero_shifts: bool = True,
+                    segment: float = math.inf) -> IdentificationResult:
+    """``result`` (a settled fit of ``fitted``, whose state-built terms were held at their values)
+    with its covariance widened for the terms' feedback. Each fit sees the terms as inputs, but they
+    move with the estimates through the simulated states: the estimate is the fixed point
+    ``theta = g(theta)`` of the fit ``g``, an instrumental-variable estimate, whose covariance by the
+    delta method is ``K^-1 C K^-T`` with ``C`` the fit's own (coloured-residual) covariance and
+    ``K = I - dg/dtheta = (J_h^T W J_h)^-1 J_h^T W J_t``: ``J_h`` the sensitivities with the terms
+    held, ``J_t`` with them following the states (both with the nuisance refitted, by forward
+    differences), ``W`` the outputs' inverse noise variances."""
+    base = predict(fitted, runs, zero_shifts, segment)
+    w = 1.0 / np.maximum(np.sqrt(np.mean(np.vstack(base.residuals) ** 2, axis=0)), 1e-300)
+
+    def stacked(ev: ModelFit) -> np.ndarray:
+        return np.concatenate([(e * w).ravel() for e in ev.residuals])
+
+    r0 = stacked(base)
+    theta = np.array([fitted.free[n] for n in result.names])  # where base was simulated
+    std = np.where(np.isfinite(result.std), result.std, 0.0)
+    step = 1e-4 * np.maximum(np.abs(theta), std) + 1e-9
+    held, moving = [], []
+    for name, value, h in zip(result.names, theta, step):
+        p = fitted.with_values({name: float(value + h)})
+        held.append((r0 - stacked(evaluate(p, base.runs, zero_shifts, segment))) / h)
+        moving.append((r0 - stacked(predict(p, runs, zero_shifts, segment, start=base.runs))) / h)
+    J_h, J_t = np.column_stack(held), np.column_stack(moving)
+    K = np.linalg.lstsq(J_h.T @ J_h, J_h.T @ J_t, rcond=None)[0]
+    if not np.all(np.isfinite(K)) or np.linalg.cond(K) > 1e12:
+        cov = np.full((len(theta), len(theta)), np.inf)
+    else:
+        K_inv = np.linalg.inv(K)
+        cov = K_inv @ result._cov() @ K_inv.T
+    how = result.info.get("standard_errors", "Cramér-Rao (white residuals)")
+    return replace(result, covariance=cov, std=np.sqrt(np.abs(np.diag(cov))),
+                   info={**result.info, "standard_errors": f"{how}, widened for the feedback of the state-built "
+                                                           f"term(s) {', '.join(state_terms(fitted))} (delta method)"})
 
 
 def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance: list[np.ndarray],
@@ -306,6 +348,6 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["ModelFit", "evaluate", "predict", "settle", "fit_state_terms", "state_terms", "simulated_terms", "errors",
+__all__ = ["ModelFit", "evaluate", "predict", "settle", "fit_state_terms", "feedback_bounds", "state_terms", "simulated_terms", "errors",
            "neg_log_likelihood", "unexplained", "split_validation",
            "input_response", "check_identifiable", "MIN_SAMPLES"]

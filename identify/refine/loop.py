@@ -46,8 +46,8 @@ from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from . import diagnostics as dg
 from .candidates import KINDS, Candidate, Context, Delay, catalogue, extend_all, prepare_runs
-from .evaluation import (MIN_SAMPLES, ModelFit, check_identifiable, errors, evaluate, input_response, predict,
-                         settle, simulated_terms, split_validation, state_terms, unexplained)
+from .evaluation import (MIN_SAMPLES, ModelFit, check_identifiable, errors, evaluate, feedback_bounds, input_response,
+                         predict, settle, simulated_terms, split_validation, state_terms, unexplained)
 from .noise import NoiseModel
 from .steps import Step
 
@@ -359,7 +359,12 @@ class Refine:
             result = self._estimate(prof, runs, bounds=bounds)
             return _keep_meta(result.identified_profile(p.name), ext_p), result
 
-        return settle(fit, ext_p) if state_terms(ext_p) else fit(ext_p)
+        if not state_terms(ext_p):
+            return fit(ext_p)
+        fitted, result = settle(fit, ext_p)
+        if bounds:
+            result = feedback_bounds(result, fitted, prepare_runs(fitted, self._raw), self.zero_shifts, self.segment_)
+        return fitted, result
 
     def residuals(self, p: Profile) -> list[np.ndarray]:
         return self._eval(p).residuals

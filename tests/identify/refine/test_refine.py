@@ -489,3 +489,35 @@ def test_estimate_on_a_refined_profile_builds_state_terms_as_refine_does(tmp_pat
     i = ref.names.index("M_q_absq")
     assert abs(cli["value"] - ref.theta[i]) < 0.2 * ref.std[i], (cli, ref.theta[i], ref.std[i])
     assert abs(cli["value"] + 20.0) < 3 * cli["std"], cli
+
+
+def test_feedback_bounds_match_the_fixed_point_of_the_fits():
+    """A state-built term moves with the estimates: the delta-method matrix K = I - dg/dtheta of
+    :func:`feedback_bounds` agrees with g's Jacobian taken by re-fitting ML with the terms of
+    perturbed models (an independent computation), and widens the term's standard error."""
+    from identify import ML
+    from identify.model.pseudo_inputs import prepare
+    from identify.refine.candidates import Nonlinear
+    from identify.refine.evaluation import feedback_bounds, fit_state_terms, predict
+
+    fit, _ = nonlinear_runs(-20.0, noise=0.10)
+    p = parse_profile(Nonlinear("M", "q_absq", ("q",), "absq").profile(PROFILE, {"M_q_absq": -20.0}).to_toml())
+    runs = prepare(p, fit)
+    fitted, widened = fit_state_terms(ML, p, runs)
+    held = ML(fitted).fit(predict(fitted, runs).runs).result_  # the settled fit, terms held
+    theta = held.theta
+
+    def g(values):  # the fit with the terms of the model at ``values``
+        terms = predict(fitted.with_values(dict(zip(held.names, values))), runs).runs
+        return ML(fitted).fit(terms).result_.theta
+
+    h = 1e-3 * np.abs(theta)
+    G = np.column_stack([(g(theta + h[j] * np.eye(len(theta))[j]) - g(theta - h[j] * np.eye(len(theta))[j]))
+                         / (2 * h[j]) for j in range(len(theta))])
+    K = np.eye(len(theta)) - G
+    cov = np.linalg.inv(K) @ held.covariance @ np.linalg.inv(K).T
+    assert np.allclose(widened.std, np.sqrt(np.diag(cov)), rtol=0.15), (widened.std, np.sqrt(np.diag(cov)))
+    i = held.names.index("M_q_absq")
+    assert widened.std[i] > 1.2 * held.std[i]
+    assert "feedback" in widened.info["standard_errors"]
+    assert np.allclose(feedback_bounds(held, fitted, runs).std, widened.std, rtol=0.05)
