@@ -280,6 +280,8 @@ class FDEE(_EquationError):
         result.info["derivatives"] = "not used: j w X(w) in the frequency domain"
         result.info["standard_errors"] = ("coloured-residual correction (smoothed residual spectrum, "
                                           "finite-record kernel)" if self.coloured else "white residuals")
+        result.info["frequency_domain"] = True
+        result.info["accuracy"] = result.accuracy()  # Cramér-Rao and insensitivity %, flagged
         return result
 
 
