@@ -295,11 +295,17 @@ class LiveEstimate:
     theta: np.ndarray
     std: np.ndarray
     errors: dict
+    insensitivity: np.ndarray | None = None  # (p,) Tischler & Remple's, others known (nan: not solved)
 
     @property
     def relative_std(self) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             return 100 * self.std / np.abs(self.theta)
+
+    @property
+    def relative_insensitivity(self) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 100 * self.insensitivity / np.abs(self.theta)
 
 
 class RecursiveFDEE:
@@ -380,7 +386,7 @@ class RecursiveFDEE:
 
     def estimate(self) -> LiveEstimate:
         p = len(self.model.names)
-        theta, std = self.model.theta.copy(), np.full(p, np.nan)
+        theta, std, ins = self.model.theta.copy(), np.full(p, np.nan), np.full(p, np.nan)
         errors = {}
         for gi, g in enumerate(self.groups):
             r = self._results.get(gi)
@@ -390,4 +396,14 @@ class RecursiveFDEE:
                 continue
             theta[g.params] = r["theta"]
             std[g.params] = np.sqrt(np.maximum(np.diag(r["cov"]), 0))
-        return LiveEstimate(self._prev[0] if self._prev else 0.0, theta, std, errors)
+            ins[g.params] = _insensitivity(r["cov"])
+        return LiveEstimate(self._prev[0] if self._prev else 0.0, theta, std, errors, ins)
+
+
+def _insensitivity(cov: np.ndarray) -> np.ndarray:
+    """``1 / sqrt(diag(cov^-1))``: each parameter's standard error were the others known (nan if
+    the covariance is singular)."""
+    try:
+        return 1 / np.sqrt(np.maximum(np.diag(np.linalg.inv(cov)), 1e-300))
+    except np.linalg.LinAlgError:
+        return np.full(len(cov), np.nan)

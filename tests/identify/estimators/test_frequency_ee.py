@@ -71,6 +71,7 @@ def test_recursive_transform_equals_the_batch_one(s61_4dof):
     assert not live.errors
     assert np.allclose(live.theta, batch.theta, rtol=1e-8, atol=1e-10)
     assert np.allclose(live.std, batch.std, rtol=1e-6)
+    assert np.allclose(live.insensitivity, batch.insensitivity, rtol=1e-6)
 
 
 def test_fdee_reports_cramer_rao_and_insensitivity_and_flags_an_unexcited_derivative():
