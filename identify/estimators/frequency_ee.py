@@ -38,7 +38,7 @@ from ..errors import EstimationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from .equation_error import Group, _check_rank, _EquationError, equation_groups
-from .result import IdentificationResult
+from .result import IdentificationResult, insensitivity
 
 DEFAULT_F_MAX = 2.0  # Hz: above it rotorcraft rigid-body models stop holding
 MAX_FREQUENCIES = 200
@@ -396,14 +396,6 @@ class RecursiveFDEE:
                 continue
             theta[g.params] = r["theta"]
             std[g.params] = np.sqrt(np.maximum(np.diag(r["cov"]), 0))
-            ins[g.params] = _insensitivity(r["cov"])
+            ins[g.params] = insensitivity(r["cov"])
         return LiveEstimate(self._prev[0] if self._prev else 0.0, theta, std, errors, ins)
 
-
-def _insensitivity(cov: np.ndarray) -> np.ndarray:
-    """``1 / sqrt(diag(cov^-1))``: each parameter's standard error were the others known (nan if
-    the covariance is singular)."""
-    try:
-        return 1 / np.sqrt(np.maximum(np.diag(np.linalg.inv(cov)), 1e-300))
-    except np.linalg.LinAlgError:
-        return np.full(len(cov), np.nan)

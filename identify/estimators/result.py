@@ -23,6 +23,26 @@ from ..model.profile import Profile
 from . import identifiability
 
 
+def insensitivity(cov: np.ndarray) -> np.ndarray:
+    """Tischler & Remple's insensitivity (p,) from a covariance (p, p): the standard error each
+    parameter would have were all the others known, ``1 / sqrt(F_ii)`` with ``F = cov^-1`` the
+    information matrix (the Hessian of the fit cost). Large: the fit hardly depends on the
+    parameter at all. The Cramér-Rao bound ``sqrt((F^-1)_ii)`` is never smaller; much larger than
+    the insensitivity: the parameter is correlated with others. inf where the variance is not finite."""
+    d = np.diag(cov)
+    ok = np.isfinite(d) & (d > 0)
+    out = np.full(d.shape, np.inf)
+    if ok.any():
+        sub = cov[np.ix_(ok, ok)]
+        try:
+            info = np.linalg.inv(sub)
+        except np.linalg.LinAlgError:
+            info = np.linalg.pinv(sub)
+        with np.errstate(divide="ignore"):
+            out[ok] = 1 / np.sqrt(np.maximum(np.diag(info), 0.0))
+    return out
+
+
 def theil(measured: np.ndarray, modelled: np.ndarray) -> float:
     """Theil inequality coefficient: 0 is a perfect fit, 1 the worst possible."""
     num = np.sqrt(np.mean((measured - modelled) ** 2))
@@ -102,25 +122,8 @@ class IdentificationResult:
 
     @property
     def insensitivity(self) -> np.ndarray:
-        """Tischler & Remple's insensitivity (p,), units of theta: the standard error a parameter
-        would have were all the others known, ``1 / sqrt(F_ii)`` with ``F = covariance^-1`` the
-        information matrix (the Hessian of the fit cost). Large: the fit hardly depends on the
-        parameter at all. The Cramér-Rao bound ``std = sqrt((F^-1)_ii)`` is never smaller; much
-        larger than the insensitivity: the parameter is correlated with others. inf where the
-        standard error is not finite."""
-        cov = self._cov()
-        d = np.diag(cov)
-        ok = np.isfinite(d) & (d > 0)
-        out = np.full(d.shape, np.inf)
-        if ok.any():
-            sub = cov[np.ix_(ok, ok)]
-            try:
-                info = np.linalg.inv(sub)
-            except np.linalg.LinAlgError:
-                info = np.linalg.pinv(sub)
-            with np.errstate(divide="ignore"):
-                out[ok] = 1 / np.sqrt(np.maximum(np.diag(info), 0.0))
-        return out
+        """Tischler & Remple's insensitivity (p,), units of theta: see :func:`insensitivity`."""
+        return insensitivity(self._cov())
 
     def accuracy(self) -> dict[str, dict]:
         """Per parameter the Cramér-Rao % and insensitivity % of the estimate and the guidelines
