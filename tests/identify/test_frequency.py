@@ -168,7 +168,8 @@ def test_cli_writes_plots_and_csv(truth, tmp_path):
     assert (out / "bode_theta_s.png").stat().st_size > 10_000 and (out / "bode_theta_c.png").exists()
     rows = (out / "frequency_response.csv").read_text().splitlines()
     assert rows[0].startswith("omega_rad_s") and len(rows) == 1 + 80 * 6
-    assert "fit cost J" in proc.stdout
+    assert "fit cost J" in proc.stdout and "resolved frequencies" in proc.stdout and "q/theta_s" in proc.stdout
+    assert rows[0].endswith(",resolved")
 
 
 def test_cli_missing_channel_is_one_error_line(truth, tmp_path):
