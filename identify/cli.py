@@ -225,6 +225,7 @@ def cmd_freq(args) -> int:
     plots = plot_bode(fr, models, out)
     fr.to_csv(out / "frequency_response.csv")
     print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
+    print("\n".join(fr.resolved_lines()))
     print(cost_report(runs, models)[0])
     print(f"written to {out}: frequency_response.csv, {', '.join(p.name for p in plots)}")
     return 0

@@ -16,10 +16,24 @@ inputs are correlated, e.g. a pilot's cross-coupled stick), and the coherence of
 ``|P_iy|^2 / (P_ii P_yy)`` from ``P`` the inverse of the spectral matrix of ``[u, y]`` (the
 ordinary coherence for one input). The normalised random error of ``|H|`` (and the phase error in
 rad) is Bendat & Piersol's ``eps = sqrt(1 - g^2) / (|g| sqrt(2 n_d))`` with ``n_d`` the effective
-number of averages (Hann, 50 % overlap: ``K / (1 + 2 * 0.167^2)`` for K segments) less the inputs
-conditioned on.
+number of averages (Hann, 50 % overlap: ``K / (1 + 2 * 0.167^2)``) less the inputs conditioned on,
+``K = (sum_s p_s)^2 / sum_s p_s^2`` counting only the segments that carry the input power ``p_s``
+at that frequency. With stationary noise all segments would count (the regression variance is
+``sigma^2 / sum_s p_s``); counting only the excited ones keeps the error honest when the noise grows
+with the response, as on real flights, at the price of overstating it about twice on
+white-noise simulations (test data: RMS of error / eps about 0.5).
 
-A window is used only at frequencies where it holds at least two cycles and has enough averages.
+Leakage: over a segment the tapered output is ``H U_w + j H' U_w' + ...`` (``U_w'`` the input
+tapered by the window's time derivative): the response to input before the segment and the taper's
+smearing of H over the window's resolution ~1/T bias the estimate by ``j G_uu^-1 G_uu' H'``. This
+bias is coherent -- repeated runs of one sweep leak alike -- so the coherence does not reveal it
+and a high-coherence estimate can lie many random errors off (the start of a sweep in the longest
+window: 15 % in |H| at 3 cycles). Each window's estimate is corrected by this first-order term,
+``H'`` taken from the window's own estimate (its derivative in frequency), and a window is not used
+at a frequency where the term exceeds MAX_LEAKAGE random errors (the higher-order rest is then
+small against the random error). A window is also used only at frequencies where it holds
+MIN_CYCLES cycles and has enough averages; where no window is valid nothing is estimated (H nan,
+coherence 0, :attr:`FrequencyResponse.resolved` False, shaded grey in the plots).
 The composite estimate combines the windows per frequency and pair with weights ``1 / eps_k^2``
 (the most accurate window dominates); because all windows see the same data their errors are
 correlated, so the composite error is the weighted mean of the windows' errors, an upper bound
@@ -44,6 +58,7 @@ from .model.linear import LinearModel
 
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
 OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
+MAX_LEAKAGE = 2.0  # a window's leakage bias (corrected to first order) may be at most this many random errors
 MIN_CYCLES = 3.0  # a window must hold this many periods of a frequency (fewer: leakage bias)
 N_WINDOWS = 5
 W_GAIN, W_PHASE = 1.0, 0.01745  # Tischler's weights on dB and deg errors
@@ -85,24 +100,43 @@ class FrequencyResponse:
             out[ok, j, i] = np.degrees(np.unwrap(angle[ok, j, i]))
         return out
 
+    @property
+    def resolved(self) -> np.ndarray:
+        """(nf, ny, nu) True where some window gives a valid estimate: enough cycles and averages,
+        leakage bias small against the random error; elsewhere H is nan and nothing is claimed."""
+        return np.isfinite(self.random_error)
+
+    def resolved_lines(self) -> list[str]:
+        """Per pair the frequency range (Hz) with a valid estimate and its coherent share, for reports."""
+        f = self.omega / (2 * np.pi)
+        lines = [f"resolved frequencies (a valid window; coherence >= {MIN_COHERENCE} of them):"]
+        for j, y in enumerate(self.outputs):
+            for i, u in enumerate(self.inputs):
+                ok = self.resolved[:, j, i]
+                coherent = int((ok & (self.coherence[:, j, i] >= MIN_COHERENCE)).sum())
+                span = f"{f[ok].min():.3g}..{f[ok].max():.3g} Hz, {ok.sum()} of {f.size} frequencies" if ok.any() \
+                    else "none"
+                lines.append(f"  {y + '/' + u:<22}{span} ({coherent} coherent)")
+        return lines
+
     def pair(self, output: str, input: str) -> tuple[int, int]:
         return self.outputs.index(output), self.inputs.index(input)
 
     def to_csv(self, path: str | Path) -> Path:
         """One row per frequency and pair: omega, frequency (Hz), output, input, magnitude (dB),
-        phase (deg), coherence, random error."""
+        phase (deg), coherence, random error, resolved (1: a valid window; 0: no estimate)."""
         path = Path(path)
         mag, ph = self.magnitude_db, self.phase_deg
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["omega_rad_s", "frequency_hz", "output", "input", "magnitude_db", "phase_deg",
-                        "coherence", "random_error"])
+                        "coherence", "random_error", "resolved"])
             for j, y in enumerate(self.outputs):
                 for i, u in enumerate(self.inputs):
                     for k, om in enumerate(self.omega):
                         w.writerow([f"{om:.6g}", f"{om / (2 * np.pi):.6g}", y, u, f"{mag[k, j, i]:.6g}",
                                     f"{ph[k, j, i]:.6g}", f"{self.coherence[k, j, i]:.6g}",
-                                    f"{self.random_error[k, j, i]:.6g}"])
+                                    f"{self.random_error[k, j, i]:.6g}", int(self.resolved[k, j, i])])
         return path
 
 
@@ -169,28 +203,37 @@ def _segments(x: np.ndarray, L: int, step: int) -> np.ndarray:
 
 
 def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndarray, nu: int, overlap: float):
-    """H, partial and multiple coherence, random error and validity (nf,) for one window length."""
+    """For one window length: H corrected for leakage, partial and multiple coherence, and the
+    random error (inf where this window's estimate is not valid)."""
     L = max(int(round(T / dt)), 4)
     step = max(1, int(round(L * (1 - overlap))))
     seg = np.concatenate([_segments(x, L, step) for x in data])  # (K, L, nch)
-    K = len(seg)
-    nf, nch = len(omega), data[0].shape[1]
-    ny = nch - nu
-    if K == 0:
+    if len(seg) == 0:
         return None
     valid = (omega * L * dt >= 2 * np.pi * MIN_CYCLES) & (omega < np.pi / dt)
-    seg = detrend(seg, axis=1) * np.hanning(L)[None, :, None]
-    E = np.exp(-1j * np.outer(np.arange(L) * dt, omega))  # (L, nf)
-    F = np.einsum("slc,lf->sfc", seg, E)  # (K, nf, nch)
-    G = np.einsum("sfa,sfb->fab", F.conj(), F) / K  # (nf, nch, nch) Hermitian
+    tr = _Transforms(detrend(seg, axis=1), dt, omega, nu)
+    F, G = tr.F, tr.G
     # averages that count: segments whose input power at a frequency is small add nothing, so a
     # 3211 (power in one or two segments) or a sweep (each frequency in a few) has few per frequency
     power = (np.abs(F[:, :, :nu]) ** 2).sum(axis=2)  # (K, nf)
     n_eff = power.sum(axis=0) ** 2 / np.maximum((power ** 2).sum(axis=0), 1e-300)
     n_d = n_eff / (OVERLAP_VARIANCE_FACTOR if overlap > 0 else 1.0) - (nu - 1)
     valid = valid & (n_d >= 2)  # coherence from fewer averages is near 1 whatever the data
-    Guu, Guy = G[:, :nu, :nu], G[:, :nu, nu:]
-    H = np.swapaxes(np.linalg.solve(Guu + _ridge(Guu), Guy), 1, 2)  # (nf, ny, nu)
+    H = np.swapaxes(tr.solve(G[:, :nu, nu:]), 1, 2)  # (nf, ny, nu)
+    coh, mult = _coherences(G, nu)
+    bias = tr.leakage_bias(H)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.sqrt((1 - coh) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, None]))
+        leak = np.abs(bias) / np.abs(H)
+    valid = valid[:, None, None] & (leak <= MAX_LEAKAGE * err)
+    err[~valid | ~np.isfinite(err)] = np.inf
+    return H - bias, coh, mult, err
+
+
+def _coherences(G: np.ndarray, nu: int) -> tuple[np.ndarray, np.ndarray]:
+    """Partial coherence (nf, ny, nu) of each input with each output (the other inputs' parts
+    removed) and multiple coherence (nf, ny), from the spectral matrix G (nf, nch, nch)."""
+    nf, ny = G.shape[0], G.shape[1] - nu
     coh, mult = np.zeros((nf, ny, nu)), np.zeros((nf, ny))
     for j in range(ny):
         idx = list(range(nu)) + [nu + j]
@@ -199,12 +242,53 @@ def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndar
         Pyy = P[:, nu, nu].real
         coh[:, j] = np.abs(P[:, :nu, nu]) ** 2 / (np.einsum("fii->fi", P[:, :nu, :nu]).real * Pyy[:, None])
         mult[:, j] = 1 - 1 / np.maximum(Pyy * M[:, nu, nu].real, 1.0)
-    coh = np.clip(np.nan_to_num(coh), 0.0, 1.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.sqrt((1 - coh[:, :, :]) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, None]))
-    err[~valid] = np.inf
-    err[~np.isfinite(err)] = np.inf
-    return H, coh, np.clip(mult, 0.0, 1.0), err
+    return np.clip(np.nan_to_num(coh), 0.0, 1.0), np.clip(mult, 0.0, 1.0)
+
+
+class _Transforms:
+    """Hann-tapered transforms of segments (K, L, nch) at omega (rad/s): ``F`` (K, nf, nch) and
+    the spectral matrix ``G`` (nf, nch, nch), ``G_ab = mean_s conj(A_s) B_s``."""
+
+    def __init__(self, seg: np.ndarray, dt: float, omega: np.ndarray, nu: int):
+        self.seg, self.nu = seg, nu
+        self.t = np.arange(seg.shape[1]) * dt
+        self.E = np.exp(-1j * np.outer(self.t, omega))  # (L, nf)
+        self.hann = np.hanning(seg.shape[1])
+        self.F = self._transform(self.hann)
+        self.G = np.einsum("sfa,sfb->fab", self.F.conj(), self.F) / len(seg)
+        Guu = self.G[:, :nu, :nu]
+        self._Guu = Guu + _ridge(Guu)
+
+    def _transform(self, taper: np.ndarray, channels=slice(None)) -> np.ndarray:
+        return np.einsum("slc,lf->sfc", self.seg[:, :, channels] * taper[None, :, None], self.E)
+
+    def _cross(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """(nf, nu, nb) mean over segments of conj(A) B, A's inputs only."""
+        return np.einsum("sfa,sfb->fab", A[:, :, :self.nu].conj(), B) / len(A)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``G_uu^-1 rhs`` per frequency, rhs (nf, nu, k)."""
+        return np.linalg.solve(self._Guu, rhs)
+
+    def leakage_bias(self, H: np.ndarray) -> np.ndarray:
+        """First-order leakage bias (nf, ny, nu) of the estimate ``H`` (nf, ny, nu) from these segments.
+
+        Over a segment the tapered output is ``Y_w(w) = H(w) U_w(w) + j H'(w) U_w'(w) + ...``, ``U_w'``
+        the transform of the input tapered by the window's time derivative (``(v - w) W(w - v)`` is
+        the transform of ``j w'(t)``): the response to input before the segment and the taper's
+        smearing of H over its resolution ~1/T. Averaged, ``E[H_est] - H = j G_uu^-1 G_uu' H'``.
+        ``G_uu'`` vanishes for an input spread evenly over the segment (the taper's derivative is
+        odd about its middle) and is large where a frequency's input power sits near a segment's
+        edge or just beside it in frequency: the start of a sweep in a long window, the end of a
+        sweep cut by the record's end. Repeated runs leak alike, so the coherence cannot see this
+        bias. ``H'`` is the derivative of the estimate itself (transforms of ``-j t`` times the
+        tapered signals): the slope at the window's own resolution, the scale that leaks."""
+        nu = self.nu
+        Gud = self._cross(self.F, self._transform(np.gradient(self.hann, self.t), slice(0, nu)))  # (nf, nu, nu)
+        Ft = self._transform(-1j * self.t * self.hann)  # dF/dw
+        dG = self._cross(Ft, self.F) + self._cross(self.F, Ft)  # d/dw of [G_uu, G_uy]
+        dH = self.solve(dG[:, :, nu:] - dG[:, :, :nu] @ np.swapaxes(H, 1, 2))  # d/dw of H^T (nf, nu, ny)
+        return np.swapaxes(1j * self.solve(Gud @ dH), 1, 2)
 
 
 def _ridge(M: np.ndarray) -> np.ndarray:
@@ -326,6 +410,8 @@ def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = Non
                     h = Hm[:, outs.index(y), ins.index(u)]
                     a_m.semilogx(f_hz, 20 * np.log10(np.abs(h)), style, lw=1.2, label=label)
                     a_p.semilogx(f_hz, _phase_near(h, ph), style, lw=1.2)
+            for a in (a_m, a_p, a_c):
+                _shade_unresolved(a, f_hz, fr.resolved[:, j, i])
             a_c.semilogx(f_hz, fr.coherence[:, j, i], "k-")
             a_c.axhline(min_coherence, color="0.6", ls=":")
             a_c.set_ylim(0, 1.05)
@@ -337,13 +423,31 @@ def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = Non
         axes[1, 0].set_ylabel("phase [deg]")
         axes[2, 0].set_ylabel("coherence")
         axes[0, 0].legend(fontsize=7)
-        fig.suptitle(f"frequency responses to {u} (solid: coherence >= {min_coherence})")
+        fig.suptitle(f"frequency responses to {u} (solid: coherence >= {min_coherence}; "
+                     f"grey: no valid window, nothing estimated)")
         fig.tight_layout()
         path = outdir / f"bode_{u}.png"
         fig.savefig(path, dpi=90)
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+def _shade_unresolved(ax, f_hz: np.ndarray, resolved: np.ndarray) -> None:
+    """Grey bands over the frequencies without a valid estimate (edges half-way in log frequency)."""
+    edges = np.sqrt(f_hz[1:] * f_hz[:-1])
+    edges = np.concatenate([[f_hz[0] ** 2 / edges[0]], edges, [f_hz[-1] ** 2 / edges[-1]]]) if f_hz.size > 1 \
+        else np.array([f_hz[0] / 1.1, f_hz[0] * 1.1])
+    k = 0
+    while k < f_hz.size:
+        if resolved[k]:
+            k += 1
+            continue
+        k1 = k
+        while k1 < f_hz.size and not resolved[k1]:
+            k1 += 1
+        ax.axvspan(edges[k], edges[k1], color="0.88", lw=0)
+        k = k1
 
 
 def _phase_near(h: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:

@@ -38,7 +38,7 @@ from ..errors import EstimationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from .equation_error import Group, _check_rank, _EquationError, equation_groups
-from .result import IdentificationResult
+from .result import IdentificationResult, insensitivity
 
 DEFAULT_F_MAX = 2.0  # Hz: above it rotorcraft rigid-body models stop holding
 MAX_FREQUENCIES = 200
@@ -280,6 +280,8 @@ class FDEE(_EquationError):
         result.info["derivatives"] = "not used: j w X(w) in the frequency domain"
         result.info["standard_errors"] = ("coloured-residual correction (smoothed residual spectrum, "
                                           "finite-record kernel)" if self.coloured else "white residuals")
+        result.info["frequency_domain"] = True
+        result.info["accuracy"] = result.accuracy()  # Cramér-Rao and insensitivity %, flagged
         return result
 
 
@@ -293,11 +295,17 @@ class LiveEstimate:
     theta: np.ndarray
     std: np.ndarray
     errors: dict
+    insensitivity: np.ndarray | None = None  # (p,) Tischler & Remple's, others known (nan: not solved)
 
     @property
     def relative_std(self) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             return 100 * self.std / np.abs(self.theta)
+
+    @property
+    def relative_insensitivity(self) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 100 * self.insensitivity / np.abs(self.theta)
 
 
 class RecursiveFDEE:
@@ -378,7 +386,7 @@ class RecursiveFDEE:
 
     def estimate(self) -> LiveEstimate:
         p = len(self.model.names)
-        theta, std = self.model.theta.copy(), np.full(p, np.nan)
+        theta, std, ins = self.model.theta.copy(), np.full(p, np.nan), np.full(p, np.nan)
         errors = {}
         for gi, g in enumerate(self.groups):
             r = self._results.get(gi)
@@ -388,4 +396,6 @@ class RecursiveFDEE:
                 continue
             theta[g.params] = r["theta"]
             std[g.params] = np.sqrt(np.maximum(np.diag(r["cov"]), 0))
-        return LiveEstimate(self._prev[0] if self._prev else 0.0, theta, std, errors)
+            ins[g.params] = insensitivity(r["cov"])
+        return LiveEstimate(self._prev[0] if self._prev else 0.0, theta, std, errors, ins)
+

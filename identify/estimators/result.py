@@ -23,6 +23,26 @@ from ..model.profile import Profile
 from . import identifiability
 
 
+def insensitivity(cov: np.ndarray) -> np.ndarray:
+    """Tischler & Remple's insensitivity (p,) from a covariance (p, p): the standard error each
+    parameter would have were all the others known, ``1 / sqrt(F_ii)`` with ``F = cov^-1`` the
+    information matrix (the Hessian of the fit cost). Large: the fit hardly depends on the
+    parameter at all. The Cramér-Rao bound ``sqrt((F^-1)_ii)`` is never smaller; much larger than
+    the insensitivity: the parameter is correlated with others. inf where the variance is not finite."""
+    d = np.diag(cov)
+    ok = np.isfinite(d) & (d > 0)
+    out = np.full(d.shape, np.inf)
+    if ok.any():
+        sub = cov[np.ix_(ok, ok)]
+        try:
+            info = np.linalg.inv(sub)
+        except np.linalg.LinAlgError:
+            info = np.linalg.pinv(sub)
+        with np.errstate(divide="ignore"):
+            out[ok] = 1 / np.sqrt(np.maximum(np.diag(info), 0.0))
+    return out
+
+
 def theil(measured: np.ndarray, modelled: np.ndarray) -> float:
     """Theil inequality coefficient: 0 is a perfect fit, 1 the worst possible."""
     num = np.sqrt(np.mean((measured - modelled) ** 2))
@@ -100,6 +120,37 @@ class IdentificationResult:
         not determine (:func:`identify.identifiability.assess`)."""
         return identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
 
+    @property
+    def insensitivity(self) -> np.ndarray:
+        """Tischler & Remple's insensitivity (p,), units of theta: see :func:`insensitivity`."""
+        return insensitivity(self._cov())
+
+    def accuracy(self) -> dict[str, dict]:
+        """Per parameter the Cramér-Rao % and insensitivity % of the estimate and the guidelines
+        each exceeds (Tischler & Remple: CR % <= 20, insensitivity % <= 10 for a parameter worth
+        keeping in a frequency-domain fit)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ins = 100 * self.insensitivity / np.abs(self.theta)
+        out = {}
+        for name, cr, i in zip(self.names, self.relative_std, ins):
+            over = ([f"CR > {CR_GUIDELINE:g} %"] if not cr <= CR_GUIDELINE else []) + \
+                   ([f"insensitive (I > {INSENSITIVITY_GUIDELINE:g} %)"] if not i <= INSENSITIVITY_GUIDELINE else [])
+            out[name] = {"cramer_rao_pct": float(cr), "insensitivity_pct": float(i), "over_guidelines": over}
+        return out
+
+    def accuracy_lines(self) -> list[str]:
+        """The :meth:`accuracy` table for reports; a parameter over a guideline is flagged."""
+        lines = [f"accuracy (Tischler & Remple guidelines: Cramér-Rao % <= {CR_GUIDELINE:g}, "
+                 f"insensitivity % <= {INSENSITIVITY_GUIDELINE:g}):",
+                 f"{'parameter':<18}{'CR %':>10}{'insens. %':>11}  flag"]
+        for name, a in self.accuracy().items():
+            lines.append(f"{name:<18}{a['cramer_rao_pct']:10.1f}{a['insensitivity_pct']:11.1f}  "
+                         f"{', '.join(a['over_guidelines'])}".rstrip())
+        bad = [n for n, a in self.accuracy().items() if a["over_guidelines"]]
+        lines.append(f"over a guideline: {', '.join(bad)} -- consider fixing or dropping them" if bad
+                     else "all parameters within the guidelines")
+        return lines
+
     def _cov(self) -> np.ndarray:
         return np.diag(self.std ** 2) if self.covariance is None else self.covariance
 
@@ -128,6 +179,8 @@ class IdentificationResult:
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
             if self.info.get("modelled"):
                 lines.append(f"(modelled outputs: {self.info['modelled']})")
+        if self.info.get("frequency_domain"):  # the CIFER-style view of a frequency-domain fit
+            lines += [""] + self.accuracy_lines()
         lines += ["", "modes of the identified model:", format_modes(self.model.modes())]
         check = identifiability.report_lines(self.identifiability())
         return "\n".join(lines + ([""] + check if check else []))
@@ -192,6 +245,7 @@ class IdentificationResult:
         return outdir
 
 
+CR_GUIDELINE, INSENSITIVITY_GUIDELINE = 20.0, 10.0  # %: Tischler & Remple's marks of a parameter worth keeping
 NULL_NOTE = "null stands for a value that is not finite: an infinite standard error (a parameter no input excites) or NaN"
 MAX_LAGS = 200  # noise autocorrelation lags kept in result.json
 MAX_LISTED = 100  # per-segment entries kept in result.json

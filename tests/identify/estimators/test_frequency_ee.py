@@ -71,3 +71,28 @@ def test_recursive_transform_equals_the_batch_one(s61_4dof):
     assert not live.errors
     assert np.allclose(live.theta, batch.theta, rtol=1e-8, atol=1e-10)
     assert np.allclose(live.std, batch.std, rtol=1e-6)
+    assert np.allclose(live.insensitivity, batch.insensitivity, rtol=1e-6)
+
+
+def test_fdee_reports_cramer_rao_and_insensitivity_and_flags_an_unexcited_derivative():
+    """Tischler & Remple's accuracy view of a frequency-domain fit: with the lateral stick moved
+    1 % as much as the longitudinal one, its pitch derivative M_theta_c hardly changes the fit
+    (insensitivity over 10 %) and is flagged; the well-excited derivatives are not."""
+    from identify import parse_profile
+    from identify.estimators.frequency_ee import FDEE
+    from tests.identify.test_frequency import STABLE
+    truth = LinearModel(parse_profile(STABLE))
+    t = np.arange(0, 20, DT)
+    runs = [simulate_run(truth, t, np.column_stack([m3211(w, 0.02, "theta_s", delay=1.0)(t),
+                                                    m3211(0.7, 0.0002, "theta_c", delay=9.0)(t)]),
+                         noise_fraction=0.05, seed=10 + k) for k, w in enumerate((0.5, 0.8, 1.2))]
+    result = FDEE(truth.profile).fit(runs).result_
+    acc = result.accuracy()
+    assert acc["M_theta_c"]["insensitivity_pct"] > 10 and any("insensitive" in f for f in acc["M_theta_c"]["over_guidelines"])
+    for name in ("M_theta_s", "L_theta_s", "M_q", "L_p"):
+        assert acc[name]["over_guidelines"] == [], (name, acc[name])
+    # the insensitivity (others known) never exceeds the Cramér-Rao bound (others estimated too)
+    assert np.all(result.insensitivity <= result.std * (1 + 1e-9))
+    text = result.summary()
+    assert "insensitive (I > 10 %)" in text and "over a guideline: " in text and "M_theta_c" in text.split("over a guideline")[1]
+    assert result.to_dict()["info"]["accuracy"]["M_theta_c"]["over_guidelines"]
