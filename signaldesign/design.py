@@ -23,6 +23,7 @@ from .baselines import doublet, m3211
 from .compare import _grid, _tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
+from .bound import objective_bound
 from .quadform import Objective, StepBasis
 from .robust import design_set
 from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
@@ -49,8 +50,11 @@ class SequenceDesign:
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
-    (SearchResult; ``trace`` the restarts' objectives), ``gap_`` (objective gap to an upper bound
-    when one is computed: 0 for an exhaustive search, else None), ``evaluator_``, ``basis_``,
+    (SearchResult; ``trace`` the restarts' objectives), ``bound_`` (:class:`~signaldesign.bound.Bound`:
+    an upper bound on the criterion over every input in the span of the grid's steps), ``gap_``
+    (criterion units from the design to the optimum: 0 for an exhaustive search, else at most the
+    bound minus the design's value), ``efficiency_bound_`` (exp(-gap / (p x total weight)): the
+    design's D-efficiency is at least this fraction of the optimum's), ``evaluator_``, ``basis_``,
     ``models_`` and ``model_labels_``, ``width_`` (the grid), ``seconds_``, ``cpu_seconds_``,
     ``nominal_gain_`` (D-efficiency on the a priori against the best tuned 3211/doublet).
     """
@@ -137,6 +141,9 @@ class SequenceDesign:
                               worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
                               stride=2)
         result, gap = self._search(objective, fly, starts)
+        exact = objective.exact()
+        self.bound_ = objective_bound(exact, result.levels)
+        self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
             raise DesignError("the designed sequence moves no output that has a response limit")
@@ -152,7 +159,8 @@ class SequenceDesign:
         self.levels_, self.amplitude_ = result.levels, np.full(len(self.inputs), amplitude)
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
-        self.result_, self.gap_, self.basis_, self.evaluator_ = result, gap, basis, ev
+        self.result_, self.basis_, self.evaluator_ = result, basis, ev
+        self.objective_ = objective
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
         self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
                                            - max(classic)) / ev.p)) if classic else float("nan")
@@ -222,9 +230,10 @@ class SequenceDesign:
                  for y, pk, lim in zip(p.outputs, self.peaks_, self.limits_) if np.isfinite(lim)]
         lines.append("peak response / limit on the a priori: " + ", ".join(cells))
         res = self.result_
-        how = ("exhaustive: exact optimum, gap 0" if self.gap_ == 0 else
+        how = ("exhaustive: exact optimum among flyable sequences, gap 0" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
-               f"of each other in the criterion (no upper bound computed)")
+               f"of each other in the criterion; upper bound {self.bound_.value:.2f} (continuous relaxation), "
+               f"gap {self.gap_:.2f}: D-efficiency at least {self.efficiency_bound_:.3f} of the optimum's")
         floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
                  and self.amplitude is None else "")
         if floor and self.nominal_gain_ < self.nominal_margin * (1 - 1e-6):
@@ -233,6 +242,14 @@ class SequenceDesign:
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         return "\n".join(lines)
+
+
+    @property
+    def efficiency_bound_(self) -> float:
+        """Lower bound on the design's D-efficiency relative to the optimum: exp(-gap / (p w)), w the
+        total weight of the criterion's log dets (1; 1 + worst weight for robust)."""
+        w = 1.0 + (self.worst_weight if self.criterion == "robust" else 0.0)
+        return float(np.exp(-self.gap_ / (self.evaluator_.p * w)))
 
 
 def prior_weights(n_models: int, apriori_weight: float) -> np.ndarray:

@@ -222,6 +222,11 @@ class Objective:
         return (np.abs(y).max(axis=1) * self.inv_limits).max(axis=1)
 
     def _value(self, M, r) -> float:
+        return self.combine(self.per_model(M, r))
+
+    def per_model(self, M, r) -> np.ndarray:
+        """Each model's term (m,) from its information M (m, p, p) and peak ratio r (m,), offsets
+        subtracted; -inf for a singular information."""
         sign, ld = np.linalg.slogdet(M)
         ld = np.where(sign > 0, ld, -np.inf)
         if self.amplitude is None:
@@ -232,16 +237,21 @@ class Objective:
             per_model = ld + 2 * self.p * (np.log(self.amplitude) - self.PENALTY * over)
             if over > 0:  # below every flyable sequence within the limits, graded toward them
                 per_model = per_model - self.INFEASIBLE
-        per_model = np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
+        return np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
+
+    def combine(self, per_model, floor: bool = True) -> float:
+        """The criterion from the models' terms (every combination is non-decreasing in each term;
+        ``floor`` False leaves out the nominal floor's penalty)."""
+        per_model = np.asarray(per_model, float)
         if self.criterion == "nominal":
             return float(per_model[0])
         if self.criterion == "worst":
             return float(per_model.min())
         if self.criterion == "robust":
-            return self._robust(per_model)
+            return self._robust(per_model, floor)
         return float(per_model @ self.weights) if np.all(np.isfinite(per_model)) else -np.inf
 
-    def _robust(self, rel) -> float:
+    def _robust(self, rel, floor: bool = True) -> float:
         """weights . rel + worst_weight * soft minimum of rel (log-sum-exp at ``softness`` log-det
         units; the plain minimum at 0)."""
         if not np.all(np.isfinite(rel)):
@@ -250,7 +260,7 @@ class Objective:
         if self.softness > 0:
             lo -= self.softness * float(np.log(np.exp(-(rel - lo) / self.softness).sum()))
         value = float(rel @ self.weights) + self.worst_weight * lo
-        if self.nominal_floor is not None:  # below the floor on the a priori: steeply worse
+        if floor and self.nominal_floor is not None:  # below the floor on the a priori: steeply worse
             value -= self.FLOOR_PENALTY * max(0.0, self.nominal_floor - float(rel[0]))
         return value
 
