@@ -55,13 +55,10 @@ def _rows(objective, m: int) -> np.ndarray:
     """Constraint rows a_i (n_rows, K): each limited output of model m at each sample read by the
     objective (its stride), over its limit, per unit level. With a fixed amplitude A the objective
     checks the limits on the a priori only: its outputs times A, and the levels' box |l_k| <= 1."""
-    Yk = objective.Yk[m if objective.amplitude is None else 0]  # (K, N/stride, ny)
-    inv = np.asarray(objective.inv_limits, float)
-    keep = inv > 0
-    A = (Yk[:, :, keep] * inv[keep]).reshape(Yk.shape[0], -1).T
+    A = objective.Yk[m if objective.amplitude is None else 0].T  # (samples x limited outputs, K)
     A = A[np.abs(A).max(axis=1) > 0]
     if objective.amplitude is not None:
-        A = np.vstack([A * objective.amplitude, np.eye(Yk.shape[0])])
+        A = np.vstack([A * objective.amplitude, np.eye(A.shape[1])])
     return A
 
 
@@ -79,7 +76,7 @@ def _tangent(G, A, W, mu):
     return bound, v / np.sqrt(v @ H @ v)
 
 
-def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, iterations: int = 20, rounds: int = 3,
+def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, iterations: int = 6, rounds: int = 2,
                 start=None) -> float:
     """Smallest bound (2) found on ``log det M(v)`` over ``|A v| <= 1`` for M(v) = sum v_k v_j G_kj
     (G (K, K, p, p)), from W0 (p, p) > 0 (and mu from the rows where the levels ``start`` (K,) reach
@@ -115,7 +112,7 @@ def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, iterations: int = 
     return best
 
 
-def objective_bound(objective, levels, iterations: int = 20) -> Bound:
+def objective_bound(objective, levels, iterations: int = 6) -> Bound:
     """Upper bound on ``objective`` over every sequence (any levels in the span of its steps), started
     from the design ``levels``: each model's term bounded by (2), combined as the objective combines
     its terms (the nominal floor's penalty only lowers a value and is left out)."""

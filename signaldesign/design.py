@@ -65,7 +65,7 @@ class SequenceDesign:
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
-                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.25):
+                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.25, kicks: int = 0):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -76,6 +76,7 @@ class SequenceDesign:
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
         self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
+        self.kicks = kicks
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -210,7 +211,8 @@ class SequenceDesign:
         if n is not None:
             return exhaustive(objective.exact(), fly, limit), 0.0
         # anneal on peaks read every other sample, then polish on every sample
-        found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress)
+        found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress,
+                       kicks=self.kicks)
         exact = objective.exact()
         found.levels, found.objective = polish(exact, fly, found.levels)
         found.evaluations += exact.evaluations

@@ -112,11 +112,13 @@ def _propose(levels: list, n_steps: int, axes: int, fly: Flyability, rng) -> lis
 
 
 def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: int = 4, seed: int = 0,
-           starts=(), progress=None) -> SearchResult:
+           starts=(), progress=None, kicks: int = 0) -> SearchResult:
     """Simulated annealing over flyable sequences from ``starts`` (level vectors, e.g. the tuned
     3211 on the grid) and then random flyable sequences, ``restarts`` runs in all, each finished by
     a greedy polish. Infeasible proposals are rejected; the temperature falls geometrically from
-    the scale of the objective's typical changes. ``trace`` holds each run's final objective."""
+    the scale of the objective's typical changes. Then ``kicks`` rounds of iterated local search
+    from the best (a few random moves, polished; kept when better). ``trace`` holds each run's final
+    objective."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     basis = objective.basis
@@ -169,9 +171,30 @@ def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: 
             best = (f_cur, np.array(cur, dtype=float))
         if progress is not None:
             progress(r + 1, restarts)
+    best = _kick(objective, best, kicks, K, axes, fly, feasible, rng)
     objective.reset()  # report the optimum scored from scratch, free of update round-off
     value = objective(best[1])
     return SearchResult(best[1], float(value), "annealing", objective.evaluations, time.perf_counter() - t0, trace)
+
+
+def _kick(objective, best, kicks, K, axes, fly, feasible, rng):
+    """Iterated local search: perturb the best by 2..4 random flyable moves, polish, keep if better."""
+    f_best, levels = best[0], [float(v) for v in best[1]]
+    for _ in range(kicks):
+        cand = list(levels)
+        for _ in range(int(rng.integers(2, 5))):
+            for _ in range(50):
+                nxt = _propose(cand, K, axes, fly, rng)
+                if feasible(nxt):
+                    cand = nxt
+                    break
+        objective.reset(cand)
+        f = objective(np.array(cand))
+        objective.commit()
+        cand, f = _polish(objective, cand, f, K, axes, fly.min_pulse, feasible)
+        if f > f_best:
+            f_best, levels = f, cand
+    return f_best, np.array(levels, dtype=float)
 
 
 def _feasible(levels, K, axes, fly) -> bool:
