@@ -46,7 +46,9 @@ class SequenceDesign:
     ``nominal_margin`` times the D-efficiency of the best tuned 3211/doublet on the a priori when the
     amplitude is free; the nominal optimum seeds the search), ``mean`` (expected log det only),
     ``worst`` (worst relative D-efficiency only) or ``nominal`` (the a priori only). ``draws`` and
-    ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`).
+    ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`). The search:
+    ``restarts`` annealing runs of ``n_iter`` proposals, each polished, then ``kicks`` rounds of
+    iterated local search from the best (:func:`~signaldesign.search.anneal`).
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
@@ -65,7 +67,7 @@ class SequenceDesign:
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
-                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.25, kicks: int = 0):
+                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -133,7 +135,7 @@ class SequenceDesign:
             # the nominal optimum seeds the robust search; the floor keeps the robust design at least
             # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
             nominal = Objective(basis, "nominal", amplitude=amp, stride=2)
-            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter)
+            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter, kicks=0)
             starts = [best.levels] + starts
             if self.nominal_margin is not None and amp is None:
                 floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
@@ -200,7 +202,8 @@ class SequenceDesign:
             out.append(np.concatenate([_on_grid(parts, wa, basis.width, basis.n_steps) for wa in ws]))
         return out, lds
 
-    def _search(self, objective: Objective, fly: Flyability, starts, n_iter=None) -> tuple[SearchResult, float | None]:
+    def _search(self, objective: Objective, fly: Flyability, starts, n_iter=None,
+                kicks=None) -> tuple[SearchResult, float | None]:
         """Exhaustive when the (single-axis) sequence space is small (gap 0), annealing otherwise."""
         K = objective.basis.n_steps
         limit = self.exhaustive_limit // max(objective.n_models, 1)
@@ -212,7 +215,7 @@ class SequenceDesign:
             return exhaustive(objective.exact(), fly, limit), 0.0
         # anneal on peaks read every other sample, then polish on every sample
         found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress,
-                       kicks=self.kicks)
+                       kicks=self.kicks if kicks is None else kicks)
         exact = objective.exact()
         found.levels, found.objective = polish(exact, fly, found.levels)
         found.evaluations += exact.evaluations

@@ -188,10 +188,16 @@ def _kick(objective, best, kicks, K, axes, fly, feasible, rng):
                 if feasible(nxt):
                     cand = nxt
                     break
+        changed = [k for k in range(len(cand)) if cand[k] != levels[k]]
+        if not changed:
+            continue
         objective.reset(cand)
         f = objective(np.array(cand))
         objective.commit()
-        cand, f = _polish(objective, cand, f, K, axes, fly.min_pulse, feasible)
+        # polish near the kick only (the rest is the best's local optimum already): a few hundred
+        # moves instead of the whole neighbourhood; the final polish sweeps everything
+        window = (changed[0] - 2 * fly.min_pulse, changed[-1] + 2 * fly.min_pulse + 1)
+        cand, f = _polish(objective, cand, f, K, axes, fly.min_pulse, feasible, window)
         if f > f_best:
             f_best, levels = f, cand
     return f_best, np.array(levels, dtype=float)
@@ -213,28 +219,33 @@ def polish(objective: Objective, fly: Flyability, levels) -> tuple[np.ndarray, f
     return np.array(levels), objective(np.array(levels))
 
 
-def _polish(score: Objective, levels, value, n_steps, axes, min_pulse, feasible):
+def _polish(score: Objective, levels, value, n_steps, axes, min_pulse, feasible, window=None):
     """Local search until no move improves the objective (first improvement): set any block of
     1..2 min_pulse steps of one axis to any level (which also moves any switch), flip the sign of
-    any hold, and shift any hold by 1..min_pulse steps either way."""
-    improved = True
-    while improved:
-        improved = False
-        for cand in _neighbours(levels, n_steps, axes, min_pulse):
-            if feasible(cand):
-                f = score(cand)
-                if f > value + 1e-12:
-                    levels, value, improved = cand, f, True
-                    score.commit()
-                    break
+    any hold, and shift any hold by 1..min_pulse steps either way. After an improvement the scan
+    resumes where it was (not from the first move), so a pass costs one sweep of the neighbourhood.
+    ``window`` (first, last + 1 over the concatenated axes) keeps only the moves that start inside it."""
+    moves = list(_neighbours(levels, n_steps, axes, min_pulse, window))
+    i, since = 0, 0
+    while since < len(moves):
+        cand = moves[i % len(moves)]
+        i, since = i + 1, since + 1
+        if feasible(cand):
+            f = score(cand)
+            if f > value + 1e-12:
+                levels, value, since = cand, f, 0
+                score.commit()
+                moves = list(_neighbours(levels, n_steps, axes, min_pulse, window))
+                i = i % len(moves) if moves else 0
     return levels, value
 
 
-def _neighbours(levels, n_steps, axes, min_pulse):
-    """The polish's moves from ``levels`` (a generator: the caller stops at the first improvement)."""
+def _neighbours(levels, n_steps, axes, min_pulse, window=None):
+    """The polish's moves from ``levels``, those starting inside ``window`` when given."""
+    w_lo, w_hi = window if window is not None else (0, axes * n_steps)
     for a in range(axes):
         lo, hi = a * n_steps, (a + 1) * n_steps
-        for start in range(lo, hi):
+        for start in range(max(lo, w_lo), min(hi, w_hi)):
             for length in range(1, 2 * min_pulse + 1):
                 stop = min(start + length, hi)
                 for v in LEVELS:
@@ -250,7 +261,7 @@ def _neighbours(levels, n_steps, axes, min_pulse):
             runs.append((k, e))
             k = e
         for s, e in runs:
-            if levels[s] == 0:
+            if levels[s] == 0 or e <= w_lo or s >= w_hi:
                 continue
             cand = list(levels)
             cand[s:e] = [-levels[s]] * (e - s)
