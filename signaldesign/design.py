@@ -20,10 +20,10 @@ import numpy as np
 from identify import LinearModel
 
 from .baselines import doublet, m3211
+from .bound import objective_bound
 from .compare import _grid, _tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
-from .bound import objective_bound
 from .quadform import Objective, StepBasis
 from .robust import design_set
 from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
@@ -163,7 +163,6 @@ class SequenceDesign:
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
         self.result_, self.basis_, self.evaluator_ = result, basis, ev
-        self.objective_ = objective
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
         self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
                                            - max(classic)) / ev.p)) if classic else float("nan")
@@ -247,7 +246,6 @@ class SequenceDesign:
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         return "\n".join(lines)
-
 
     @property
     def efficiency_bound_(self) -> float:
