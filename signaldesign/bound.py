@@ -17,7 +17,7 @@ of these rows, ``H_mu = sum_i mu_i a_i a_i^T`` with mu >= 0, sum mu = 1, then bo
 
 with lambda_max the largest generalised eigenvalue. (2) holds for every W > 0 and every mu on the
 simplex; the bound is the smallest value found by alternating two cheap steps from the searched
-design (W = its information at equal peak response, mu uniform):
+design (W = its information at equal peak response, mu on the rows where it meets its limits):
 
 * W: a Frank-Wolfe step. The maximiser v of (2)'s eigenproblem (scaled to v^T H v = 1) is the
   relaxation's best direction; W moves toward M(v) by the step that maximises log det. Every W so
@@ -69,7 +69,11 @@ def _tangent(G, A, W, mu):
     w = (1 - 1e-6) * mu + 1e-6 / n
     H = (A * w[:, None]).T @ A
     Q = np.einsum("kjab,ba->kj", G, np.linalg.inv(W))
-    lam, V = eigh(0.5 * (Q + Q.T), H, subset_by_index=[Q.shape[0] - 1, Q.shape[0] - 1])
+    try:
+        lam, V = eigh(0.5 * (Q + Q.T), H, subset_by_index=[Q.shape[0] - 1, Q.shape[0] - 1])
+    except np.linalg.LinAlgError:
+        # H singular: some levels move no limited output within the record, so nothing bounds them
+        return np.inf, None
     lam, v = float(lam[0]), V[:, 0]
     sign, ld = np.linalg.slogdet(W)
     bound = ld + p * np.log(lam / p) if lam > 0 and sign > 0 else np.inf
@@ -97,6 +101,8 @@ def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, iterations: int = 
         best_mu = mu
         for _ in range(iterations):  # mu: toward the rows the relaxed optimum presses against
             b, v = _tangent(G, A, W, mu)
+            if v is None:
+                return best
             if b < best:
                 best, best_mu = b, mu
             nxt = mu * (A @ v) ** 2
@@ -104,6 +110,8 @@ def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, iterations: int = 
         mu = best_mu
         for _ in range(iterations):  # W: Frank-Wolfe step toward M(v), best step length
             b, v = _tangent(G, A, W, mu)
+            if v is None:
+                return best
             best = min(best, b)
             Mv = np.einsum("k,j,kjab->ab", v, v, G)
             res = minimize_scalar(lambda g: -np.linalg.slogdet((1 - g) * W + g * Mv)[1], bounds=(0.0, 1.0),

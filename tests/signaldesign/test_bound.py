@@ -4,7 +4,7 @@ import pytest
 
 from identify import LinearModel, load_profile
 from signaldesign.baselines import doublet, m3211
-from signaldesign.bound import objective_bound
+from signaldesign.bound import model_bound, objective_bound
 from signaldesign.design import Flyability, Objective, StepBasis, anneal, enumerate_sequences, prior_weights
 from signaldesign.evaluate import Evaluator
 from signaldesign.robust import design_set
@@ -57,3 +57,14 @@ def test_bound_is_tight_where_the_relaxation_is_the_problem(s61m):
     obj = Objective(basis, "nominal")
     value = obj(np.ones(1))
     assert objective_bound(obj, np.ones(1)).value == pytest.approx(value, abs=1e-2)
+
+
+def test_levels_that_move_no_limited_output_leave_the_information_unbounded():
+    """A step whose response no limit sees can grow without end: the bound is +inf, not an error."""
+    G = np.zeros((2, 2, 1, 1))
+    G[0, 0] = G[1, 1] = 1.0
+    A = np.array([[1.0, 0.0], [0.5, 0.0]])  # only the first step is seen by a limit
+    assert model_bound(G, A, np.eye(1), start=np.array([1.0, 1.0])) == np.inf
+    A[:, 1] = [0.0, 1.0]  # both limited: |v1| <= 1, |v1/2 + v2| <= 1; the optimum v = (1, -1.5)
+    bound = model_bound(G, A, np.eye(1) * 3.25, start=np.array([1.0, -1.5]))
+    assert np.log(3.25) - 1e-9 <= bound < np.inf
