@@ -194,7 +194,7 @@ def build_parser() -> Parser:
     p.add_argument("--no-double-jumps", action="store_true", help="forbid +1 to -1 without a hold at 0")
     p.add_argument("--criterion", choices=CRITERIA, default="robust",
                    help="robust (default): expected plus worst D-efficiency over models around the a priori "
-                        "(each against the 3211 tuned on it), at least 1.25x the best tuned 3211/doublet on "
+                        "(each against the 3211 tuned on it), at least 1.22x the best tuned 3211/doublet on "
                         "the a priori; mean: expected log det only; worst: worst D-efficiency only; "
                         "nominal: the a priori only")
     p.add_argument("--out", type=output_file, metavar="JSON", help="write the optimised signal here")

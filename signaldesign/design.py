@@ -20,6 +20,7 @@ import numpy as np
 from identify import LinearModel
 
 from .baselines import doublet, m3211
+from .bound import objective_bound
 from .compare import _grid, _tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
@@ -45,12 +46,17 @@ class SequenceDesign:
     ``nominal_margin`` times the D-efficiency of the best tuned 3211/doublet on the a priori when the
     amplitude is free; the nominal optimum seeds the search), ``mean`` (expected log det only),
     ``worst`` (worst relative D-efficiency only) or ``nominal`` (the a priori only). ``draws`` and
-    ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`).
+    ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`). The search:
+    ``restarts`` annealing runs of ``n_iter`` proposals, each polished, then ``kicks`` rounds of
+    iterated local search from the best (:func:`~signaldesign.search.anneal`).
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
-    (SearchResult; ``trace`` the restarts' objectives), ``gap_`` (objective gap to an upper bound
-    when one is computed: 0 for an exhaustive search, else None), ``evaluator_``, ``basis_``,
+    (SearchResult; ``trace`` the restarts' objectives), ``bound_`` (:class:`~signaldesign.bound.Bound`:
+    an upper bound on the criterion over every input in the span of the grid's steps), ``gap_``
+    (criterion units from the design to the optimum: 0 for an exhaustive search, else at most the
+    bound minus the design's value), ``efficiency_bound_`` (exp(-gap / (p x total weight)): the
+    design's D-efficiency is at least this fraction of the optimum's), ``evaluator_``, ``basis_``,
     ``models_`` and ``model_labels_``, ``width_`` (the grid), ``seconds_``, ``cpu_seconds_``,
     ``nominal_gain_`` (D-efficiency on the a priori against the best tuned 3211/doublet).
     """
@@ -61,7 +67,7 @@ class SequenceDesign:
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
-                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.25):
+                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -72,6 +78,7 @@ class SequenceDesign:
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
         self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
+        self.kicks = kicks
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -128,7 +135,7 @@ class SequenceDesign:
             # the nominal optimum seeds the robust search; the floor keeps the robust design at least
             # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
             nominal = Objective(basis, "nominal", amplitude=amp, stride=2)
-            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter)
+            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter, kicks=0)
             starts = [best.levels] + starts
             if self.nominal_margin is not None and amp is None:
                 floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
@@ -137,6 +144,9 @@ class SequenceDesign:
                               worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
                               stride=2)
         result, gap = self._search(objective, fly, starts)
+        exact = objective.exact()
+        self.bound_ = objective_bound(exact, result.levels)
+        self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
             raise DesignError("the designed sequence moves no output that has a response limit")
@@ -152,7 +162,7 @@ class SequenceDesign:
         self.levels_, self.amplitude_ = result.levels, np.full(len(self.inputs), amplitude)
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
-        self.result_, self.gap_, self.basis_, self.evaluator_ = result, gap, basis, ev
+        self.result_, self.basis_, self.evaluator_ = result, basis, ev
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
         self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
                                            - max(classic)) / ev.p)) if classic else float("nan")
@@ -191,7 +201,8 @@ class SequenceDesign:
             out.append(np.concatenate([_on_grid(parts, wa, basis.width, basis.n_steps) for wa in ws]))
         return out, lds
 
-    def _search(self, objective: Objective, fly: Flyability, starts, n_iter=None) -> tuple[SearchResult, float | None]:
+    def _search(self, objective: Objective, fly: Flyability, starts, n_iter=None,
+                kicks=None) -> tuple[SearchResult, float | None]:
         """Exhaustive when the (single-axis) sequence space is small (gap 0), annealing otherwise."""
         K = objective.basis.n_steps
         limit = self.exhaustive_limit // max(objective.n_models, 1)
@@ -202,7 +213,8 @@ class SequenceDesign:
         if n is not None:
             return exhaustive(objective.exact(), fly, limit), 0.0
         # anneal on peaks read every other sample, then polish on every sample
-        found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress)
+        found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress,
+                       kicks=self.kicks if kicks is None else kicks)
         exact = objective.exact()
         found.levels, found.objective = polish(exact, fly, found.levels)
         found.evaluations += exact.evaluations
@@ -222,9 +234,10 @@ class SequenceDesign:
                  for y, pk, lim in zip(p.outputs, self.peaks_, self.limits_) if np.isfinite(lim)]
         lines.append("peak response / limit on the a priori: " + ", ".join(cells))
         res = self.result_
-        how = ("exhaustive: exact optimum, gap 0" if self.gap_ == 0 else
+        how = ("exhaustive: exact optimum among flyable sequences, gap 0" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
-               f"of each other in the criterion (no upper bound computed)")
+               f"of each other in the criterion; upper bound {self.bound_.value:.2f} (continuous relaxation), "
+               f"gap {self.gap_:.2f}: D-efficiency at least {self.efficiency_bound_:.3f} of the optimum's")
         floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
                  and self.amplitude is None else "")
         if floor and self.nominal_gain_ < self.nominal_margin * (1 - 1e-6):
@@ -233,6 +246,13 @@ class SequenceDesign:
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         return "\n".join(lines)
+
+    @property
+    def efficiency_bound_(self) -> float:
+        """Lower bound on the design's D-efficiency relative to the optimum: exp(-gap / (p w)), w the
+        total weight of the criterion's log dets (1; 1 + worst weight for robust)."""
+        w = 1.0 + (self.worst_weight if self.criterion == "robust" else 0.0)
+        return float(np.exp(-self.gap_ / (self.evaluator_.p * w)))
 
 
 def prior_weights(n_models: int, apriori_weight: float) -> np.ndarray:

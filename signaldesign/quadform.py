@@ -142,9 +142,9 @@ class Objective:
         self.n_models = 1 if criterion == "nominal" else len(basis.models)
         self.G = basis.G[:self.n_models]
         self.Y = basis.Y[:self.n_models]
-        self._sample(stride)
         # 1 / limit per output (ny,); 0 for an output without a limit
         self.inv_limits = 1.0 / basis.evaluator.limits if inv_limits is None else np.asarray(inv_limits, float)
+        self._sample(stride)
         self.offsets = np.zeros(self.n_models) if offsets is None else np.asarray(offsets, float)[:self.n_models]
         w = np.ones(self.n_models) if weights is None else np.asarray(weights, float)[:self.n_models]
         self.weights = w / w.sum()
@@ -153,11 +153,17 @@ class Objective:
         self._base = self._last = None
 
     def _sample(self, stride: int) -> None:
-        """Outputs per step, contiguous (a proposal reads the few rows it changes), every ``stride``-th
-        sample: a search reads every other one (half the cost); on a fast aircraft (Navion) those
-        peaks are ~2 % low, so the designer polishes its result with every sample."""
+        """Outputs per step over their limits, every ``stride``-th sample, flattened and contiguous:
+        ``Yk`` (m, K, X) with X = samples x limited outputs, so a proposal reads the few rows it
+        changes and the largest peak/limit is one reduction. A search reads every other sample
+        (half the cost); on a fast aircraft (Navion) those peaks are ~2 % low, so the designer
+        polishes its result with every sample."""
         self.stride = int(stride)
-        self.Yk = np.ascontiguousarray(np.moveaxis(self.Y[:, ::self.stride], 3, 1))  # (m, K, N/stride, ny)
+        keep = self.inv_limits > 0
+        if not keep.any():  # no output limited: every peak ratio is 0
+            keep = np.arange(self.inv_limits.size) == 0
+        Y = self.Y[:, ::self.stride][:, :, keep, :] * self.inv_limits[keep][None, None, :, None]  # (m, T, ny', K)
+        self.Yk = np.ascontiguousarray(np.moveaxis(Y, 3, 1).reshape(Y.shape[0], Y.shape[3], -1))
         self._base = self._last = None
 
     def exact(self) -> "Objective":
@@ -172,7 +178,7 @@ class Objective:
         """(levels, V (m, K, p, p), M (m, p, p), y (m, N, ny)) from scratch."""
         V = np.einsum("mkjab,j->mkab", self.G, levels)
         M = np.einsum("k,mkab->mab", levels, V)
-        y = np.tensordot(levels, self.Yk, axes=([0], [1]))
+        y = np.matmul(levels, self.Yk)
         return levels.copy(), V, M, y
 
     def reset(self, levels=None) -> None:
@@ -185,11 +191,13 @@ class Objective:
             return
         levels, idx, d, M, y, V = self._last
         if idx is not None and idx.size:
-            # V_k += sum_j G_kj d_j = (sum_j d_j G_jk)^T: rows of G are contiguous views
+            # V_k += sum_j G_kj d_j = (sum_j d_j G_jk)^T: rows of G are contiguous; V is updated in
+            # place (the base owns it: built by _state, changed only here)
             dV = d[0] * self.G[:, idx[0]]
             for j, dj in zip(idx[1:], d[1:]):
                 dV += dj * self.G[:, j]
-            V = self._base[1] + dV.transpose(0, 1, 3, 2)
+            V = self._base[1]
+            V += dV.transpose(0, 1, 3, 2)
         elif idx is not None:
             V = self._base[1]
         self._base = (levels, V, M, y)
@@ -207,9 +215,12 @@ class Objective:
                 # proposals change one contiguous run of steps: slices are views, not copies
                 sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
                 Gii = self.G[:, sl, sl] if isinstance(sl, slice) else self.G[:, idx[:, None], idx[None, :]]
-                Vi = np.einsum("r,mrab->mab", d, V[:, sl])
-                M = M0 + Vi + Vi.transpose(0, 2, 1) + np.einsum("rs,mrsab->mab", np.outer(d, d), Gii)
-                y = y0 + np.einsum("r,mrty->mty", d, self.Yk[:, sl])
+                m, p = M0.shape[0], M0.shape[1]
+                # contractions over the changed steps as (batched) matrix products: p x p flattened
+                Vi = np.matmul(d, V[:, sl].reshape(m, idx.size, p * p)).reshape(m, p, p)
+                dGd = np.matmul(d, np.matmul(d, Gii.reshape(m, idx.size, idx.size, p * p))).reshape(m, p, p)
+                M = M0 + Vi + Vi.transpose(0, 2, 1) + dGd
+                y = y0 + np.matmul(d, self.Yk[:, sl])
                 self._last = (levels.copy(), idx, d, M, y, None)
                 return M, y
         _, V, M, y = self._state(levels)
@@ -218,10 +229,15 @@ class Objective:
 
     # -- scoring ------------------------------------------------------------------------------------
     def ratios(self, y) -> np.ndarray:
-        """Largest peak over limit per model (m,) from outputs y (m, N, ny)."""
-        return (np.abs(y).max(axis=1) * self.inv_limits).max(axis=1)
+        """Largest peak over limit per model (m,) from outputs over limits y (m, X)."""
+        return np.abs(y).max(axis=1)
 
     def _value(self, M, r) -> float:
+        return self.combine(self.per_model(M, r))
+
+    def per_model(self, M, r) -> np.ndarray:
+        """Each model's term (m,) from its information M (m, p, p) and peak ratio r (m,), offsets
+        subtracted; -inf for a singular information."""
         sign, ld = np.linalg.slogdet(M)
         ld = np.where(sign > 0, ld, -np.inf)
         if self.amplitude is None:
@@ -232,16 +248,21 @@ class Objective:
             per_model = ld + 2 * self.p * (np.log(self.amplitude) - self.PENALTY * over)
             if over > 0:  # below every flyable sequence within the limits, graded toward them
                 per_model = per_model - self.INFEASIBLE
-        per_model = np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
+        return np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
+
+    def combine(self, per_model, floor: bool = True) -> float:
+        """The criterion from the models' terms (every combination is non-decreasing in each term;
+        ``floor`` False leaves out the nominal floor's penalty)."""
+        per_model = np.asarray(per_model, float)
         if self.criterion == "nominal":
             return float(per_model[0])
         if self.criterion == "worst":
             return float(per_model.min())
         if self.criterion == "robust":
-            return self._robust(per_model)
+            return self._robust(per_model, floor)
         return float(per_model @ self.weights) if np.all(np.isfinite(per_model)) else -np.inf
 
-    def _robust(self, rel) -> float:
+    def _robust(self, rel, floor: bool = True) -> float:
         """weights . rel + worst_weight * soft minimum of rel (log-sum-exp at ``softness`` log-det
         units; the plain minimum at 0)."""
         if not np.all(np.isfinite(rel)):
@@ -250,7 +271,7 @@ class Objective:
         if self.softness > 0:
             lo -= self.softness * float(np.log(np.exp(-(rel - lo) / self.softness).sum()))
         value = float(rel @ self.weights) + self.worst_weight * lo
-        if self.nominal_floor is not None:  # below the floor on the a priori: steeply worse
+        if floor and self.nominal_floor is not None:  # below the floor on the a priori: steeply worse
             value -= self.FLOOR_PENALTY * max(0.0, self.nominal_floor - float(rel[0]))
         return value
 
@@ -267,7 +288,7 @@ class Objective:
         for i in range(0, len(L), chunk):
             Li = L[i:i + chunk]
             M = np.einsum("ck,cj,mkjab->cmab", Li, Li, self.G, optimize=True)
-            y = np.einsum("mkty,ck->cmty", self.Yk, Li, optimize=True)
+            y = np.einsum("mkx,ck->cmx", self.Yk, Li, optimize=True)
             for c in range(len(Li)):
                 out[i + c] = self._value(M[c], self.ratios(y[c]))
         return out
