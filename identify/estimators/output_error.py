@@ -46,6 +46,7 @@ COLOUR_TOL = 1e-2  # ... until no parameter standard error changes by more than 
 OUTPUT_LIMIT = 1e3  # a modelled output this many times the largest measured one has diverged
 BLOCK_FLOATS = 2_000_000  # time blocks of the sensitivity work hold about this many floats (16 MB)
 COLOUR_CHUNK_FLOATS = 3_000_000  # Jacobian columns per FFT in the coloured correction: ~24 MB of spectra
+SENS_GROUP_FLOATS = 8_000_000  # parameter sensitivities held at once, groups of segments (64 MB)
 COLOUR_CACHE = 8_000_000  # spectra kept between passes up to this many floats (64 MB)
 
 
@@ -119,13 +120,26 @@ def simulate_segments(Phi: np.ndarray, forcing: np.ndarray, x_start: np.ndarray,
 @dataclass
 class Response:
     """Model response at one ``beta``: ``e`` (L, ny, S) residual z - y (0 on padding), ``y`` (L, ny, S);
-    with the Jacobian: ``dy_theta`` (L, ny, p, S) and ``dy_x0`` (L, ny, n) (shared by all segments)."""
+    with the Jacobian: ``dy_x0`` (L, ny, n) (shared by all segments) and the parameter
+    sensitivities ``dy_theta`` (L, ny, p, S), held (``held``) or, for many segments, recomputed a
+    group of segments at a time by ``compute(segments)`` (:meth:`theta_sensitivities`) so that
+    they never exist whole (an hour in 3 s segments: 460 MB)."""
 
     beta: np.ndarray
     e: np.ndarray
     y: np.ndarray
-    dy_theta: np.ndarray | None = None
     dy_x0: np.ndarray | None = None
+    held: np.ndarray | None = None
+    compute: object = None
+
+    @property
+    def dy_theta(self) -> np.ndarray | None:
+        """All parameter sensitivities (L, ny, p, S) (computed whole if not held)."""
+        return self.theta_sensitivities(slice(None)) if self.held is not None or self.compute else None
+
+    def theta_sensitivities(self, segments: slice) -> np.ndarray:
+        """Parameter sensitivities of the ``segments`` (L, ny, p, s)."""
+        return self.held[..., segments] if self.held is not None else self.compute(segments)
 
 
 class OutputError:
@@ -217,44 +231,66 @@ class OutputError:
         e = np.where(self.mask[:, None, :] > 0, self.Z - y, 0.0)  # padding may hold inf
         ev = Response(beta, e, y)
         if jacobian:
-            self._sensitivities(ev, model, Phi, dPhi, dGamma, x)
+            ev.dy_x0 = self._state_response(C, Phi)
+
+            def compute(segments):
+                return self._sensitivities(model, Phi, dPhi, dGamma, x[..., segments], self.U[..., segments])
+
+            if self._segment_groups() == [(0, S)]:
+                ev.held = compute(slice(None))
+            else:
+                ev.compute = compute
         return ev
+
+    def _segment_groups(self) -> list[tuple[int, int]]:
+        """Groups of segments ``(a, b)`` whose parameter sensitivities hold about SENS_GROUP_FLOATS."""
+        lay = self.layout
+        size = max(1, SENS_GROUP_FLOATS // (lay.L * self.ny * self.p))
+        return [(a, min(lay.n_segments, a + size)) for a in range(0, lay.n_segments, size)]
 
     def _blocks(self, columns: int):
         """Time blocks ``(k0, k1)`` over the padded length, each holding about BLOCK_FLOATS floats
         of a (block, n, columns) array: long records never hold the sensitivity work whole."""
         L = self.layout.L
-        size = max(64, BLOCK_FLOATS // max(self.n * columns, 1))
+        size = max(8, BLOCK_FLOATS // max(self.n * columns, 1))
         return [(k0, min(L, k0 + size)) for k0 in range(0, L, size)]
 
-    def _sensitivities(self, ev: Response, model: LinearModel, Phi, dPhi, dGamma, x) -> None:
-        """``ev.dy_theta`` (L, ny, p, S) and ``ev.dy_x0`` (L, ny, n): the sensitivity recursion
-        ``S[k+1] = Phi S[k] + dPhi_i x[k] + dGamma_i u[k]`` run block by block in time (the
-        state carried across), so its forcing and states exist one block at a time."""
-        L, S, n, p, ny = self.layout.L, self.layout.n_segments, self.n, self.p, self.ny
+    def _sensitivities(self, model: LinearModel, Phi, dPhi, dGamma, x, U) -> np.ndarray:
+        """Parameter sensitivities (L, ny, p, S) of the segments whose states are ``x`` (L, n, S)
+        and inputs ``U`` (L, m, S): the recursion ``S[k+1] = Phi S[k] + dPhi_i x[k] + dGamma_i u[k]``
+        run block by block in time (the state carried across), so its forcing and states exist one
+        block at a time."""
+        L, S, n, p, ny = self.layout.L, x.shape[2], self.n, self.p, self.ny
         C = model.C
-        ev.dy_theta = np.empty((L, ny, p, S))
-        ev.dy_x0 = np.empty((L, ny, n))
-        sens, power = np.zeros((n, p * S)), np.eye(n)
+        dy_theta = np.empty((L, ny, p, S))
+        sens = np.zeros((n, p * S))
         for k0, k1 in self._blocks(p * S):
-            xb, ub = x[k0:k1], self.U[k0:k1]
+            xb, ub = x[k0:k1], U[k0:k1]
             # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (l, n, p, S)
             forcing = ((dPhi.reshape(p * n, n) @ xb + dGamma.reshape(p * n, self.m) @ ub)
                        .reshape(k1 - k0, p, n, S).transpose(0, 2, 1, 3).reshape(k1 - k0, n, p * S))
             block = propagate(Phi, forcing, sens)
             direct = model.dC.reshape(p * ny, n) @ xb + model.dD.reshape(p * ny, self.m) @ ub
-            ev.dy_theta[k0:k1] = ((C @ block).reshape(k1 - k0, ny, p, S)
-                                  + direct.reshape(k1 - k0, p, ny, S).transpose(0, 2, 1, 3))
-            powers = propagate(Phi, np.zeros((k1 - k0, n, n)), power)  # Phi^k
-            ev.dy_x0[k0:k1] = C @ powers
-            sens, power = Phi @ block[-1] + forcing[-1], Phi @ powers[-1]
+            dy_theta[k0:k1] = ((C @ block).reshape(k1 - k0, ny, p, S)
+                               + direct.reshape(k1 - k0, p, ny, S).transpose(0, 2, 1, 3))
+            sens = Phi @ block[-1] + forcing[-1]
+        return dy_theta
 
     def initial_state_response(self, theta: np.ndarray) -> np.ndarray:
         """``dy/dx0 = C Phi^k`` (L, ny, n), the same for every segment (without the parameter
         sensitivities that :meth:`evaluate` computes with it)."""
         model = self.model0.with_theta(theta)
         Phi, _ = discretize(model.A, model.B, self.dt)
-        return model.C @ propagate(Phi, np.zeros((self.layout.L, self.n, self.n)), np.eye(self.n))
+        return self._state_response(model.C, Phi)
+
+    def _state_response(self, C: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+        """``C Phi^k`` (L, ny, n), a time block at a time."""
+        out, power = np.empty((self.layout.L, self.ny, self.n)), np.eye(self.n)
+        for k0, k1 in self._blocks(self.n):
+            powers = propagate(Phi, np.zeros((k1 - k0, self.n, self.n)), power)
+            out[k0:k1] = C @ powers
+            power = Phi @ powers[-1]
+        return out
 
     def _check(self, x: np.ndarray, y: np.ndarray) -> None:
         """SimulationError naming state or output, run and time where the simulation diverges:
@@ -286,17 +322,21 @@ class OutputError:
         return self.whitened(self.evaluate(beta, jacobian=False), Wh)
 
     def _local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None,
-                        segment: int | None = None) -> np.ndarray:
+                        segment: int | slice | None = None, dy_theta: np.ndarray | None = None) -> np.ndarray:
         """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment (or of
-        ``segment`` alone) over the samples k0..k1 (default all), (S, k1 - k0, ny, p + n + ny),
-        0 on padding."""
+        ``segment``, an index or a slice of them) over the samples k0..k1 (default all),
+        (S, k1 - k0, ny, p + n + ny), 0 on padding; ``dy_theta`` the segments' parameter
+        sensitivities (L, ny, p, S) if already at hand."""
         _, ny, S = ev.e.shape
         k1 = ev.e.shape[0] if k1 is None else k1
-        segs = slice(None) if segment is None else slice(segment, segment + 1)
-        S = S if segment is None else 1
+        segs = segment if isinstance(segment, slice) else \
+            slice(None) if segment is None else slice(segment, segment + 1)
+        S = len(range(S)[segs])
+        if dy_theta is None:
+            dy_theta = ev.theta_sensitivities(segs)
         p, n, l = self.p, self.n, k1 - k0
         Jloc = np.empty((S, l, ny, p + n + ny))
-        Jloc[..., :p] = ((Wh @ ev.dy_theta[k0:k1, ..., segs].reshape(l, ny, p * S)).reshape(l, ny, p, S)
+        Jloc[..., :p] = ((Wh @ dy_theta[k0:k1].reshape(l, ny, p * S)).reshape(l, ny, p, S)
                          .transpose(3, 0, 1, 2))
         Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1])[None]
         Jloc[..., p + n:] = Wh
@@ -344,12 +384,15 @@ class OutputError:
         _, ny, S = ev.e.shape
         k = self.p + self.n + ny
         Ml, gl = np.zeros((S, k, k)), np.zeros((S, k))
-        for k0, k1 in self._blocks(S * k):  # block by block in time: bounded memory for long records
-            Jloc = self._local_jacobian(ev, Wh, k0, k1).reshape(S, (k1 - k0) * ny, k)
-            ew = (Wh @ ev.e[k0:k1]).transpose(2, 0, 1).reshape(S, (k1 - k0) * ny, 1)
-            Jt = Jloc.transpose(0, 2, 1)
-            Ml += Jt @ Jloc
-            gl += (Jt @ ew)[..., 0]
+        for a, b in self._segment_groups():  # a group of segments at a time, block by block in time:
+            segs = slice(a, b)               # bounded memory for long records
+            dy = ev.theta_sensitivities(segs)
+            for k0, k1 in self._blocks((b - a) * k):
+                Jloc = self._local_jacobian(ev, Wh, k0, k1, segs, dy).reshape(b - a, (k1 - k0) * ny, k)
+                ew = (Wh @ ev.e[k0:k1, :, segs]).transpose(2, 0, 1).reshape(b - a, (k1 - k0) * ny, 1)
+                Jt = Jloc.transpose(0, 2, 1)
+                Ml[segs] += Jt @ Jloc
+                gl[segs] += (Jt @ ew)[..., 0]
         return Ml, gl
 
     def coloured_information(self, ev: Response, Wh: np.ndarray, info: BlockInformation,
@@ -400,11 +443,19 @@ class OutputError:
         width = max(1, min(k_loc, COLOUR_CHUNK_FLOATS // (2 * F * ny)))  # complex: 2 floats
         cache_ok = S * F * ny * k_loc * 4 <= COLOUR_CACHE  # two complex spectra per column
         Jloc = self._local_jacobian(ev, Wh) if cache_ok else None  # (S, L, ny, k), 0 on padding
-        segs = []
-        for s in range(S):
-            keep = self.local_index[s] >= 0
-            whole = None if Jloc is None else Jloc[s, :self.layout.length[s]][..., keep]
-            segs.append((keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)))
+        short = L * ny * k_loc <= COLOUR_CHUNK_FLOATS  # a segment's Jacobian may be held whole
+
+        def segments():
+            """``(s, keep, J)`` for every segment in turn; many short segments have their
+            Jacobians rebuilt a group at a time (one sensitivity recursion for the group), a
+            long one a time block at a time."""
+            for a, b in [(0, S)] if Jloc is not None or not short else self._segment_groups():
+                group = Jloc if Jloc is not None else self._local_jacobian(ev, Wh, segment=slice(a, b)) \
+                    if short else None
+                for s in range(a, b):
+                    keep = self.local_index[s] >= 0
+                    whole = None if group is None else group[s - a, :self.layout.length[s]][..., keep]
+                    yield s, keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)
         cache = {}
 
         def spectra(s, c, J, cov_ii):
@@ -432,7 +483,7 @@ class OutputError:
             spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)[:, :, None]  # a covariance: PSD
             Bl = np.zeros((S, k_loc, k_loc))
             corr = np.zeros((F, ny))
-            for s, (keep, J) in enumerate(segs):
+            for s, keep, J in segments():
                 cov_ii = cov_local[s][np.ix_(keep, keep)]
                 block = np.zeros((J.q, J.q))
                 for c in chunks(J.q):
@@ -449,7 +500,7 @@ class OutputError:
                 Bl[s][np.ix_(keep, keep)] = block
             Bl = 0.5 * (Bl + Bl.transpose(0, 2, 1))
             cov_c = info.local(info.sandwich(Bl))
-            for s, (keep, J) in enumerate(segs):
+            for s, keep, J in segments():
                 cc = cov_c[s][np.ix_(keep, keep)]
                 for c in chunks(J.q):
                     FJ = spectra(s, c, J, cov_local[s][np.ix_(keep, keep)])[0]
