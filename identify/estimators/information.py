@@ -107,6 +107,7 @@ class BlockInformation:
         self.sxx *= ax[:, :, None] & ax[:, None, :]
         self.sxx[:, np.arange(n), np.arange(n)] = 1.0
         self.ag, self.ax = ag, ax
+        self._parts = None
 
     def _scaled_g(self, gg):
         ag = self.active[self.g_index]
@@ -115,15 +116,18 @@ class BlockInformation:
         return out
 
     def _add(self, local, gg, gx, xx):
-        """Sum the per-segment local blocks (S, k, k) into the arrow blocks."""
-        for s in range(len(local)):
-            g = self.lg[s] >= 0
-            x = self.lx[s] >= 0
-            gi, xi = self.lg[s][g], self.lx[s][x]
-            gg[np.ix_(gi, gi)] += local[s][np.ix_(g, g)]
-            if xi.size:
-                gx[s][np.ix_(gi, xi)] += local[s][np.ix_(g, x)]
-                xx[s][np.ix_(xi, xi)] += local[s][np.ix_(x, x)]
+        """Sum the per-segment local blocks (S, k, k) into the arrow blocks (all segments at once)."""
+        S, k = self.lg.shape
+        s = np.broadcast_to(np.arange(S)[:, None, None], (S, k, k))
+        gi, gj = np.broadcast_to(self.lg[:, :, None], (S, k, k)), np.broadcast_to(self.lg[:, None, :], (S, k, k))
+        xi, xj = np.broadcast_to(self.lx[:, :, None], (S, k, k)), np.broadcast_to(self.lx[:, None, :], (S, k, k))
+        sel = (gi >= 0) & (gj >= 0)
+        np.add.at(gg, (gi[sel], gj[sel]), local[sel])
+        if self.n:
+            sel = (gi >= 0) & (xj >= 0)
+            np.add.at(gx, (s[sel], gi[sel], xj[sel]), local[sel])
+            sel = (xi >= 0) & (xj >= 0)
+            xx[s[sel], xi[sel], xj[sel]] += local[sel]  # one segment's own states: no repeats
 
     # -- products and solves -----------------------------------------------------------------
     def diag(self) -> np.ndarray:
@@ -230,7 +234,13 @@ class BlockInformation:
         return self._unscaled(CWC, gx, xx)
 
     def _inverse_parts(self):
-        """Scaled ``E`` (S, n, n) = Mxx^-1, ``K`` (S, n, G) = Mxx^-1 Mxg, ``C`` = Schur complement^-1, ill."""
+        """Scaled ``E`` (S, n, n) = Mxx^-1, ``K`` (S, n, G) = Mxx^-1 Mxg, ``C`` = Schur complement^-1,
+        ill (computed once)."""
+        if self._parts is None:
+            self._parts = self._compute_inverse_parts()
+        return self._parts
+
+    def _compute_inverse_parts(self):
         ill = False
         if self.n:
             E, ill_x = _inverse_batched(self.sxx)

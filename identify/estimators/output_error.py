@@ -449,6 +449,9 @@ class OutputError:
             """``(s, keep, J)`` for every segment in turn; many short segments have their
             Jacobians rebuilt a group at a time (one sensitivity recursion for the group), a
             long one a time block at a time."""
+            if held is not None:
+                yield from held
+                return
             for a, b in [(0, S)] if Jloc is not None or not short else self._segment_groups():
                 group = Jloc if Jloc is not None else self._local_jacobian(ev, Wh, segment=slice(a, b)) \
                     if short else None
@@ -456,20 +459,21 @@ class OutputError:
                     keep = self.local_index[s] >= 0
                     whole = None if group is None else group[s - a, :self.layout.length[s]][..., keep]
                     yield s, keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)
+        held = None
+        held = list(segments()) if Jloc is not None else None  # small: built once for all passes
+
         cache = {}
 
         def spectra(s, c, J, cov_ii):
-            """rfft of the columns c of J and of (J cov)[:, c]. The FFT is linear: with all columns
-            at once the latter is rfft(J) cov, a small product instead of another FFT."""
+            """Spectra (w, ny, F) of the columns c of J and of (J cov)[:, c], time last (scipy's
+            FFT along a contiguous last axis is 2x numpy's along a strided first one). The FFT is
+            linear: with all columns at once the latter is a small product, not another FFT."""
             key = (s, c.start, c.stop)  # slices are not hashable before Python 3.12
             if key in cache:
                 return cache[key]
-            if c == slice(None):
-                FJ = _rfft(J.whole if J.whole is not None else J.apply(np.eye(J.q)), n_fft)
-                FG = FJ @ cov_ii
-            else:
-                FJ = _rfft(J.apply(np.eye(J.q)[:, c]), n_fft)
-                FG = _rfft(J.apply(cov_ii[:, c]), n_fft)
+            FJ = scipy.fft.rfft(J.columns(c), n_fft, axis=-1)
+            FG = _over_columns(cov_ii, FJ) if c == slice(None) else \
+                scipy.fft.rfft(J.times(cov_ii[:, c]), n_fft, axis=-1)
             if cache_ok:
                 cache[key] = FJ, FG
             return FJ, FG
@@ -477,44 +481,63 @@ class OutputError:
         def chunks(q):
             return [slice(None)] if width >= q else [slice(a, min(q, a + width)) for a in range(0, q, width)]
 
-        def residual_map(rho, white):
-            """One pass: the local blocks of ``B(rho)`` and ``g(rho)``. For white ``rho`` (the
-            first pass) ``T J = rho(0) J`` needs no FFT."""
-            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)[:, :, None]  # a covariance: PSD
+        def first_half(rho, white):
+            """``B(rho)`` (local blocks) and the 2 xcorr(J cov, T J) part of the correction. For
+            white ``rho`` (the first pass) ``T J = rho(0) J`` needs no FFT."""
+            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None).T  # a covariance: PSD, (ny, F)
+            rho0 = rho[0][:, None]
             Bl = np.zeros((S, k_loc, k_loc))
-            corr = np.zeros((F, ny))
+            corr = np.zeros((ny, F))
+            shared = {}
+
+            def toeplitz_times(FJ, J, c, cols):
+                """``T J`` (time last) and its spectrum for the columns c of J (``cols`` of FJ)."""
+                if white:
+                    return rho0 * J.columns(c)[cols], rho0 * FJ[cols]
+                TJ = scipy.fft.irfft(spectrum * FJ[cols], n_fft, axis=-1)[..., :J.length]
+                return TJ, scipy.fft.rfft(TJ, n_fft, axis=-1)
+
             for s, keep, J in segments():
                 cov_ii = cov_local[s][np.ix_(keep, keep)]
                 block = np.zeros((J.q, J.q))
+                # the initial-state and zero-shift columns of segments of one length are the same
+                # (C Phi^k and Wh): their T J is computed once per length (short segments only)
                 for c in chunks(J.q):
                     FJ, FG = spectra(s, c, J, cov_ii)
-                    if white:
-                        FTJ = rho[0, :, None] * FJ
-                        TJ = rho[0, :, None] * (J.whole[..., c] if J.whole is not None else J.apply(np.eye(J.q)[:, c]))
-                    else:
-                        TJ = _irfft(spectrum * FJ, n_fft, J.length)
-                        FTJ = _rfft(TJ, n_fft)
-                    block[:, c] = J.gram(TJ)
-                    corr += 2 * _real_inner(FG, FTJ)
-                    del FJ, FG, TJ, FTJ
+                    n_own = int(keep[:self.p].sum()) if held is not None and c == slice(None) else len(FJ)
+                    parts = [(slice(0, n_own), toeplitz_times(FJ, J, c, slice(0, n_own)))]
+                    if n_own < len(FJ):
+                        key = (J.length, keep.tobytes())
+                        if key not in shared:
+                            shared[key] = toeplitz_times(FJ, J, c, slice(n_own, None))
+                        parts.append((slice(n_own, None), shared[key]))
+                    for cols, (TJ, FTJ) in parts:
+                        block[:, c][:, cols] = J.gram(TJ)
+                        corr += 2 * _real_inner(FG[cols], FTJ)
+                    del FJ, FG, parts
                 Bl[s][np.ix_(keep, keep)] = block
-            Bl = 0.5 * (Bl + Bl.transpose(0, 2, 1))
-            cov_c = info.local(info.sandwich(Bl))
+            return 0.5 * (Bl + Bl.transpose(0, 2, 1)), corr
+
+        def second_half(cov_c, corr):
+            """``g(rho)``: the correction ``corr`` less xcorr(J cov B cov, J), cov_c = cov B cov."""
+            cov_c = info.local(cov_c)
             for s, keep, J in segments():
                 cc = cov_c[s][np.ix_(keep, keep)]
                 for c in chunks(J.q):
                     FJ = spectra(s, c, J, cov_local[s][np.ix_(keep, keep)])[0]
-                    FC = FJ @ cc if c == slice(None) else _rfft(J.apply(cc[:, c]), n_fft)
+                    FC = _over_columns(cc, FJ) if c == slice(None) else \
+                        scipy.fft.rfft(J.times(cc[:, c]), n_fft, axis=-1)
                     corr -= _real_inner(FC, FJ)
                     del FJ, FC
-            return Bl, r + np.fft.irfft(corr / count, n_fft, axis=0)
+            return r + np.fft.irfft(corr.T / count, n_fft, axis=0)
 
         xs, hs, fs, Bs = [], [], [], []
         rho = np.zeros_like(r)
         rho[0] = r[0]  # start: white noise of the residuals' variance
         std_old, gain = None, None
         for passes in range(1, max_iter + 1):
-            B_k, g_k = residual_map(rho, white=passes == 1)
+            B_k, corr = first_half(rho, white=passes == 1)
+            g_k = second_half(info.sandwich(B_k), corr)
             if gain is None:
                 gain = _preconditioner(g_k - r, r[0])
             # the preconditioned map h(rho) = rho + P (g(rho) - rho) has the same fixed point
@@ -541,24 +564,17 @@ class OutputError:
         return [np.vstack(parts) for parts in out]
 
 
-def _rfft(x: np.ndarray, n_fft: int) -> np.ndarray:
-    """The rfft along axis 0 of x (l, ...) zero-padded to n_fft, as real and imaginary parts
-    stacked (2, n_fft // 2 + 1, ...): products with real matrices (``FJ @ cov``) and the real
-    part of inner products are then plain real BLAS, 4x fewer operations than complex ones."""
-    X = np.fft.rfft(x, n_fft, axis=0)
-    return np.stack([X.real, X.imag])
-
-
-def _irfft(X: np.ndarray, n_fft: int, length: int) -> np.ndarray:
-    """The first ``length`` samples of the irfft of a stacked spectrum (2, F, ...)."""
-    Z = np.empty(X.shape[1:], complex)
-    Z.real, Z.imag = X[0], X[1]
-    return np.fft.irfft(Z, n_fft, axis=0)[:length]
+def _over_columns(A: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``sum_q A[q, r] X[q]`` (r, ny, F) for complex spectra X (q, ny, F), as one real matrix
+    product on their (re, im) pairs (4x fewer operations than a complex one)."""
+    q, ny, F = X.shape
+    return (A.T @ X.view(float).reshape(q, -1)).view(complex).reshape(A.shape[1], ny, F)
 
 
 def _real_inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``Re sum_q conj(A) B`` (F, ny) of stacked spectra (2, F, ny, q)."""
-    return np.einsum("cfyq,cfyq->fy", A, B)
+    """``Re sum_q conj(A) B`` (ny, F) of complex spectra (q, ny, F), on their (re, im) pairs."""
+    _, ny, F = A.shape
+    return np.einsum("qyf,qyf->yf", A.view(float), B.view(float)).reshape(ny, F, 2).sum(axis=-1)
 
 
 def _preconditioner(correction: np.ndarray, variance: np.ndarray) -> np.ndarray:
@@ -593,6 +609,21 @@ class _SegmentJacobian:
                  whole: np.ndarray | None = None):
         self.prob, self.ev, self.Wh, self.segment, self.keep, self.whole = prob, ev, Wh, segment, keep, whole
         self.length, self.q, self.ny = int(prob.layout.length[segment]), int(keep.sum()), ev.e.shape[1]
+        # columns first, time last (q, ny, l): the FFTs run along a contiguous axis and the
+        # products over columns are single matrix products
+        self.whole_t = None if whole is None else np.ascontiguousarray(whole.transpose(2, 1, 0))
+
+    def columns(self, c: slice) -> np.ndarray:
+        """Columns c of J (w, ny, l)."""
+        if self.whole_t is not None:
+            return self.whole_t[c]
+        return np.ascontiguousarray(self.apply(np.eye(self.q)[:, c]).transpose(2, 1, 0))
+
+    def times(self, C: np.ndarray) -> np.ndarray:
+        """``J C`` (w, ny, l) for C (q, w)."""
+        if self.whole_t is not None:
+            return (C.T @ self.whole_t.reshape(self.q, -1)).reshape(C.shape[1], self.ny, self.length)
+        return np.ascontiguousarray(self.apply(C).transpose(2, 1, 0))
 
     def _blocks(self):
         if self.whole is not None:
@@ -612,8 +643,11 @@ class _SegmentJacobian:
         return out
 
     def gram(self, T: np.ndarray) -> np.ndarray:
-        """``J^T T`` (q, w) summed over time and outputs, T (l, ny, w)."""
-        acc = np.zeros((self.q, T.shape[-1]))
+        """``J^T T`` (q, w) summed over time and outputs, T (w, ny, l)."""
+        w = T.shape[0]
+        if self.whole_t is not None:
+            return self.whole_t.reshape(self.q, -1) @ T.reshape(w, -1).T
+        acc = np.zeros((self.q, w))
         for k0, k1, J in self._blocks():
-            acc += J.reshape(-1, self.q).T @ T[k0:k1].reshape(-1, T.shape[-1])
+            acc += J.reshape(-1, self.q).T @ np.ascontiguousarray(T[..., k0:k1].transpose(2, 1, 0)).reshape(-1, w)
         return acc

@@ -131,3 +131,29 @@ def test_coloured_bounds_equal_the_dense_toeplitz_computation(s61):
     dev = np.abs(np.sqrt(fast.diag()[:prob.p]) / ref - 1)
     print(f"default stopping: {passes} passes, max deviation from the fixed point {dev.max():.2e}")
     assert dev.max() < 0.015
+
+
+def test_long_record_paths_give_the_same_bounds(s61, monkeypatch):
+    """The memory-bounded paths of a long record (sensitivities recomputed a group of segments at a
+    time, the coloured correction's Jacobian rebuilt per group or per time block, its columns
+    taken a chunk at a time, no spectra kept between passes) give the same information, step and
+    coloured bounds as the held, cached ones."""
+    import identify.estimators.output_error as oe
+
+    for segment in (2.0, math.inf):
+        prob, beta, Wh = _problem(s61, segment, tau=3.0)
+        ev = prob.evaluate(beta)
+        info, g = prob.information(ev, Wh)
+        ref_step = info.solve(g, 1e-3)
+        ref = np.sqrt(prob.coloured_information(ev, Wh, info, max_iter=60, tol=1e-10)[0].diag())
+        with monkeypatch.context() as m:
+            m.setattr(oe, "SENS_GROUP_FLOATS", 1)  # one segment per group
+            m.setattr(oe, "BLOCK_FLOATS", 1)  # time blocks of 8 samples
+            m.setattr(oe, "COLOUR_CACHE", 0)
+            m.setattr(oe, "COLOUR_CHUNK_FLOATS", 2 * 81 * 8 * 5 if segment == math.inf else 10 ** 9)
+            ev = prob.evaluate(beta)
+            assert ev.held is None or prob.layout.n_segments == 1
+            info, g = prob.information(ev, Wh)
+            np.testing.assert_allclose(info.solve(g, 1e-3), ref_step, rtol=1e-9, atol=1e-12)
+            got = np.sqrt(prob.coloured_information(ev, Wh, info, max_iter=60, tol=1e-10)[0].diag())
+        np.testing.assert_allclose(got, ref, rtol=1e-8)
