@@ -36,18 +36,14 @@ from ..model.linear import LinearModel
 from ..model.profile import Profile
 from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import DIVERGENCE_LIMIT, discretize, propagate
-from .colour import power
+from .coloured_bounds import COLOUR_MAX_ITER, COLOUR_TOL, ColouredBounds
 from .information import BlockInformation
 
 MIN_SEGMENT = 1.0  # s: shorter segments leave too little response to pin down their own x0
 MAX_SEGMENT = 5.0  # s: longer segments of an unstable model grow too nonlinear in theta
-COLOUR_MAX_ITER = 30  # passes of the coloured-noise autocorrelation correction (see coloured_information)
-COLOUR_TOL = 1e-2  # ... until no parameter standard error changes by more than this (relative)
 OUTPUT_LIMIT = 1e3  # a modelled output this many times the largest measured one has diverged
 BLOCK_FLOATS = 2_000_000  # time blocks of the sensitivity work hold about this many floats (16 MB)
-COLOUR_CHUNK_FLOATS = 3_000_000  # Jacobian columns per FFT in the coloured correction: ~24 MB of spectra
 SENS_GROUP_FLOATS = 8_000_000  # parameter sensitivities held at once, groups of segments (64 MB)
-COLOUR_CACHE = 8_000_000  # spectra kept between passes up to this many floats (64 MB)
 
 
 def auto_segment(model: LinearModel, duration: float) -> float:
@@ -343,18 +339,6 @@ class OutputError:
         Jloc[self.mask[k0:k1, segs].T == 0] = 0.0  # not a product: padding may hold inf
         return Jloc
 
-    def _scatter(self, Ml: np.ndarray, gl: np.ndarray | None = None):
-        """Sum per-segment local blocks ``Ml`` (S, k, k) (and ``gl`` (S, k)) into the global ones."""
-        M, g = np.zeros((self.n_beta, self.n_beta)), np.zeros(self.n_beta)
-        for s in range(len(Ml)):
-            idx = self.local_index[s]
-            keep = idx >= 0
-            i = idx[keep]
-            M[np.ix_(i, i)] += Ml[s][np.ix_(keep, keep)]
-            if gl is not None:
-                g[i] += gl[s][keep]
-        return M, g
-
     def normal_equations(self, ev: Response, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Information matrix ``M = J^T R^-1 J`` (n_beta, n_beta) and ``g = J^T R^-1 e`` (n_beta,),
         J = dy/dbeta, dense (small problems; :meth:`information` keeps M's block structure)."""
@@ -425,134 +409,9 @@ class OutputError:
         Returns the covariance (a :class:`~identify.estimators.information.BlockCovariance`),
         ``rho`` (L, ny) (lag 0 first) and the number of passes.
 
-        Memory: the columns of each segment's Jacobian go through the FFTs a chunk at a time
-        (COLOUR_CHUNK_FLOATS); their spectra are kept between passes only while they are small
-        (COLOUR_CACHE), else recomputed, so an hour at 100 Hz stays within a few hundred MB.
+        Computed by :class:`~identify.estimators.coloured_bounds.ColouredBounds`.
         """
-        L, ny, S = ev.e.shape
-        n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
-        F = n_fft // 2 + 1
-        count = max(float(self.mask.sum()), 1.0)
-        r = np.fft.irfft(power(Wh @ ev.e, n_fft).sum(axis=2) / count, n_fft, axis=0)  # (n_fft, ny)
-        k_loc = self.p + self.n + ny
-        cov, _ = info.covariance()
-        cov_local = info.local(cov)  # (S, k, k)
-        # columns of each segment's Jacobian are taken a chunk at a time, so that the spectra of a
-        # long record (n_fft ~ 2 N) never exist for all columns at once; spectra are kept between
-        # passes while they fit in COLOUR_CACHE floats (short segments: always)
-        width = max(1, min(k_loc, COLOUR_CHUNK_FLOATS // (2 * F * ny)))  # complex: 2 floats
-        cache_ok = S * F * ny * k_loc * 4 <= COLOUR_CACHE  # two complex spectra per column
-        Jloc = self._local_jacobian(ev, Wh) if cache_ok else None  # (S, L, ny, k), 0 on padding
-        short = L * ny * k_loc <= COLOUR_CHUNK_FLOATS  # a segment's Jacobian may be held whole
-
-        def segments():
-            """``(s, keep, J)`` for every segment in turn; many short segments have their
-            Jacobians rebuilt a group at a time (one sensitivity recursion for the group), a
-            long one a time block at a time."""
-            if held is not None:
-                yield from held
-                return
-            for a, b in [(0, S)] if Jloc is not None or not short else self._segment_groups():
-                group = Jloc if Jloc is not None else self._local_jacobian(ev, Wh, segment=slice(a, b)) \
-                    if short else None
-                for s in range(a, b):
-                    keep = self.local_index[s] >= 0
-                    whole = None if group is None else group[s - a, :self.layout.length[s]][..., keep]
-                    yield s, keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)
-        held = None
-        held = list(segments()) if Jloc is not None else None  # small: built once for all passes
-
-        cache = {}
-
-        def spectra(s, c, J, cov_ii):
-            """Spectra (w, ny, F) of the columns c of J and of (J cov)[:, c], time last (scipy's
-            FFT along a contiguous last axis is 2x numpy's along a strided first one). The FFT is
-            linear: with all columns at once the latter is a small product, not another FFT."""
-            key = (s, c.start, c.stop)  # slices are not hashable before Python 3.12
-            if key in cache:
-                return cache[key]
-            FJ = scipy.fft.rfft(J.columns(c), n_fft, axis=-1)
-            FG = _over_columns(cov_ii, FJ) if c == slice(None) else \
-                scipy.fft.rfft(J.times(cov_ii[:, c]), n_fft, axis=-1)
-            if cache_ok:
-                cache[key] = FJ, FG
-            return FJ, FG
-
-        def chunks(q):
-            return [slice(None)] if width >= q else [slice(a, min(q, a + width)) for a in range(0, q, width)]
-
-        def first_half(rho, white):
-            """``B(rho)`` (local blocks) and the 2 xcorr(J cov, T J) part of the correction. For
-            white ``rho`` (the first pass) ``T J = rho(0) J`` needs no FFT."""
-            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None).T  # a covariance: PSD, (ny, F)
-            rho0 = rho[0][:, None]
-            Bl = np.zeros((S, k_loc, k_loc))
-            corr = np.zeros((ny, F))
-            shared = {}
-
-            def toeplitz_times(FJ, J, c, cols):
-                """``T J`` (time last) and its spectrum for the columns c of J (``cols`` of FJ)."""
-                if white:
-                    return rho0 * J.columns(c)[cols], rho0 * FJ[cols]
-                TJ = scipy.fft.irfft(spectrum * FJ[cols], n_fft, axis=-1)[..., :J.length]
-                return TJ, scipy.fft.rfft(TJ, n_fft, axis=-1)
-
-            for s, keep, J in segments():
-                cov_ii = cov_local[s][np.ix_(keep, keep)]
-                block = np.zeros((J.q, J.q))
-                # the initial-state and zero-shift columns of segments of one length are the same
-                # (C Phi^k and Wh): their T J is computed once per length (short segments only)
-                for c in chunks(J.q):
-                    FJ, FG = spectra(s, c, J, cov_ii)
-                    n_own = int(keep[:self.p].sum()) if held is not None and c == slice(None) else len(FJ)
-                    parts = [(slice(0, n_own), toeplitz_times(FJ, J, c, slice(0, n_own)))]
-                    if n_own < len(FJ):
-                        key = (J.length, keep.tobytes())
-                        if key not in shared:
-                            shared[key] = toeplitz_times(FJ, J, c, slice(n_own, None))
-                        parts.append((slice(n_own, None), shared[key]))
-                    for cols, (TJ, FTJ) in parts:
-                        block[:, c][:, cols] = J.gram(TJ)
-                        corr += 2 * _real_inner(FG[cols], FTJ)
-                    del FJ, FG, parts
-                Bl[s][np.ix_(keep, keep)] = block
-            return 0.5 * (Bl + Bl.transpose(0, 2, 1)), corr
-
-        def second_half(cov_c, corr):
-            """``g(rho)``: the correction ``corr`` less xcorr(J cov B cov, J), cov_c = cov B cov."""
-            cov_c = info.local(cov_c)
-            for s, keep, J in segments():
-                cc = cov_c[s][np.ix_(keep, keep)]
-                for c in chunks(J.q):
-                    FJ = spectra(s, c, J, cov_local[s][np.ix_(keep, keep)])[0]
-                    FC = _over_columns(cc, FJ) if c == slice(None) else \
-                        scipy.fft.rfft(J.times(cc[:, c]), n_fft, axis=-1)
-                    corr -= _real_inner(FC, FJ)
-                    del FJ, FC
-            return r + np.fft.irfft(corr.T / count, n_fft, axis=0)
-
-        xs, hs, fs, Bs = [], [], [], []
-        rho = np.zeros_like(r)
-        rho[0] = r[0]  # start: white noise of the residuals' variance
-        std_old, gain = None, None
-        for passes in range(1, max_iter + 1):
-            B_k, corr = first_half(rho, white=passes == 1)
-            g_k = second_half(info.sandwich(B_k), corr)
-            if gain is None:
-                gain = _preconditioner(g_k - r, r[0])
-            # the preconditioned map h(rho) = rho + P (g(rho) - rho) has the same fixed point
-            step = np.fft.irfft(gain * np.fft.rfft(g_k - rho, axis=0), n_fft, axis=0)
-            xs.append(rho), hs.append(rho + step), fs.append(step), Bs.append(B_k)
-            # B is linear in rho: the Anderson combination's B is the same combination of the passes'
-            alpha = _anderson_weights(fs)
-            cov_c = info.sandwich(sum(a * b for a, b in zip(alpha, Bs)))
-            rho_bar = sum(a * x for a, x in zip(alpha, xs))
-            std = np.sqrt(np.clip(np.diag(cov_c.gg)[:self.p], 0, None))  # the parameters (nuisances follow)
-            if std_old is not None and np.all(np.abs(std - std_old) <= tol * std_old):
-                break
-            std_old = std
-            rho = sum(a * h for a, h in zip(alpha, hs))
-        return cov_c, rho_bar[:L], passes
+        return ColouredBounds(self, ev, Wh, info).solve(max_iter, tol)
 
     # -- per-run views -----------------------------------------------------------------------------
     def per_run(self, arr: np.ndarray) -> list[np.ndarray]:
@@ -562,92 +421,3 @@ class OutputError:
         for s in range(lay.n_segments):
             out[lay.run[s]].append(arr[:lay.length[s], :, s])
         return [np.vstack(parts) for parts in out]
-
-
-def _over_columns(A: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``sum_q A[q, r] X[q]`` (r, ny, F) for complex spectra X (q, ny, F), as one real matrix
-    product on their (re, im) pairs (4x fewer operations than a complex one)."""
-    q, ny, F = X.shape
-    return (A.T @ X.view(float).reshape(q, -1)).view(complex).reshape(A.shape[1], ny, F)
-
-
-def _real_inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``Re sum_q conj(A) B`` (ny, F) of complex spectra (q, ny, F), on their (re, im) pairs."""
-    _, ny, F = A.shape
-    return np.einsum("qyf,qyf->yf", A.view(float), B.view(float)).reshape(ny, F, 2).sum(axis=-1)
-
-
-def _preconditioner(correction: np.ndarray, variance: np.ndarray) -> np.ndarray:
-    """``1 / (1 - K(f))`` (F, ny), K the share of the noise spectrum the fit removes at each
-    frequency, read from the first pass's ``correction`` (n_fft, ny) at white noise of ``variance``
-    (ny,): the map ``rho -> r + A rho`` as a circulant (long segments) is ``S -> S_r + K S``."""
-    K = np.fft.rfft(correction, axis=0).real / np.maximum(variance, 1e-300)
-    return 1 / np.maximum(1 - K, 0.1)
-
-
-def _anderson_weights(residuals: list[np.ndarray]) -> np.ndarray:
-    """Weights ``alpha`` (k,), summing to 1, that minimise ``|sum alpha_i residuals_i|`` (2-norm)."""
-    F = np.stack([f.ravel() for f in residuals], axis=1)
-    if F.shape[1] == 1:
-        return np.ones(1)
-    # alpha = e_k - D gamma with D the differences of successive residuals: unconstrained least squares
-    D = F[:, 1:] - F[:, :-1]
-    gamma = np.linalg.lstsq(D, F[:, -1], rcond=None)[0]
-    alpha = np.zeros(F.shape[1])
-    alpha[-1] = 1.0
-    alpha[1:] -= gamma
-    alpha[:-1] += gamma
-    return alpha
-
-
-class _SegmentJacobian:
-    """The whitened local Jacobian (l, ny, q) of one segment (its estimated columns ``keep``),
-    either held ``whole`` or rebuilt from the stored sensitivities a time block at a time, so
-    that a long record's Jacobian never exists whole: its products are all it offers."""
-
-    def __init__(self, prob: OutputError, ev: Response, Wh: np.ndarray, segment: int, keep: np.ndarray,
-                 whole: np.ndarray | None = None):
-        self.prob, self.ev, self.Wh, self.segment, self.keep, self.whole = prob, ev, Wh, segment, keep, whole
-        self.length, self.q, self.ny = int(prob.layout.length[segment]), int(keep.sum()), ev.e.shape[1]
-        # columns first, time last (q, ny, l): the FFTs run along a contiguous axis and the
-        # products over columns are single matrix products
-        self.whole_t = None if whole is None else np.ascontiguousarray(whole.transpose(2, 1, 0))
-
-    def columns(self, c: slice) -> np.ndarray:
-        """Columns c of J (w, ny, l)."""
-        if self.whole_t is not None:
-            return self.whole_t[c]
-        return np.ascontiguousarray(self.apply(np.eye(self.q)[:, c]).transpose(2, 1, 0))
-
-    def times(self, C: np.ndarray) -> np.ndarray:
-        """``J C`` (w, ny, l) for C (q, w)."""
-        if self.whole_t is not None:
-            return (C.T @ self.whole_t.reshape(self.q, -1)).reshape(C.shape[1], self.ny, self.length)
-        return np.ascontiguousarray(self.apply(C).transpose(2, 1, 0))
-
-    def _blocks(self):
-        if self.whole is not None:
-            yield 0, self.length, self.whole
-            return
-        for k0, k1 in self.prob._blocks(len(self.keep)):
-            if k0 >= self.length:
-                break
-            k1 = min(k1, self.length)
-            yield k0, k1, self.prob._local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
-
-    def apply(self, C: np.ndarray) -> np.ndarray:
-        """``J C`` (l, ny, w) for C (q, w)."""
-        out = np.empty((self.length, self.ny, C.shape[1]))
-        for k0, k1, J in self._blocks():
-            out[k0:k1] = J @ C
-        return out
-
-    def gram(self, T: np.ndarray) -> np.ndarray:
-        """``J^T T`` (q, w) summed over time and outputs, T (w, ny, l)."""
-        w = T.shape[0]
-        if self.whole_t is not None:
-            return self.whole_t.reshape(self.q, -1) @ T.reshape(w, -1).T
-        acc = np.zeros((self.q, w))
-        for k0, k1, J in self._blocks():
-            acc += J.reshape(-1, self.q).T @ np.ascontiguousarray(T[..., k0:k1].transpose(2, 1, 0)).reshape(-1, w)
-        return acc

@@ -138,6 +138,7 @@ def test_long_record_paths_give_the_same_bounds(s61, monkeypatch):
     time, the coloured correction's Jacobian rebuilt per group or per time block, its columns
     taken a chunk at a time, no spectra kept between passes) give the same information, step and
     coloured bounds as the held, cached ones."""
+    import identify.estimators.coloured_bounds as cb
     import identify.estimators.output_error as oe
 
     for segment in (2.0, math.inf):
@@ -149,8 +150,8 @@ def test_long_record_paths_give_the_same_bounds(s61, monkeypatch):
         with monkeypatch.context() as m:
             m.setattr(oe, "SENS_GROUP_FLOATS", 1)  # one segment per group
             m.setattr(oe, "BLOCK_FLOATS", 1)  # time blocks of 8 samples
-            m.setattr(oe, "COLOUR_CACHE", 0)
-            m.setattr(oe, "COLOUR_CHUNK_FLOATS", 2 * 81 * 8 * 5 if segment == math.inf else 10 ** 9)
+            m.setattr(cb, "COLOUR_CACHE", 0)
+            m.setattr(cb, "COLOUR_CHUNK_FLOATS", 2 * 81 * 8 * 5 if segment == math.inf else 10 ** 9)
             ev = prob.evaluate(beta)
             assert ev.held is None or prob.layout.n_segments == 1
             info, g = prob.information(ev, Wh)
