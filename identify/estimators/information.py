@@ -86,12 +86,9 @@ class BlockInformation:
         g_pos[self.g_index] = np.arange(G)
         # local -> (globals or the segment's own states) positions
         self.lg = np.where(local_index >= 0, g_pos[np.maximum(local_index, 0)], -1)  # (S, k)
-        x_pos = np.full((S, local_index.shape[1]), -1)
-        for s in range(S):
-            for j, b in enumerate(local_index[s]):
-                if b >= 0 and is_x[b]:
-                    x_pos[s, j] = int(np.flatnonzero(self.x_index[s] == b)[0])
-        self.lx = x_pos
+        x_pos = np.full(n_beta, -1)  # a state's place within its own segment's block
+        x_pos[self.x_index] = np.arange(n)
+        self.lx = np.where(local_index >= 0, x_pos[np.maximum(local_index, 0)], -1)  # (S, k)
         self.gg, self.gx, self.xx = np.zeros((G, G)), np.zeros((S, G, n)), np.zeros((S, n, n))
         self._add(local, self.gg, self.gx, self.xx)
         d = self.diag()
