@@ -41,6 +41,7 @@ import scipy.linalg  # noqa: E402
 
 from identify import ML, LinearModel, Run, load_profile, simulate_run  # noqa: E402
 from identify.model.simulate import discretize  # noqa: E402
+from ml_speed import steps_3211  # noqa: E402  (this folder: the script's own)
 
 LIMIT_MB, JSON_LIMIT_KB = 1024, 1024
 PILOT_R = 100.0  # LQR input weight of the S 61's pilot (state weight 1): a weak stabiliser
@@ -56,24 +57,10 @@ def peak_mb() -> float:
 
 def long_run(truth, hours: float, dt: float = 0.01):
     t = np.arange(int(round(hours * 3600 / dt)) + 1) * dt
-    phase = np.mod(t, 20.0)  # a 3211 (width 0.5 s) at the start of every 20 s
-    u = np.zeros_like(t)
-    a = 1.0
-    for k, sign in zip((3, 2, 1, 1), (1, -1, 1, -1)):
-        u[(phase >= a) & (phase < a + 0.5 * k)] = 0.02 * sign
-        a += 0.5 * k
+    u = steps_3211(np.mod(t, 20.0), 1.0, 0.5, 0.02)  # a 3211 (width 0.5 s) at the start of every 20 s
     clean = simulate_run(truth, t[:20001], u[:20001, None])
     noise = {y: 0.05 * float(np.std(clean[y])) for y in truth.profile.outputs}
     return simulate_run(truth, t, u[:, None], noise=noise, process_noise=[0.05, 0.05, 0.002, 0.0], seed=1)
-
-
-def steps_3211(phase, t0, width, amp):
-    """A 3211 (3-2-1-1 widths, alternating sign) starting at ``t0`` of a repeating ``phase`` (s)."""
-    u, a = np.zeros_like(phase), t0
-    for k, sign in zip((3, 2, 1, 1), (1, -1, 1, -1)):
-        u[(phase >= a) & (phase < a + k * width)] = sign * amp
-        a += k * width
-    return u
 
 
 def s61_run(truth, hours: float, dt: float = 0.01, seed: int = 1) -> Run:

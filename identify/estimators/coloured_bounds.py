@@ -52,8 +52,10 @@ class ColouredBounds:
         self.n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
         self.F = self.n_fft // 2 + 1
         self.count = max(float(prob.mask.sum()), 1.0)
-        # pooled autocorrelation of the whitened residuals (n_fft, ny), negative lags wrapped
-        self.r = np.fft.irfft(power(Wh @ ev.e, self.n_fft).sum(axis=2) / self.count, self.n_fft, axis=0)
+        # the autocorrelations (even in the lag) are held as their real spectra (F, ny): half the
+        # floats of the n_fft lags, and an hour's record keeps one per pass for the acceleration
+        self.r = power(Wh @ ev.e, self.n_fft).sum(axis=2) / self.count  # of the whitened residuals
+        self.variance = np.fft.irfft(self.r, self.n_fft, axis=0)[0]  # lag 0 (ny,)
         self.k_loc = prob.p + prob.n + ny
         cov, _ = info.covariance()
         self.cov_local = info.local(cov)  # (S, k, k)
@@ -108,8 +110,9 @@ class ColouredBounds:
     # -- one pass of the fixed point ---------------------------------------------------------------
     def first_half(self, rho: np.ndarray, white: bool):
         """``B(rho)`` (local blocks, (S, k, k)) and the ``2 xcorr(J cov, T J)`` part of the
-        correction (ny, F). For white ``rho`` (the first pass) ``T J = rho(0) J`` needs no FFT."""
-        spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None).T  # a covariance: PSD, (ny, F)
+        correction (ny, F), ``rho`` given by its spectrum (F, ny). For white ``rho`` (the first
+        pass, constant spectrum) ``T J = rho(0) J`` needs no FFT."""
+        spectrum = np.clip(rho, 0.0, None).T  # a covariance: PSD, (ny, F)
         Bl = np.zeros((self.S, self.k_loc, self.k_loc))
         corr = np.zeros((self.ny, self.F))
         shared = {}
@@ -137,14 +140,14 @@ class ColouredBounds:
     def _toeplitz_times(self, FJ, J, c, cols, spectrum, rho, white):
         """``T J`` (w, ny, l) and its spectrum for the columns c of J (``cols`` of its spectra FJ)."""
         if white:
-            rho0 = rho[0][:, None]
+            rho0 = spectrum[:, :1]  # (ny, 1): the variance
             return rho0 * J.columns(c)[cols], rho0 * FJ[cols]
         TJ = scipy.fft.irfft(spectrum * FJ[cols], self.n_fft, axis=-1)[..., :J.length]
         return TJ, scipy.fft.rfft(TJ, self.n_fft, axis=-1)
 
     def second_half(self, cov_c: BlockCovariance, corr: np.ndarray) -> np.ndarray:
-        """``g(rho)`` (n_fft, ny): ``r`` plus the correction ``corr`` less ``xcorr(J cov B cov, J)``,
-        ``cov_c = cov B cov``."""
+        """The spectrum (F, ny) of ``g(rho)``: ``r`` plus the correction ``corr`` less
+        ``xcorr(J cov B cov, J)``, ``cov_c = cov B cov``."""
         cov_c = self.info.local(cov_c)
         for s, keep, J in self.segments():
             cc = cov_c[s][np.ix_(keep, keep)]
@@ -154,34 +157,35 @@ class ColouredBounds:
                     scipy.fft.rfft(J.times(cc[:, c]), self.n_fft, axis=-1)
                 corr -= _real_inner(FC, FJ)
                 del FJ, FC
-        return self.r + np.fft.irfft(corr.T / self.count, self.n_fft, axis=0)
+        return self.r + corr.T / self.count
 
     # -- the fixed point -------------------------------------------------------------------------
     def solve(self, max_iter: int = COLOUR_MAX_ITER, tol: float = COLOUR_TOL):
         """The covariance (:class:`BlockCovariance`), ``rho`` (L, ny) and the number of passes."""
-        r, info, n_fft = self.r, self.info, self.n_fft
-        xs, hs, fs, Bs = [], [], [], []
-        rho = np.zeros_like(r)
-        rho[0] = r[0]  # start: white noise of the residuals' variance
+        r, info = self.r, self.info
+        # Parseval: the spectra weighted so that their 2-norm is the lags' (rfft bins 1.. count twice)
+        weight = np.full((self.F, 1), np.sqrt(2.0))
+        weight[0] = weight[-1 if self.n_fft % 2 == 0 else 0] = 1.0
+        xs, fs, Bs = [], [], []
+        rho = np.broadcast_to(self.variance, r.shape)  # start: white noise of the residuals' variance
         std_old, gain = None, None
         for passes in range(1, max_iter + 1):
             B_k, corr = self.first_half(rho, white=passes == 1)
             g_k = self.second_half(info.sandwich(B_k), corr)
             if gain is None:
-                gain = _preconditioner(g_k - r, r[0])
+                gain = _preconditioner(g_k - r, self.variance)
             # the preconditioned map h(rho) = rho + P (g(rho) - rho) has the same fixed point
-            step = np.fft.irfft(gain * np.fft.rfft(g_k - rho, axis=0), n_fft, axis=0)
-            xs.append(rho), hs.append(rho + step), fs.append(step), Bs.append(B_k)
+            xs.append(rho), fs.append(gain * (g_k - rho)), Bs.append(B_k)
             # B is linear in rho: the Anderson combination's B is the same combination of the passes'
-            alpha = _anderson_weights(fs)
+            alpha = _anderson_weights([weight * f for f in fs])
             cov_c = info.sandwich(sum(a * b for a, b in zip(alpha, Bs)))
-            rho_bar = sum(a * x for a, x in zip(alpha, xs))
             std = np.sqrt(np.clip(np.diag(cov_c.gg)[:self.prob.p], 0, None))  # the parameters (nuisances follow)
             if std_old is not None and np.all(np.abs(std - std_old) <= tol * std_old):
                 break
             std_old = std
-            rho = sum(a * h for a, h in zip(alpha, hs))
-        return cov_c, rho_bar[:self.L], passes
+            rho = sum(a * (x + f) for a, x, f in zip(alpha, xs, fs))
+        rho_bar = sum(a * x for a, x in zip(alpha, xs))
+        return cov_c, np.fft.irfft(rho_bar, self.n_fft, axis=0)[:self.L], passes
 
 
 def _over_columns(A: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -199,9 +203,10 @@ def _real_inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def _preconditioner(correction: np.ndarray, variance: np.ndarray) -> np.ndarray:
     """``1 / (1 - K(f))`` (F, ny), K the share of the noise spectrum the fit removes at each
-    frequency, read from the first pass's ``correction`` (n_fft, ny) at white noise of ``variance``
-    (ny,): the map ``rho -> r + A rho`` as a circulant (long segments) is ``S -> S_r + K S``."""
-    K = np.fft.rfft(correction, axis=0).real / np.maximum(variance, 1e-300)
+    frequency, read from the spectrum (F, ny) of the first pass's ``correction`` at white noise of
+    ``variance`` (ny,): the map ``rho -> r + A rho`` as a circulant (long segments) is
+    ``S -> S_r + K S``."""
+    K = correction / np.maximum(variance, 1e-300)
     return 1 / np.maximum(1 - K, 0.1)
 
 
