@@ -6,8 +6,10 @@ Two cases, each in its own process (the peak resident memory of a process never 
 one run of ``HOURS`` hours at 100 Hz (360 000 samples for 1 h), a 3211 on the elevator every
 20 s, process noise (turbulence) and 5 % measurement noise; a priori values 20 % off.
 
-``s61``: the S 61 8-state hover model (unstable, so multiple shooting: ~980 segments of 3.7 s in
-an hour, each with its 8 initial states: ~7900 unknowns), flown for ``HOURS`` hours at 100 Hz by
+``s61``: the S 61 8-state hover model (unstable, so multiple shooting: segments of ~3.2 s from
+the a priori model's modes, ~1100 in an hour, each with its 8 initial states: ~9100 unknowns,
+which ML solves by eliminating each segment's states, never forming the dense information
+matrix), flown for ``HOURS`` hours at 100 Hz by
 a stabilising pilot (an LQR on the true model, acting on the true states) on top of a 3211 on
 the longitudinal cyclic at 1 s and on the lateral cyclic at 10 s of every 20 s; the run records
 the total stick. Process noise on the body accelerations, 5 % measurement noise on every output;
