@@ -89,14 +89,17 @@ class ColouredBounds:
                 whole = None if group is None else group[s - a, :prob.layout.length[s]][..., keep]
                 yield s, keep, _SegmentJacobian(prob, self.ev, self.Wh, s, keep, whole)
 
-    def spectra(self, s: int, c: slice, J: "_SegmentJacobian", cov_ii: np.ndarray):
-        """Spectra (w, ny, F) of the columns c of J and of (J cov)[:, c], time last (scipy's
-        FFT along a contiguous last axis is 2x numpy's along a strided first one). The FFT is
-        linear: with all columns at once the latter is a small product, not another FFT."""
+    def spectra(self, s: int, c: slice, J: "_SegmentJacobian", cov_ii: np.ndarray | None):
+        """Spectra (w, ny, F) of the columns c of J and of (J cov)[:, c] (None without
+        ``cov_ii``, unless kept), time last (scipy's FFT along a contiguous last axis is 2x
+        numpy's along a strided first one). The FFT is linear: with all columns at once the
+        latter is a small product, not another FFT."""
         key = (s, c.start, c.stop)  # slices are not hashable before Python 3.12
         if key in self.cache:
             return self.cache[key]
         FJ = scipy.fft.rfft(J.columns(c), self.n_fft, axis=-1)
+        if cov_ii is None:
+            return FJ, None
         FG = _over_columns(cov_ii, FJ) if c == slice(None) else \
             scipy.fft.rfft(J.times(cov_ii[:, c]), self.n_fft, axis=-1)
         if self.cache_ok:
@@ -152,7 +155,7 @@ class ColouredBounds:
         for s, keep, J in self.segments():
             cc = cov_c[s][np.ix_(keep, keep)]
             for c in self.chunks(J.q):
-                FJ = self.spectra(s, c, J, self.cov_local[s][np.ix_(keep, keep)])[0]
+                FJ = self.spectra(s, c, J, self.cov_local[s][np.ix_(keep, keep)] if self.cache_ok else None)[0]
                 FC = _over_columns(cc, FJ) if c == slice(None) else \
                     scipy.fft.rfft(J.times(cc[:, c]), self.n_fft, axis=-1)
                 corr -= _real_inner(FC, FJ)
@@ -242,13 +245,16 @@ class _SegmentJacobian:
         """Columns c of J (w, ny, l)."""
         if self.whole_t is not None:
             return self.whole_t[c]
-        return np.ascontiguousarray(self.apply(np.eye(self.q)[:, c]).transpose(2, 1, 0))
+        return self.times(np.eye(self.q)[:, c])
 
     def times(self, C: np.ndarray) -> np.ndarray:
         """``J C`` (w, ny, l) for C (q, w)."""
         if self.whole_t is not None:
             return (C.T @ self.whole_t.reshape(self.q, -1)).reshape(C.shape[1], self.ny, self.length)
-        return np.ascontiguousarray(self.apply(C).transpose(2, 1, 0))
+        out = np.empty((C.shape[1], self.ny, self.length))
+        for k0, k1, J in self._blocks():
+            out[..., k0:k1] = (J @ C).transpose(2, 1, 0)
+        return out
 
     def _blocks(self):
         if self.whole is not None:
@@ -259,13 +265,6 @@ class _SegmentJacobian:
                 break
             k1 = min(k1, self.length)
             yield k0, k1, self.prob._local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
-
-    def apply(self, C: np.ndarray) -> np.ndarray:
-        """``J C`` (l, ny, w) for C (q, w)."""
-        out = np.empty((self.length, self.ny, C.shape[1]))
-        for k0, k1, J in self._blocks():
-            out[k0:k1] = J @ C
-        return out
 
     def gram(self, T: np.ndarray) -> np.ndarray:
         """``J^T T`` (q, w) summed over time and outputs, T (w, ny, l)."""
