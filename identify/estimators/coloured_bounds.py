@@ -136,7 +136,7 @@ class ColouredBounds:
                 for cols, (TJ, FTJ) in parts:
                     block[:, c][:, cols] = J.gram(TJ)
                     corr += 2 * _real_inner(FG[cols], FTJ)
-                del FJ, FG, parts
+                del FJ, FG, parts, TJ, FTJ  # before the next chunk's arrays exist
             Bl[s][np.ix_(keep, keep)] = block
         return 0.5 * (Bl + Bl.transpose(0, 2, 1)), corr
 
@@ -166,10 +166,11 @@ class ColouredBounds:
     def solve(self, max_iter: int = COLOUR_MAX_ITER, tol: float = COLOUR_TOL):
         """The covariance (:class:`BlockCovariance`), ``rho`` (L, ny) and the number of passes."""
         r, info = self.r, self.info
-        # Parseval: the spectra weighted so that their 2-norm is the lags' (rfft bins 1.. count twice)
-        weight = np.full((self.F, 1), np.sqrt(2.0))
+        # Parseval: inner products of spectra weighted as the lags' (rfft bins 1.. count twice)
+        weight = np.full((self.F, 1), 2.0)
         weight[0] = weight[-1 if self.n_fft % 2 == 0 else 0] = 1.0
         xs, fs, Bs = [], [], []
+        gram = np.zeros((max_iter, max_iter))  # of the residuals fs: no copies of them
         rho = np.broadcast_to(self.variance, r.shape)  # start: white noise of the residuals' variance
         std_old, gain = None, None
         for passes in range(1, max_iter + 1):
@@ -179,8 +180,12 @@ class ColouredBounds:
                 gain = _preconditioner(g_k - r, self.variance)
             # the preconditioned map h(rho) = rho + P (g(rho) - rho) has the same fixed point
             xs.append(rho), fs.append(gain * (g_k - rho)), Bs.append(B_k)
+            k = len(fs)
+            weighted = weight * fs[-1]
+            gram[k - 1, :k] = gram[:k, k - 1] = [np.vdot(weighted, f) for f in fs]
+            del weighted
             # B is linear in rho: the Anderson combination's B is the same combination of the passes'
-            alpha = _anderson_weights([weight * f for f in fs])
+            alpha = _anderson_weights(gram[:k, :k])
             cov_c = info.sandwich(sum(a * b for a, b in zip(alpha, Bs)))
             std = np.sqrt(np.clip(np.diag(cov_c.gg)[:self.prob.p], 0, None))  # the parameters (nuisances follow)
             if std_old is not None and np.all(np.abs(std - std_old) <= tol * std_old):
@@ -213,19 +218,20 @@ def _preconditioner(correction: np.ndarray, variance: np.ndarray) -> np.ndarray:
     return 1 / np.maximum(1 - K, 0.1)
 
 
-def _anderson_weights(residuals: list[np.ndarray]) -> np.ndarray:
-    """Weights ``alpha`` (k,), summing to 1, that minimise ``|sum alpha_i residuals_i|`` (2-norm)."""
-    F = np.stack([f.ravel() for f in residuals], axis=1)
-    if F.shape[1] == 1:
+def _anderson_weights(gram: np.ndarray) -> np.ndarray:
+    """Weights ``alpha`` (k,), summing to 1, that minimise ``|sum alpha_i f_i|`` for residuals
+    ``f_i`` of Gram matrix ``gram`` (k, k) (their inner products: long records hold no copies)."""
+    k = len(gram)
+    if k == 1:
         return np.ones(1)
-    # alpha = e_k - D gamma with D the differences of successive residuals: unconstrained least squares
-    D = F[:, 1:] - F[:, :-1]
-    gamma = np.linalg.lstsq(D, F[:, -1], rcond=None)[0]
-    alpha = np.zeros(F.shape[1])
-    alpha[-1] = 1.0
-    alpha[1:] -= gamma
-    alpha[:-1] += gamma
-    return alpha
+    # alpha_j = gamma_j (j < k-1), alpha_last = 1 - sum gamma: min |f_last - sum gamma_j (f_last - f_j)|,
+    # normal equations in the inner products of the differences f_last - f_j
+    last = gram[-1, -1]
+    A = last - gram[-1, :-1][:, None] - gram[-1, :-1][None, :] + gram[:-1, :-1]
+    b = last - gram[-1, :-1]
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))  # scaled: the differences shrink pass by pass
+    gamma = np.linalg.lstsq(A / np.outer(d, d), b / d, rcond=1e-13)[0] / d
+    return np.append(gamma, 1 - gamma.sum())
 
 
 class _SegmentJacobian:
