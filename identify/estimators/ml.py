@@ -10,7 +10,11 @@ information) moves the derivatives ``theta``, the initial states ``x0`` and the 
 ``b`` together under Levenberg-Marquardt trust-region control (:class:`_Solver`). R is
 estimated by *relaxation*: after each step, R = diag(mean residual^2), the R that minimises J for
 the current residuals. The Cramér-Rao bounds are the square roots of the diagonal of M^-1 (the
-full matrix, initial states and zero shifts included as nuisance parameters).
+full matrix, initial states and zero shifts included as nuisance parameters). M is never formed
+whole: a segment's initial states couple only to its own segment, and the normal equations are
+solved by eliminating them segment by segment (Schur complement,
+:mod:`identify.estimators.information`), so an hour in 3 s segments (~9000 unknowns) costs
+memory and time in proportion to the record, not to its square or cube.
 
 Coloured residuals: M^-1 holds only for white residuals. Flight data are never quite white
 (smoothing, unmodelled dynamics, turbulence), and the bounds then come out too small (2.3x in the
@@ -27,7 +31,8 @@ the part the fit itself removes added back (it matters for short segments with m
 FFT (:mod:`identify.estimators.colour`, as the equation-error estimators do); the iteration itself is the
 same. For white residuals ``T_y`` ~ I and both bounds agree (within the estimation scatter of the
 autocorrelation, a few %); both are reported (``info["std_white"]``, ``info["std_coloured"]``).
-``coloured=False`` skips the correction (it costs about as much as the fit).
+``coloured=False`` skips the correction (it costs about as much as the fit: the fixed point for
+the noise autocorrelation takes ~4 passes over the sensitivities, each a few FFTs per segment).
 
 Unstable models (most helicopters) diverge when simulated over a long run, and the cost of an
 unstable model over 20 s is far from quadratic in its parameters. ML then uses multiple shooting
@@ -42,7 +47,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg
 
 from ..data.runs import Run
 from ..errors import ConvergenceWarning, EstimationError, SimulationError
@@ -151,14 +155,13 @@ class ML(Estimator):
     def _result(self, runs, prob: OutputError, sv: "_Solver", form: str, segment: float,
                 wall: float) -> IdentificationResult:
         p, P = self.profile_, prob.p
-        cov_white, ill = _covariance(sv.M, sv.active)
+        cov_white, ill = sv.M.covariance()  # blocks: never (n_beta, n_beta) for a long record
         std_white, std_col, acf, passes = _std(cov_white, sv.active), None, None, 0
         cov, std = cov_white, std_white
-        if self.coloured:  # once, after convergence; it costs about as much as the fit itself
-            B, acf, passes = prob.coloured_information(sv.ev, sv.Wh, cov_white)
-            cov = cov_white @ B @ cov_white
+        if self.coloured:  # once, after convergence
+            cov, acf, passes = prob.coloured_information(sv.ev, sv.Wh, sv.M)
             std = std_col = _std(cov, sv.active)
-        self.covariance_ = cov[:P, :P]
+        self.covariance_ = cov.gg[:P, :P].copy()
         theta, x0, b = prob.unpack(sv.beta)
         _, x0_std, b_std = prob.unpack(std)
         lay = prob.layout
@@ -207,7 +210,7 @@ class ML(Estimator):
         }
         return IdentificationResult(
             method=self.method, profile=p, theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
-            covariance=cov[:P, :P].copy(),
+            covariance=self.covariance_.copy(),
             fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
             time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
 
@@ -240,10 +243,9 @@ class _Solver:
         self.history, self.wls_history, self.log_det_history, self.step_history = [], [], [], []
         self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
         self.rejected, self.max_rel_step, self.radius = 0, 0.0, MAX_REL_STEP
-        M, _ = prob.normal_equations(ev, self.Wh)
-        d = np.diag(M)
+        M, _ = prob.information(ev, self.Wh)
         # a parameter no input excites has no influence at all: hold it, report std = inf
-        self.active = d > 1e-300 + 1e-26 * d.max()
+        self.active = M.active
         if not self.active[:prob.p].any():
             raise EstimationError("ML: no free parameter influences the outputs of these runs "
                                   "(are the inputs all zero?)")
@@ -259,21 +261,12 @@ class _Solver:
     def _cost(self, ev) -> float:
         return self.prob.cost(ev, self.Wh)
 
-    def _step(self, M, g, active, lam) -> np.ndarray:
-        """Solve ``(Ms + lam I) s = g / d`` on the active unknowns, Ms = M scaled to unit diagonal."""
-        i = np.flatnonzero(active)
-        Ma, ga = M[np.ix_(i, i)], g[i]
-        d = np.sqrt(np.diag(Ma))
-        A = Ma / np.outer(d, d) + lam * np.eye(len(i))  # Marquardt: damping on the scaled diagonal
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-            try:
-                s = scipy.linalg.solve(A, ga / d, assume_a="pos")
-            except (np.linalg.LinAlgError, ValueError):
-                s = np.linalg.lstsq(A, ga / d, rcond=None)[0]
-        step = np.zeros_like(g)
-        step[i] = s / d
-        return step
+    @staticmethod
+    def _step(M, g, active, lam) -> np.ndarray:
+        """Solve ``(Ms + lam I) s = g / d`` on the ``active`` unknowns, Ms = M scaled to unit
+        diagonal (Marquardt: damping on the scaled diagonal), by block elimination of the
+        segments' initial states (:class:`~identify.estimators.information.BlockInformation`)."""
+        return M.solve(g, lam, active)
 
     def _try(self, beta):
         """Residuals at a trial point (no sensitivities: most trials of a hard start are rejected,
@@ -289,15 +282,15 @@ class _Solver:
     @staticmethod
     def _predicted(M, g, step) -> float:
         """Decrease of the cost the Gauss-Newton (quadratic) model predicts for ``step``."""
-        return float(g @ step - 0.5 * step @ M @ step)
+        return float(g @ step - 0.5 * step @ M.matvec(step))
 
     def _scale(self, M) -> np.ndarray:
         """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma),
         sigma its white Cramér-Rao bound at the current point (marginal: correlated parameters may
         move together by far more than one's bound with the others held)."""
         P = self.prob.p
-        cov, _ = _covariance(M, self.active)
-        sigma = np.sqrt(np.clip(np.diag(cov)[:P], 0, None))
+        cov, _ = M.covariance()
+        sigma = np.sqrt(np.clip(cov.diag()[:P], 0, None))
         return np.maximum(np.maximum(np.abs(self.beta[:P]), self.theta0), sigma)
 
     def _converged(self, M, g, r_change) -> str | None:
@@ -324,7 +317,7 @@ class _Solver:
         nuisance = self.active.copy()
         nuisance[:P] = False
         if nuisance.any():
-            M, g = prob.normal_equations(self.ev, self.Wh)
+            M, g = prob.information(self.ev, self.Wh, self.active)
             ev, c = self._try(self.beta + self._step(M, g, nuisance, 0.0))
             if ev is not None and c < self._cost(self.ev):
                 self._accept(ev)
@@ -333,7 +326,7 @@ class _Solver:
         cost = self._cost(self.ev)
         self._record(cost)
         r_change = np.inf
-        M, g = prob.normal_equations(self.ev, self.Wh)
+        M, g = prob.information(self.ev, self.Wh, self.active)
         self.lam = INITIAL_DAMPING  # Ms has unit diagonal: tau times its largest diagonal element
         while True:
             reason = self._converged(M, g, r_change)
@@ -376,7 +369,7 @@ class _Solver:
                 c = self._cost(self.ev)
             cost = c
             self._record(cost)
-            M, g = prob.normal_equations(self.ev, self.Wh)
+            M, g = prob.information(self.ev, self.Wh, self.active)
             if ml.progress is not None:
                 ml.progress(self.iterations, self.history[-1], self.beta[:P].copy())
             if ml.verbose:
@@ -391,8 +384,8 @@ class _Solver:
         10 x the estimate), along which the likelihood may keep rising (an estimate running off to
         infinity, e.g. a rotor time constant that the data cannot tell from instantaneous)."""
         P = self.prob.p
-        cov, _ = _covariance(M, self.active)
-        rel = np.sqrt(np.clip(np.diag(cov)[:P], 0, None)) / np.maximum(np.abs(self.beta[:P]), 1e-300)
+        cov, _ = M.covariance()
+        rel = np.sqrt(np.clip(cov.diag()[:P], 0, None)) / np.maximum(np.abs(self.beta[:P]), 1e-300)
         bad = [self.prob.model0.names[i] for i in np.argsort(-rel)[:4] if rel[i] > 10]
         return (f"; not determined by these runs (std error > 10 x estimate), the likelihood may rise "
                 f"without bound along them: {', '.join(bad)}" if bad else "")
@@ -433,21 +426,9 @@ class _Solver:
 
 
 # -- helpers ---------------------------------------------------------------------------------------
-def _covariance(M: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Inverse of the information on the active unknowns (scaled for conditioning); 0 elsewhere."""
-    i = np.flatnonzero(active)
-    Ma = M[np.ix_(i, i)]
-    d = np.sqrt(np.diag(Ma))
-    Ms = Ma / np.outer(d, d)
-    ill = bool(np.linalg.cond(Ms) > 1e14)
-    inv = np.linalg.pinv(Ms, rcond=1e-15, hermitian=True) if ill else np.linalg.inv(Ms)
-    cov = np.zeros_like(M)
-    cov[np.ix_(i, i)] = inv / np.outer(d, d)
-    return cov, ill
-
-
-def _std(cov: np.ndarray, active: np.ndarray) -> np.ndarray:
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+def _std(cov, active: np.ndarray) -> np.ndarray:
+    """Standard errors from a :class:`~identify.estimators.information.BlockCovariance`; inf where held."""
+    std = np.sqrt(np.clip(cov.diag(), 0, None))
     std[~active] = np.inf
     return std
 

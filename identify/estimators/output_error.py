@@ -29,23 +29,20 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft
 
 from ..errors import SimulationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile
 from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import DIVERGENCE_LIMIT, discretize, propagate
-from .colour import power
+from .coloured_bounds import COLOUR_MAX_ITER, COLOUR_TOL, ColouredBounds
+from .information import BlockInformation
 
 MIN_SEGMENT = 1.0  # s: shorter segments leave too little response to pin down their own x0
 MAX_SEGMENT = 5.0  # s: longer segments of an unstable model grow too nonlinear in theta
-COLOUR_MAX_ITER = 30  # passes of the coloured-noise autocorrelation correction (see coloured_information)
-COLOUR_TOL = 1e-2  # ... until no variance changes by more than this (relative)
 OUTPUT_LIMIT = 1e3  # a modelled output this many times the largest measured one has diverged
 BLOCK_FLOATS = 2_000_000  # time blocks of the sensitivity work hold about this many floats (16 MB)
-COLOUR_CHUNK_FLOATS = 3_000_000  # Jacobian columns per FFT in the coloured correction: ~24 MB of spectra
-COLOUR_CACHE = 8_000_000  # spectra kept between passes up to this many floats (64 MB)
+SENS_GROUP_FLOATS = 8_000_000  # parameter sensitivities held at once, groups of segments (64 MB)
 
 
 def auto_segment(model: LinearModel, duration: float) -> float:
@@ -118,13 +115,26 @@ def simulate_segments(Phi: np.ndarray, forcing: np.ndarray, x_start: np.ndarray,
 @dataclass
 class Response:
     """Model response at one ``beta``: ``e`` (L, ny, S) residual z - y (0 on padding), ``y`` (L, ny, S);
-    with the Jacobian: ``dy_theta`` (L, ny, p, S) and ``dy_x0`` (L, ny, n) (shared by all segments)."""
+    with the Jacobian: ``dy_x0`` (L, ny, n) (shared by all segments) and the parameter
+    sensitivities ``dy_theta`` (L, ny, p, S), held (``held``) or, for many segments, recomputed a
+    group of segments at a time by ``compute(segments)`` (:meth:`theta_sensitivities`) so that
+    they never exist whole (an hour in 3 s segments: 460 MB)."""
 
     beta: np.ndarray
     e: np.ndarray
     y: np.ndarray
-    dy_theta: np.ndarray | None = None
     dy_x0: np.ndarray | None = None
+    held: np.ndarray | None = None
+    compute: object = None
+
+    @property
+    def dy_theta(self) -> np.ndarray | None:
+        """All parameter sensitivities (L, ny, p, S) (computed whole if not held)."""
+        return self.theta_sensitivities(slice(None)) if self.held is not None or self.compute else None
+
+    def theta_sensitivities(self, segments: slice) -> np.ndarray:
+        """Parameter sensitivities of the ``segments`` (L, ny, p, s)."""
+        return self.held[..., segments] if self.held is not None else self.compute(segments)
 
 
 class OutputError:
@@ -216,44 +226,66 @@ class OutputError:
         e = np.where(self.mask[:, None, :] > 0, self.Z - y, 0.0)  # padding may hold inf
         ev = Response(beta, e, y)
         if jacobian:
-            self._sensitivities(ev, model, Phi, dPhi, dGamma, x)
+            ev.dy_x0 = self._state_response(C, Phi)
+
+            def compute(segments):
+                return self._sensitivities(model, Phi, dPhi, dGamma, x[..., segments], self.U[..., segments])
+
+            if self._segment_groups() == [(0, S)]:
+                ev.held = compute(slice(None))
+            else:
+                ev.compute = compute
         return ev
+
+    def _segment_groups(self) -> list[tuple[int, int]]:
+        """Groups of segments ``(a, b)`` whose parameter sensitivities hold about SENS_GROUP_FLOATS."""
+        lay = self.layout
+        size = max(1, SENS_GROUP_FLOATS // (lay.L * self.ny * self.p))
+        return [(a, min(lay.n_segments, a + size)) for a in range(0, lay.n_segments, size)]
 
     def _blocks(self, columns: int):
         """Time blocks ``(k0, k1)`` over the padded length, each holding about BLOCK_FLOATS floats
         of a (block, n, columns) array: long records never hold the sensitivity work whole."""
         L = self.layout.L
-        size = max(64, BLOCK_FLOATS // max(self.n * columns, 1))
+        size = max(8, BLOCK_FLOATS // max(self.n * columns, 1))
         return [(k0, min(L, k0 + size)) for k0 in range(0, L, size)]
 
-    def _sensitivities(self, ev: Response, model: LinearModel, Phi, dPhi, dGamma, x) -> None:
-        """``ev.dy_theta`` (L, ny, p, S) and ``ev.dy_x0`` (L, ny, n): the sensitivity recursion
-        ``S[k+1] = Phi S[k] + dPhi_i x[k] + dGamma_i u[k]`` run block by block in time (the
-        state carried across), so its forcing and states exist one block at a time."""
-        L, S, n, p, ny = self.layout.L, self.layout.n_segments, self.n, self.p, self.ny
+    def _sensitivities(self, model: LinearModel, Phi, dPhi, dGamma, x, U) -> np.ndarray:
+        """Parameter sensitivities (L, ny, p, S) of the segments whose states are ``x`` (L, n, S)
+        and inputs ``U`` (L, m, S): the recursion ``S[k+1] = Phi S[k] + dPhi_i x[k] + dGamma_i u[k]``
+        run block by block in time (the state carried across), so its forcing and states exist one
+        block at a time."""
+        L, S, n, p, ny = self.layout.L, x.shape[2], self.n, self.p, self.ny
         C = model.C
-        ev.dy_theta = np.empty((L, ny, p, S))
-        ev.dy_x0 = np.empty((L, ny, n))
-        sens, power = np.zeros((n, p * S)), np.eye(n)
+        dy_theta = np.empty((L, ny, p, S))
+        sens = np.zeros((n, p * S))
         for k0, k1 in self._blocks(p * S):
-            xb, ub = x[k0:k1], self.U[k0:k1]
+            xb, ub = x[k0:k1], U[k0:k1]
             # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (l, n, p, S)
             forcing = ((dPhi.reshape(p * n, n) @ xb + dGamma.reshape(p * n, self.m) @ ub)
                        .reshape(k1 - k0, p, n, S).transpose(0, 2, 1, 3).reshape(k1 - k0, n, p * S))
             block = propagate(Phi, forcing, sens)
             direct = model.dC.reshape(p * ny, n) @ xb + model.dD.reshape(p * ny, self.m) @ ub
-            ev.dy_theta[k0:k1] = ((C @ block).reshape(k1 - k0, ny, p, S)
-                                  + direct.reshape(k1 - k0, p, ny, S).transpose(0, 2, 1, 3))
-            powers = propagate(Phi, np.zeros((k1 - k0, n, n)), power)  # Phi^k
-            ev.dy_x0[k0:k1] = C @ powers
-            sens, power = Phi @ block[-1] + forcing[-1], Phi @ powers[-1]
+            dy_theta[k0:k1] = ((C @ block).reshape(k1 - k0, ny, p, S)
+                               + direct.reshape(k1 - k0, p, ny, S).transpose(0, 2, 1, 3))
+            sens = Phi @ block[-1] + forcing[-1]
+        return dy_theta
 
     def initial_state_response(self, theta: np.ndarray) -> np.ndarray:
         """``dy/dx0 = C Phi^k`` (L, ny, n), the same for every segment (without the parameter
         sensitivities that :meth:`evaluate` computes with it)."""
         model = self.model0.with_theta(theta)
         Phi, _ = discretize(model.A, model.B, self.dt)
-        return model.C @ propagate(Phi, np.zeros((self.layout.L, self.n, self.n)), np.eye(self.n))
+        return self._state_response(model.C, Phi)
+
+    def _state_response(self, C: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+        """``C Phi^k`` (L, ny, n), a time block at a time."""
+        out, power = np.empty((self.layout.L, self.ny, self.n)), np.eye(self.n)
+        for k0, k1 in self._blocks(self.n):
+            powers = propagate(Phi, np.zeros((k1 - k0, self.n, self.n)), power)
+            out[k0:k1] = C @ powers
+            power = Phi @ powers[-1]
+        return out
 
     def _check(self, x: np.ndarray, y: np.ndarray) -> None:
         """SimulationError naming state or output, run and time where the simulation diverges:
@@ -285,147 +317,100 @@ class OutputError:
         return self.whitened(self.evaluate(beta, jacobian=False), Wh)
 
     def _local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None,
-                        segment: int | None = None) -> np.ndarray:
+                        segment: int | slice | None = None, dy_theta: np.ndarray | None = None) -> np.ndarray:
         """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment (or of
-        ``segment`` alone) over the samples k0..k1 (default all), (S, k1 - k0, ny, p + n + ny),
-        0 on padding."""
+        ``segment``, an index or a slice of them) over the samples k0..k1 (default all),
+        (S, k1 - k0, ny, p + n + ny), 0 on padding; ``dy_theta`` the segments' parameter
+        sensitivities (L, ny, p, S) if already at hand."""
         _, ny, S = ev.e.shape
         k1 = ev.e.shape[0] if k1 is None else k1
-        segs = slice(None) if segment is None else slice(segment, segment + 1)
-        S = S if segment is None else 1
+        segs = segment if isinstance(segment, slice) else \
+            slice(None) if segment is None else slice(segment, segment + 1)
+        S = len(range(S)[segs])
+        if dy_theta is None:
+            dy_theta = ev.theta_sensitivities(segs)
         p, n, l = self.p, self.n, k1 - k0
         Jloc = np.empty((S, l, ny, p + n + ny))
-        Jloc[..., :p] = ((Wh @ ev.dy_theta[k0:k1, ..., segs].reshape(l, ny, p * S)).reshape(l, ny, p, S)
+        Jloc[..., :p] = ((Wh @ dy_theta[k0:k1].reshape(l, ny, p * S)).reshape(l, ny, p, S)
                          .transpose(3, 0, 1, 2))
         Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1])[None]
         Jloc[..., p + n:] = Wh
         Jloc[self.mask[k0:k1, segs].T == 0] = 0.0  # not a product: padding may hold inf
         return Jloc
 
-    def _scatter(self, Ml: np.ndarray, gl: np.ndarray | None = None):
-        """Sum per-segment local blocks ``Ml`` (S, k, k) (and ``gl`` (S, k)) into the global ones."""
-        M, g = np.zeros((self.n_beta, self.n_beta)), np.zeros(self.n_beta)
-        for s in range(len(Ml)):
-            idx = self.local_index[s]
-            keep = idx >= 0
-            i = idx[keep]
-            M[np.ix_(i, i)] += Ml[s][np.ix_(keep, keep)]
-            if gl is not None:
-                g[i] += gl[s][keep]
-        return M, g
-
     def normal_equations(self, ev: Response, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Information matrix ``M = J^T R^-1 J`` (n_beta, n_beta) and ``g = J^T R^-1 e`` (n_beta,),
-        J = dy/dbeta; accumulated per segment from its local Jacobian."""
+        J = dy/dbeta, dense (small problems; :meth:`information` keeps M's block structure)."""
+        M, g = self.information(ev, Wh)
+        return M.dense(), g
+
+    def information(self, ev: Response, Wh: np.ndarray, active: np.ndarray | None = None):
+        """``M = J^T R^-1 J`` as a :class:`~identify.estimators.information.BlockInformation`
+        (globals, each segment's initial states, their couplings; ``active`` the unknowns solved
+        for, default those with any sensitivity) and ``g = J^T R^-1 e`` (n_beta,)."""
+        Ml, gl = self.local_information(ev, Wh)
+        g = np.zeros(self.n_beta)
+        for s in range(len(gl)):
+            keep = self.local_index[s] >= 0
+            np.add.at(g, self.local_index[s][keep], gl[s][keep])
+        return BlockInformation(Ml, self.local_index, self.n_beta, self.x_index, active), g
+
+    @property
+    def x_index(self) -> np.ndarray:
+        """Places in beta of each segment's initial states (S, n); (S, 0) when they are held."""
+        S = self.layout.n_segments
+        return self.local_index[:, self.p:self.p + self.n] if self.estimate_x0 else np.zeros((S, 0), int)
+
+    def local_information(self, ev: Response, Wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per segment ``J_s^T R^-1 J_s`` (S, k, k) and ``J_s^T R^-1 e_s`` (S, k) over its local
+        unknowns (k = p + n + ny), accumulated a time block at a time."""
         _, ny, S = ev.e.shape
         k = self.p + self.n + ny
         Ml, gl = np.zeros((S, k, k)), np.zeros((S, k))
-        for k0, k1 in self._blocks(S * k):  # block by block in time: bounded memory for long records
-            Jloc = self._local_jacobian(ev, Wh, k0, k1).reshape(S, (k1 - k0) * ny, k)
-            ew = (Wh @ ev.e[k0:k1]).transpose(2, 0, 1).reshape(S, (k1 - k0) * ny, 1)
-            Jt = Jloc.transpose(0, 2, 1)
-            Ml += Jt @ Jloc
-            gl += (Jt @ ew)[..., 0]
-        return self._scatter(Ml, gl)
+        for a, b in self._segment_groups():  # a group of segments at a time, block by block in time:
+            segs = slice(a, b)               # bounded memory for long records
+            dy = ev.theta_sensitivities(segs)
+            for k0, k1 in self._blocks((b - a) * k):
+                Jloc = self._local_jacobian(ev, Wh, k0, k1, segs, dy).reshape(b - a, (k1 - k0) * ny, k)
+                ew = (Wh @ ev.e[k0:k1, :, segs]).transpose(2, 0, 1).reshape(b - a, (k1 - k0) * ny, 1)
+                Jt = Jloc.transpose(0, 2, 1)
+                Ml[segs] += Jt @ Jloc
+                gl[segs] += (Jt @ ew)[..., 0]
+        return Ml, gl
 
-    def coloured_information(self, ev: Response, Wh: np.ndarray, cov: np.ndarray,
+    def coloured_information(self, ev: Response, Wh: np.ndarray, info: BlockInformation,
                              max_iter: int = COLOUR_MAX_ITER, tol: float = COLOUR_TOL):
-        """The middle of Morelli & Klein's sandwich for coloured residuals,
-        ``B = sum over whitened outputs y and segments s of J_ys^T T_y J_ys`` (n_beta, n_beta).
+        """Morelli & Klein's sandwich for coloured residuals, ``cov B cov``, with
+        ``B = sum over whitened outputs y and segments s of J_ys^T T_y J_ys`` and ``cov = M^-1``
+        (``info``, the information at the estimate).
 
         ``J_ys`` is the whitened sensitivity of output y in segment s (rows of ``Wh J``, ``J`` =
         dy/dbeta) and ``T_y`` the Toeplitz matrix of the autocorrelation ``rho_y`` of output y's
         whitened measurement noise, pooled over all segments of all runs (lag products stay within a
-        segment: segments are taken as independent of each other, as are the outputs). The
-        covariance of beta is then ``cov B cov``, ``cov`` = M^-1 (n_beta, n_beta) at the estimate.
+        segment: segments are taken as independent of each other, as are the outputs).
 
         ``rho_y`` comes from the residuals ``e = (I - H) w`` (H = J M^-1 J^T, whitened), not the
         noise ``w``: the fit removes from them exactly the components along the sensitivities, so
         their plain autocorrelation ``r_y`` makes ``B`` too small (for white noise with many unknowns
         per sample, such as short multiple-shooting segments, by 30-40 % in the tests). Its expected
         value is ``E r_y(k) = rho_y(k) - [2 tr(S_k H T) - tr(S_k H T H)]_y / N`` (S_k the lag-k
-        shift; ``H T H = J (cov B cov) J^T``), so ``rho`` is solved from
-        ``rho = r + [2 xcorr(J cov, T J) - xcorr(J cov B cov, J)] / N`` by fixed-point iteration
-        from white noise (the first pass is the exact correction for white noise), until no
-        parameter variance changes by more than ``tol`` (relative) or after ``max_iter`` passes. All of it by
-        FFT convolutions over time, all columns of a segment at once.
+        shift; ``H T H = J (cov B cov) J^T``), so ``rho`` is solved from the linear fixed point
+        ``rho = r + [2 xcorr(J cov, T J) - xcorr(J cov B cov, J)] / N`` starting from white noise
+        (the first pass is the exact correction for white noise). Its slow modes are the low
+        frequencies that the segments' initial states absorb (plain passes contract them by only
+        ~0.65 each), so the passes are preconditioned by the circulant approximation of the map
+        (:func:`_preconditioner`) and combined by Anderson acceleration (:func:`_anderson_weights`),
+        until no parameter's standard error changes by more than ``tol`` (relative) or after
+        ``max_iter`` passes. All of it by FFT convolutions over time, all columns of a segment at
+        once; the covariances are formed block by block (:class:`BlockInformation`), never
+        (n_beta, n_beta).
 
-        Returns ``B``, ``rho`` (L, ny) (lag 0 first) and the number of passes.
+        Returns the covariance (a :class:`~identify.estimators.information.BlockCovariance`),
+        ``rho`` (L, ny) (lag 0 first) and the number of passes.
 
-        Memory: the columns of each segment's Jacobian go through the FFTs a chunk at a time
-        (COLOUR_CHUNK_FLOATS); their spectra are kept between passes only while they are small
-        (COLOUR_CACHE), else recomputed, so an hour at 100 Hz stays within a few hundred MB.
+        Computed by :class:`~identify.estimators.coloured_bounds.ColouredBounds`.
         """
-        L, ny, S = ev.e.shape
-        n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
-        F = n_fft // 2 + 1
-        count = max(float(self.mask.sum()), 1.0)
-        r = np.fft.irfft(power(Wh @ ev.e, n_fft).sum(axis=2) / count, n_fft, axis=0)  # (n_fft, ny)
-        k_loc = self.p + self.n + ny
-        # columns of each segment's Jacobian are taken a chunk at a time, so that the spectra of a
-        # long record (n_fft ~ 2 N) never exist for all columns at once; spectra are kept between
-        # passes while they fit in COLOUR_CACHE floats (short segments: always)
-        width = max(1, min(k_loc, COLOUR_CHUNK_FLOATS // (2 * F * ny)))  # complex: 2 floats
-        cache_ok = S * F * ny * k_loc * 4 <= COLOUR_CACHE  # two complex spectra per column
-        Jloc = self._local_jacobian(ev, Wh) if cache_ok else None  # (S, L, ny, k), 0 on padding
-        segs = []
-        for s in range(S):
-            keep = self.local_index[s] >= 0
-            whole = None if Jloc is None else Jloc[s, :self.layout.length[s]][..., keep]
-            segs.append((self.local_index[s][keep], keep, _SegmentJacobian(self, ev, Wh, s, keep, whole)))
-        cache = {}
-
-        def spectra(s, c, J, cov_ii):
-            """rfft of the columns c of J and of (J cov)[:, c]. The FFT is linear: with all columns
-            at once the latter is rfft(J) cov, a small product instead of another FFT."""
-            key = (s, c.start, c.stop)  # slices are not hashable before Python 3.12
-            if key in cache:
-                return cache[key]
-            if c == slice(None):
-                FJ = np.fft.rfft(J.whole if J.whole is not None else J.apply(np.eye(J.q)), n_fft, axis=0)
-                FG = FJ @ cov_ii
-            else:
-                FJ = np.fft.rfft(J.apply(np.eye(J.q)[:, c]), n_fft, axis=0)
-                FG = np.fft.rfft(J.apply(cov_ii[:, c]), n_fft, axis=0)
-            if cache_ok:
-                cache[key] = FJ, np.conj(FG)
-            return FJ, np.conj(FG)
-
-        def chunks(q):
-            return [slice(None)] if width >= q else [slice(a, min(q, a + width)) for a in range(0, q, width)]
-
-        rho = np.zeros_like(r)
-        rho[0] = r[0]  # start: white noise of the residuals' variance
-        var_old = None
-        for passes in range(1, max_iter + 1):
-            spectrum = np.clip(np.fft.rfft(rho, axis=0).real, 0.0, None)[:, :, None]  # a covariance: PSD
-            Bl = np.zeros((S, k_loc, k_loc))
-            corr = np.zeros((F, ny))
-            for s, (i, keep, J) in enumerate(segs):
-                cov_ii = cov[np.ix_(i, i)]
-                block = np.zeros((J.q, J.q))
-                for c in chunks(J.q):
-                    FJ, FGc = spectra(s, c, J, cov_ii)
-                    TJ = np.fft.irfft(spectrum * FJ, n_fft, axis=0)[:J.length]
-                    block[:, c] = J.gram(TJ)
-                    corr += 2 * np.einsum("fyq,fyq->fy", FGc, np.fft.rfft(TJ, n_fft, axis=0)).real
-                    del FJ, FGc, TJ
-                Bl[s][np.ix_(keep, keep)] = block
-            B, _ = self._scatter(0.5 * (Bl + Bl.transpose(0, 2, 1)))
-            cov_c = cov @ B @ cov
-            var = np.diag(cov_c)[:self.p]  # converged on the parameters (the nuisances follow)
-            if var_old is not None and np.all(np.abs(var - var_old) <= tol * np.abs(var_old)):
-                break
-            var_old = var
-            for s, (i, keep, J) in enumerate(segs):
-                cc = cov_c[np.ix_(i, i)]
-                for c in chunks(J.q):
-                    FJ = spectra(s, c, J, cov[np.ix_(i, i)])[0]
-                    FC = FJ @ cc if c == slice(None) else np.fft.rfft(J.apply(cc[:, c]), n_fft, axis=0)
-                    corr -= np.einsum("fyq,fyq->fy", np.conj(FC), FJ).real
-                    del FJ, FC
-            rho = r + np.fft.irfft(corr / count, n_fft, axis=0)
-        return B, rho[:L], passes
+        return ColouredBounds(self, ev, Wh, info).solve(max_iter, tol)
 
     # -- per-run views -----------------------------------------------------------------------------
     def per_run(self, arr: np.ndarray) -> list[np.ndarray]:
@@ -435,38 +420,3 @@ class OutputError:
         for s in range(lay.n_segments):
             out[lay.run[s]].append(arr[:lay.length[s], :, s])
         return [np.vstack(parts) for parts in out]
-
-
-class _SegmentJacobian:
-    """The whitened local Jacobian (l, ny, q) of one segment (its estimated columns ``keep``),
-    either held ``whole`` or rebuilt from the stored sensitivities a time block at a time, so
-    that a long record's Jacobian never exists whole: its products are all it offers."""
-
-    def __init__(self, prob: OutputError, ev: Response, Wh: np.ndarray, segment: int, keep: np.ndarray,
-                 whole: np.ndarray | None = None):
-        self.prob, self.ev, self.Wh, self.segment, self.keep, self.whole = prob, ev, Wh, segment, keep, whole
-        self.length, self.q, self.ny = int(prob.layout.length[segment]), int(keep.sum()), ev.e.shape[1]
-
-    def _blocks(self):
-        if self.whole is not None:
-            yield 0, self.length, self.whole
-            return
-        for k0, k1 in self.prob._blocks(len(self.keep)):
-            if k0 >= self.length:
-                break
-            k1 = min(k1, self.length)
-            yield k0, k1, self.prob._local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
-
-    def apply(self, C: np.ndarray) -> np.ndarray:
-        """``J C`` (l, ny, w) for C (q, w)."""
-        out = np.empty((self.length, self.ny, C.shape[1]))
-        for k0, k1, J in self._blocks():
-            out[k0:k1] = J @ C
-        return out
-
-    def gram(self, T: np.ndarray) -> np.ndarray:
-        """``J^T T`` (q, w) summed over time and outputs, T (l, ny, w)."""
-        acc = np.zeros((self.q, T.shape[-1]))
-        for k0, k1, J in self._blocks():
-            acc += J.reshape(-1, self.q).T @ T[k0:k1].reshape(-1, T.shape[-1])
-        return acc

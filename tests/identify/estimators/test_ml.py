@@ -398,5 +398,5 @@ def test_coloured_option_false_reports_cramer_rao_bounds(s61):
     np.testing.assert_array_equal(b.std, b.info["std_white"])
     np.testing.assert_array_equal(a.std, a.info["std_coloured"])
     np.testing.assert_allclose(a.info["std_white"], b.info["std_white"])
-    assert b.info["std_coloured"] is None  # not computed: it costs about as much as the fit
+    assert b.info["std_coloured"] is None  # not computed
     assert b.info["standard_errors"].startswith("white") and a.info["noise_autocorrelation"].shape[1] == 8
