@@ -193,9 +193,10 @@ class Objective:
         if idx is not None and idx.size:
             # V_k += sum_j G_kj d_j = (sum_j d_j G_jk)^T: rows of G are contiguous; V is updated in
             # place (the base owns it: built by _state, changed only here)
-            dV = d[0] * self.G[:, idx[0]]
-            for j, dj in zip(idx[1:], d[1:]):
-                dV += dj * self.G[:, j]
+            sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
+            m = self._base[1].shape[0]
+            # one matrix product over the changed steps (a contiguous run is a view, not a copy)
+            dV = np.matmul(d, self.G[:, sl].reshape(m, idx.size, -1)).reshape(self._base[1].shape)
             V = self._base[1]
             V += dV.transpose(0, 1, 3, 2)
         elif idx is not None:
