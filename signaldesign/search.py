@@ -113,19 +113,20 @@ def _propose(levels: list, n_steps: int, axes: int, fly: Flyability, rng) -> lis
 
 
 def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: int = 4, seed: int = 0,
-           starts=(), progress=None, kicks: int = 0, jobs: int = 1, chains: int = 2) -> SearchResult:
+           starts=(), progress=None, kicks: int = 0, jobs: int = 1, chains: int | None = None) -> SearchResult:
     """Simulated annealing over flyable sequences from ``starts`` (level vectors, e.g. the tuned
     3211 on the grid) and then random flyable sequences, ``restarts`` runs in all, each finished by
     a greedy polish. Infeasible proposals are rejected; the temperature falls geometrically from
     the scale of the objective's typical changes. Then ``kicks`` rounds of iterated local search
-    (a few random moves, polished; kept when better) shared among ``chains`` chains, chain c
-    starting from the c-th best distinct restart. Every restart and chain has its own seed (from
+    (a few random moves, polished; kept when better) shared among ``chains`` chains (default one
+    per restart), chain c starting from the c-th best distinct restart (the landscape is rugged:
+    the best restart is not always the basin with the best optimum nearby). Every restart and chain has its own seed (from
     ``seed``), so ``jobs`` (worker processes, :mod:`signaldesign.workers`) changes only the time.
     ``trace`` holds each restart's final objective."""
     t0 = time.perf_counter()
     K, axes = objective.basis.n_steps, len(objective.basis.inputs)
     starts = [np.asarray(s, float) for s in starts if _feasible(s, K, axes, fly)]
-    chains = min(chains, kicks) if kicks > 0 else 0
+    chains = min(restarts if chains is None else chains, kicks) if kicks > 0 else 0
     seeds = np.random.SeedSequence(seed).spawn(restarts + chains)
     args = [(starts[r] if r < len(starts) else None, n_iter, seeds[r]) for r in range(restarts)]
     found = run_tasks(_restart, args, objective, fly, jobs, progress)
