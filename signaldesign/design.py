@@ -137,7 +137,7 @@ class SequenceDesign:
         if self.criterion in ("worst", "robust"):
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
-            offsets = yardsticks(yard, self.duration, self.min_pulse)._yardsticks
+            offsets = yardsticks(yard, self.duration, self.min_pulse, jobs=self._jobs())._yardsticks
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
@@ -157,7 +157,7 @@ class SequenceDesign:
                               stride=2)
         result, gap = self._search(objective, fly, starts)
         exact = objective.exact()
-        self.bound_ = objective_bound(exact, result.levels)
+        self.bound_ = objective_bound(exact, result.levels, jobs=self._jobs())
         self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
