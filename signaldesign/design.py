@@ -27,8 +27,8 @@ from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
 from .quadform import Objective, StepBasis
 from .robust import design_set
-from .workers import check_jobs
 from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
+from .workers import check_jobs
 
 CRITERIA = ("robust", "mean", "worst", "nominal")
 

@@ -4,7 +4,8 @@ improves) otherwise.
 
 The objective (see :mod:`signaldesign.quadform`) scores a candidate from the last accepted one by a
 low-rank update, so proposals change a few levels at a time: a block set to a level, a switch
-moved, a hold's sign flipped.
+moved, a hold's sign flipped. Annealing restarts and iterated-local-search ("kick") chains are
+independent tasks with their own seeds, run in worker processes by :mod:`signaldesign.workers`.
 """
 from __future__ import annotations
 
@@ -120,9 +121,10 @@ def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: 
     the scale of the objective's typical changes. Then ``kicks`` rounds of iterated local search
     (a few random moves, polished; kept when better) shared among ``chains`` chains (default one
     per restart), chain c starting from the c-th best distinct restart (the landscape is rugged:
-    the best restart is not always the basin with the best optimum nearby). Every restart and chain has its own seed (from
-    ``seed``), so ``jobs`` (worker processes, :mod:`signaldesign.workers`) changes only the time.
-    ``trace`` holds each restart's final objective."""
+    the best restart is not always the basin with the best optimum nearby). Every restart and
+    chain has its own seed (from ``seed``), so ``jobs`` (worker processes,
+    :mod:`signaldesign.workers`) changes only the time. ``trace`` holds each restart's final
+    objective."""
     t0 = time.perf_counter()
     K, axes = objective.basis.n_steps, len(objective.basis.inputs)
     starts = [np.asarray(s, float) for s in starts if _feasible(s, K, axes, fly)]
@@ -144,8 +146,7 @@ def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: 
     objective.reset()  # report the optimum scored from scratch, free of update round-off
     levels = np.array(best[1], dtype=float)
     value = objective(levels)
-    return SearchResult(levels, float(value), "annealing", evaluations + 1,
-                        time.perf_counter() - t0, trace)
+    return SearchResult(levels, float(value), "annealing", evaluations + 1, time.perf_counter() - t0, trace)
 
 
 def _distinct(ranked):
