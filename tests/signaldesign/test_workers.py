@@ -60,3 +60,31 @@ def test_a_failing_worker_is_one_clear_error_and_leaves_no_process():
 def test_bad_jobs_is_one_clear_error(s61m, jobs):
     with pytest.raises(DesignError, match="jobs must be a positive whole number"):
         SequenceDesign("theta_s", jobs=jobs).n_steps()
+
+
+def _sleeps(objective, fly, i):
+    import time
+    time.sleep(30)
+    return i
+
+
+def test_an_interrupt_stops_the_workers_at_once():
+    """Ctrl-C in the parent (here a KeyboardInterrupt raised by a timer) ends the search without
+    waiting for the running tasks, and no worker outlives it."""
+    import signal
+    import time
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGALRM, interrupt)
+    t0 = time.perf_counter()
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        with pytest.raises(KeyboardInterrupt):
+            run_tasks(_sleeps, [(i,) for i in range(4)], None, None, jobs=2)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert time.perf_counter() - t0 < 10
+    assert not multiprocessing.active_children()
