@@ -12,6 +12,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 
@@ -93,11 +94,18 @@ def run_tasks(task, arg_list, objective, fly, jobs: int = 1, progress=None) -> l
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
-    """Cancel what has not started and terminate the workers (a running task is not waited for)."""
+    """Cancel what has not started and terminate the workers (a running task is not waited for),
+    then wait for the pool's manager thread, which reaps what is left (a broken pool's workers)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for p in processes:
         if p.is_alive():
             p.terminate()
+    pool.shutdown(wait=True)  # every worker is dying: the manager thread ends at once
+    # the manager thread may reap a worker while we join it (then join returns early): poll
+    deadline = time.monotonic() + 5
+    while any(p.is_alive() for p in processes) and time.monotonic() < deadline:
+        time.sleep(0.01)
     for p in processes:
-        p.join(timeout=5)
+        if p.is_alive():
+            p.kill()
