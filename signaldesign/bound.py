@@ -41,6 +41,8 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.optimize import minimize_scalar
 
+from .workers import run_tasks
+
 
 @dataclass
 class Bound:
@@ -120,20 +122,24 @@ def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, iterations: int = 
     return best
 
 
-def objective_bound(objective, levels, iterations: int = 6) -> Bound:
+def objective_bound(objective, levels, iterations: int = 6, jobs: int = 1) -> Bound:
     """Upper bound on ``objective`` over every sequence (any levels in the span of its steps), started
-    from the design ``levels``: each model's term bounded by (2), combined as the objective combines
-    its terms (the nominal floor's penalty only lowers a value and is left out)."""
+    from the design ``levels``: each model's term bounded by (2) (the models in ``jobs`` worker
+    processes), combined as the objective combines its terms (the nominal floor's penalty only
+    lowers a value and is left out)."""
     levels = np.asarray(levels, float)
-    per = []
-    for m in range(objective.n_models):
-        G = objective.G[m]
-        A = _rows(objective, m)
-        r = float(np.abs(A @ levels).max())
-        W0 = np.einsum("k,j,kjab->ab", levels, levels, G) / max(r, 1e-300) ** 2
-        if np.linalg.slogdet(W0)[0] <= 0:  # a singular start: any positive definite W is valid
-            W0 = np.einsum("kkab->ab", G) / max(np.abs(A).sum(axis=1).max(), 1e-300) ** 2
-        per.append(model_bound(G, A, W0, iterations, start=levels / max(r, 1e-300)))
-    per = np.array(per)
+    args = [(m, levels, iterations) for m in range(objective.n_models)]
+    per = np.array(run_tasks(_model_term, args, objective, None, jobs))
     shift = 2 * objective.p * np.log(objective.amplitude) if objective.amplitude is not None else 0.0
     return Bound(objective.combine(per + shift - objective.offsets, floor=False), per + shift)
+
+
+def _model_term(objective, _, m: int, levels: np.ndarray, iterations: int) -> float:
+    """Bound (2) on model ``m``'s equal-peak log det, from the design ``levels``."""
+    G = objective.G[m]
+    A = _rows(objective, m)
+    r = float(np.abs(A @ levels).max())
+    W0 = np.einsum("k,j,kjab->ab", levels, levels, G) / max(r, 1e-300) ** 2
+    if np.linalg.slogdet(W0)[0] <= 0:  # a singular start: any positive definite W is valid
+        W0 = np.einsum("kkab->ab", G) / max(np.abs(A).sum(axis=1).max(), 1e-300) ** 2
+    return model_bound(G, A, W0, iterations, start=levels / max(r, 1e-300))

@@ -59,7 +59,8 @@ def _evaluator(model, inputs, args, amplitude) -> Evaluator:
 def _designer(inputs, args, progress=None) -> SequenceDesign:
     return SequenceDesign(inputs, args.duration, args.record, args.amplitude, args.dt, args.grid, args.min_pulse,
                           args.max_changes, not args.no_double_jumps, args.criterion,
-                          reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress)
+                          reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress,
+                          jobs=getattr(args, "jobs", None))
 
 
 def cmd_design(args) -> int:
@@ -197,6 +198,9 @@ def build_parser() -> Parser:
                         "(each against the 3211 tuned on it), at least 1.22x the best tuned 3211/doublet on "
                         "the a priori; mean: expected log det only; worst: worst D-efficiency only; "
                         "nominal: the a priori only")
+    p.add_argument("--jobs", type=positive_int, metavar="N",
+                   help="worker processes for the search's restarts (default: the available CPUs, at most "
+                        "the restarts); the design is the same for any N")
     p.add_argument("--out", type=output_file, metavar="JSON", help="write the optimised signal here")
     p.add_argument("--plot", type=output_file, metavar="PNG", help="draw it against the best 3211 with spectra and the band")
     _record_options(p)

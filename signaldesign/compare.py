@@ -18,6 +18,7 @@ import numpy as np
 
 from .baselines import doublet, m3211, multisine, orthogonal_multisines, prts
 from .evaluate import DesignError, Evaluator, tune_width
+from .workers import run_tasks
 
 
 MIN_WIDTH = 0.3  # s: the shortest pulse a pilot flies accurately (the designer's default min pulse)
@@ -117,12 +118,17 @@ def default_limits(ev: Evaluator, duration: float, amplitude, min_width: float =
     return ev.set_limits(limits, f"peak response of the best-width 3211 ({w} s) at amplitude {amps}")
 
 
-def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH) -> Evaluator:
+def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH, jobs: int = 1) -> Evaluator:
     """For every model of the evaluator's set, the equal-peak log det of the best-width 3211 tuned
-    on that model (the correctly tuned 3211: what a signal loses against it is a priori error)."""
+    on that model (the correctly tuned 3211: what a signal loses against it is a priori error);
+    the models in ``jobs`` worker processes."""
     widths = widths_3211(duration, min_width, ev.dt)
-    lds = [_tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=m)[2] for m in ev.models]
+    lds = run_tasks(_yardstick, [(m, widths) for m in ev.models], ev, None, jobs)
     return ev.set_yardsticks(lds)
+
+
+def _yardstick(ev: Evaluator, _, model, widths) -> float:
+    return _tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=model)[2]
 
 
 def reference_of(baselines) -> list:

@@ -13,6 +13,7 @@ derivatives x 0.7..1.3), each model scaling the sequence to its own peak respons
 """
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -27,6 +28,7 @@ from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  #
 from .quadform import Objective, StepBasis
 from .robust import design_set
 from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
+from .workers import check_jobs
 
 CRITERIA = ("robust", "mean", "worst", "nominal")
 
@@ -48,7 +50,10 @@ class SequenceDesign:
     ``worst`` (worst relative D-efficiency only) or ``nominal`` (the a priori only). ``draws`` and
     ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`). The search:
     ``restarts`` annealing runs of ``n_iter`` proposals, each polished, then ``kicks`` rounds of
-    iterated local search from the best (:func:`~signaldesign.search.anneal`).
+    iterated local search from the best restarts (:func:`~signaldesign.search.anneal`);
+    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``jobs`` worker processes
+    run the restarts (default: the available CPUs, at most ``restarts``); the design is the same
+    for any number.
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
@@ -67,7 +72,8 @@ class SequenceDesign:
                  limits: dict | None = None, reference_amplitude: float = 0.02, exhaustive_limit: int = 6000,
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
-                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20):
+                 draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20,
+                 nominal_kicks: int = 20, jobs: int | None = None):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -78,7 +84,7 @@ class SequenceDesign:
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
         self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
-        self.kicks = kicks
+        self.kicks, self.nominal_kicks, self.jobs = kicks, nominal_kicks, jobs
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -99,6 +105,7 @@ class SequenceDesign:
             raise DesignError(f"a {self.duration:g} s signal does not fit in the {self.record:g} s record")
         if self.max_changes is not None and self.max_changes < 2:
             raise DesignError(f"max changes {self.max_changes}: a sequence needs at least 2 (leave 0, return)")
+        self._jobs()
         if self.criterion not in CRITERIA:
             raise DesignError(f"unknown criterion '{self.criterion}' ({', '.join(CRITERIA)})")
         if self.amplitude is not None:
@@ -107,13 +114,18 @@ class SequenceDesign:
                 raise DesignError(f"amplitude must be positive, got {self.amplitude}")
         return K
 
+    def _jobs(self) -> int:
+        """Worker processes for the search: ``jobs``, default the available CPUs, at most one per
+        restart (the result is the same for any number)."""
+        return min(check_jobs(self.jobs), max(self.restarts, 1))
+
     def flyability(self) -> Flyability:
         steps = max(1, int(np.ceil(self.min_pulse / self.grid - 1e-9)))
         return Flyability(steps, self.max_changes, 2 if self.allow_double_jumps else 1)
 
     # -- fit ----------------------------------------------------------------------------------------
     def fit(self, model: LinearModel) -> "SequenceDesign":
-        t0, c0 = time.perf_counter(), time.process_time()
+        t0, c0 = time.perf_counter(), _cpu_seconds()
         K = self.n_steps()
         fly = self.flyability()
         ev = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, limits=self.limits)
@@ -125,7 +137,7 @@ class SequenceDesign:
         if self.criterion in ("worst", "robust"):
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
-            offsets = yardsticks(yard, self.duration, self.min_pulse)._yardsticks
+            offsets = yardsticks(yard, self.duration, self.min_pulse, jobs=self._jobs())._yardsticks
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
@@ -135,7 +147,7 @@ class SequenceDesign:
             # the nominal optimum seeds the robust search; the floor keeps the robust design at least
             # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
             nominal = Objective(basis, "nominal", amplitude=amp, stride=2)
-            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter, kicks=0)
+            best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter, kicks=self.nominal_kicks)
             starts = [best.levels] + starts
             if self.nominal_margin is not None and amp is None:
                 floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
@@ -145,7 +157,7 @@ class SequenceDesign:
                               stride=2)
         result, gap = self._search(objective, fly, starts)
         exact = objective.exact()
-        self.bound_ = objective_bound(exact, result.levels)
+        self.bound_ = objective_bound(exact, result.levels, jobs=self._jobs())
         self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
@@ -174,7 +186,7 @@ class SequenceDesign:
                   "units": {i: model.profile.inputs[i] for i in self.inputs}}
         self.signals_ = basis.signals(result.levels, amplitude, params=params)
         self.seconds_ = time.perf_counter() - t0
-        self.cpu_seconds_ = time.process_time() - c0  # this process only: the machine may be shared
+        self.cpu_seconds_ = _cpu_seconds() - c0  # this process and its workers: the machine may be shared
         return self
 
     def _model_set(self, model):
@@ -214,7 +226,7 @@ class SequenceDesign:
             return exhaustive(objective.exact(), fly, limit), 0.0
         # anneal on peaks read every other sample, then polish on every sample
         found = anneal(objective, fly, n_iter or self.n_iter, self.restarts, self.seed, starts, self.progress,
-                       kicks=self.kicks if kicks is None else kicks)
+                       kicks=self.kicks if kicks is None else kicks, jobs=self._jobs())
         exact = objective.exact()
         found.levels, found.objective = polish(exact, fly, found.levels)
         found.evaluations += exact.evaluations
@@ -275,6 +287,12 @@ def _on_grid(pulses, width: float, grid: float, n_steps: int) -> np.ndarray:
         levels[a:min(b, n_steps)] = sign
         t, sign = t + n * width, -sign
     return levels
+
+
+def _cpu_seconds() -> float:
+    """CPU s of this process and of its finished child processes (the search's workers)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def _changes(levels) -> int:

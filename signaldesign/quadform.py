@@ -48,7 +48,10 @@ class StepBasis:
         self.n = int(round(ev.record / ev.dt)) + 1
         self.Ktot = len(self.inputs) * self.n_steps
         pulses = [self._pulses(m) for m in self.models]
-        self.G = np.stack([self._gram([P[0] for P in pl]) for pl in pulses])
+        p = ev.p
+        self.G = np.zeros((len(self.models), self.Ktot, self.Ktot, p, p))  # filled in place: no stacked copy
+        for G, pl in zip(self.G, pulses):
+            self._gram([P[0] for P in pl], G)
         self.Y = np.stack([self._outputs([P[1] for P in pl]) for pl in pulses])
 
     def _pulses(self, model: LinearModel):
@@ -65,27 +68,33 @@ class StepBasis:
             out.append(pulse)
         return out
 
-    def _gram(self, pulses) -> np.ndarray:
-        """G (Kt, Kt, p, p). For steps k <= j (shift difference d = j - k) and pulse responses
-        S_a, S_b: ``G = sum_{tau < L_j} S_a(tau + d h)^T S_b(tau)`` with ``L_j = N - offset - j h``:
-        one running sum over tau per (axis pair, d) gives every block of that diagonal."""
+    def _gram(self, pulses, G: np.ndarray) -> None:
+        """Fill G (Kt, Kt, p, p). For steps k <= j (shift difference d = j - k) and pulse responses
+        S_a, S_b: ``G = sum_{tau < L_k} S_a(tau + d h)^T S_b(tau)`` with ``L_k = N - offset - (k + d) h``:
+        the L_k of one (axis pair, d) diagonal are h samples apart, so the sums are a head (tau below
+        the smallest L) plus running sums of h-sample blocks, each block one matrix product."""
         n, K, h, o = self.n, self.n_steps, self.sub, self.offset
-        axes, p = len(self.inputs), self.evaluator.p
-        G = np.zeros((axes * K, axes * K, p, p))
+        axes = len(self.inputs)
         for a in range(axes):
             for b in range(axes):
                 for d in range(K):
                     span = n - o - d * h  # tau + d h must stay inside the record
-                    if span <= 0:
-                        continue
-                    prod = np.einsum("tyi,tyj->tij", pulses[a][d * h:d * h + span], pulses[b][:span])
-                    csum = np.cumsum(prod, axis=0)
                     k = np.arange(K - d)
-                    L = n - o - (k + d) * h
-                    ok = L > 0
-                    G[a * K + k[ok], b * K + k[ok] + d] = csum[L[ok] - 1]
-                    G[b * K + k[ok] + d, a * K + k[ok]] = csum[L[ok] - 1].transpose(0, 2, 1)
-        return G
+                    k = k[span - k * h > 0]
+                    if not k.size:
+                        continue
+                    A, B = pulses[a][d * h:d * h + span], pulses[b][:span]
+                    ny, p = A.shape[1], A.shape[2]
+                    head = span - (k.size - 1) * h  # the smallest L: tau in [0, head) is in every sum
+                    sums = np.empty((k.size, p, p))
+                    sums[0] = A[:head].reshape(-1, p).T @ B[:head].reshape(-1, p)
+                    if k.size > 1:
+                        Ab = A[head:span].reshape(k.size - 1, h * ny, p)
+                        Bb = B[head:span].reshape(k.size - 1, h * ny, p)
+                        sums[1:] = np.matmul(Ab.transpose(0, 2, 1), Bb)
+                    csum = np.cumsum(sums, axis=0)[::-1]  # csum[k]: the sum over tau < L_k
+                    G[a * K + k, b * K + k + d] = csum
+                    G[b * K + k + d, a * K + k] = csum.transpose(0, 2, 1)
 
     def _outputs(self, pulses) -> np.ndarray:
         """(N, ny, Kt) output response per unit level of each step."""
@@ -193,9 +202,10 @@ class Objective:
         if idx is not None and idx.size:
             # V_k += sum_j G_kj d_j = (sum_j d_j G_jk)^T: rows of G are contiguous; V is updated in
             # place (the base owns it: built by _state, changed only here)
-            dV = d[0] * self.G[:, idx[0]]
-            for j, dj in zip(idx[1:], d[1:]):
-                dV += dj * self.G[:, j]
+            sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
+            m = self._base[1].shape[0]
+            # one matrix product over the changed steps (a contiguous run is a view, not a copy)
+            dV = np.matmul(d, self.G[:, sl].reshape(m, idx.size, -1)).reshape(self._base[1].shape)
             V = self._base[1]
             V += dV.transpose(0, 1, 3, 2)
         elif idx is not None:

@@ -4,7 +4,8 @@ improves) otherwise.
 
 The objective (see :mod:`signaldesign.quadform`) scores a candidate from the last accepted one by a
 low-rank update, so proposals change a few levels at a time: a block set to a level, a switch
-moved, a hold's sign flipped.
+moved, a hold's sign flipped. Annealing restarts and iterated-local-search ("kick") chains are
+independent tasks with their own seeds, run in worker processes by :mod:`signaldesign.workers`.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 from .evaluate import DesignError
 from .flyable import LEVELS, Flyability, enumerate_sequences
 from .quadform import Objective
+from .workers import run_tasks
 
 
 @dataclass
@@ -112,77 +114,116 @@ def _propose(levels: list, n_steps: int, axes: int, fly: Flyability, rng) -> lis
 
 
 def anneal(objective: Objective, fly: Flyability, n_iter: int = 4000, restarts: int = 4, seed: int = 0,
-           starts=(), progress=None, kicks: int = 0) -> SearchResult:
+           starts=(), progress=None, kicks: int = 0, jobs: int = 1, chains: int | None = None) -> SearchResult:
     """Simulated annealing over flyable sequences from ``starts`` (level vectors, e.g. the tuned
     3211 on the grid) and then random flyable sequences, ``restarts`` runs in all, each finished by
     a greedy polish. Infeasible proposals are rejected; the temperature falls geometrically from
     the scale of the objective's typical changes. Then ``kicks`` rounds of iterated local search
-    from the best (a few random moves, polished; kept when better). ``trace`` holds each run's final
+    (a few random moves, polished; kept when better) shared among ``chains`` chains (default one
+    per restart), chain c starting from the c-th best distinct restart (the landscape is rugged:
+    the best restart is not always the basin with the best optimum nearby). Every restart and
+    chain has its own seed (from ``seed``), so ``jobs`` (worker processes,
+    :mod:`signaldesign.workers`) changes only the time. ``trace`` holds each restart's final
     objective."""
     t0 = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    basis = objective.basis
-    K, axes = basis.n_steps, len(basis.inputs)
+    K, axes = objective.basis.n_steps, len(objective.basis.inputs)
     starts = [np.asarray(s, float) for s in starts if _feasible(s, K, axes, fly)]
+    chains = min(restarts if chains is None else chains, kicks) if kicks > 0 else 0
+    seeds = np.random.SeedSequence(seed).spawn(restarts + chains)
+    args = [(starts[r] if r < len(starts) else None, n_iter, seeds[r]) for r in range(restarts)]
+    found = run_tasks(_restart, args, objective, fly, jobs, progress)
+    trace = [f for f, _, _ in found]
+    evaluations = sum(e for _, _, e in found)
+    ranked = _distinct(sorted(found, key=lambda r: -r[0]))
+    best = ranked[0][:2]
+    if chains:
+        args = [(ranked[c % len(ranked)][1], kicks // chains + (c < kicks % chains), seeds[restarts + c])
+                for c in range(chains)]
+        for f, levels, e in run_tasks(_kick_chain, args, objective, fly, jobs):
+            evaluations += e
+            if f > best[0]:
+                best = (f, levels)
+    objective.reset()  # report the optimum scored from scratch, free of update round-off
+    levels = np.array(best[1], dtype=float)
+    value = objective(levels)
+    return SearchResult(levels, float(value), "annealing", evaluations + 1, time.perf_counter() - t0, trace)
+
+
+def _distinct(ranked):
+    """The (value, levels, evaluations) results without repeated level vectors, order kept."""
+    out, seen = [], set()
+    for r in ranked:
+        key = tuple(r[1])
+        if key not in seen:
+            seen.add(key)
+            out.append(r)
+    return out
+
+
+def _restart(objective: Objective, fly: Flyability, start, n_iter: int, seed) -> tuple[float, list, int]:
+    """One annealing run (from ``start``, else a random flyable sequence) ended by a polish:
+    (objective, levels, candidates scored)."""
+    rng = np.random.default_rng(seed)
+    e0 = objective.evaluations
+    K, axes = objective.basis.n_steps, len(objective.basis.inputs)
 
     def feasible(levels):
         return _feasible(levels, K, axes, fly)
 
-    best, trace = None, []
-    for r in range(restarts):
-        if r < len(starts):
-            cur = [float(v) for v in starts[r]]
-        else:
-            cur = [float(v) for _ in range(axes) for v in _random_feasible(K, fly, rng)]
-        objective.reset(cur)
-        f_cur = objective(np.array(cur))
-        objective.commit()
-        deltas = []  # temperature scale from a few random feasible neighbours
-        for _ in range(60):
-            cand = _propose(cur, K, axes, fly, rng)
-            if feasible(cand):
-                f = objective(np.array(cand))
-                if np.isfinite(f) and np.isfinite(f_cur):
-                    deltas.append(abs(f - f_cur))
-        # hot enough that a typical worsening is accepted 80 % of the time at first: with peak
-        # responses in the criterion the landscape is rugged (an optimum can sit among neighbours
-        # far below it), and a walk at the median change never leaves its basin
-        T0 = max(float(np.mean(deltas)) / -np.log(0.8) if deltas else 1.0, 1e-3)
-        T_end = T0 * 1e-3
-        r_best = (f_cur, list(cur))
-        for i in range(n_iter):
-            T = T0 * (T_end / T0) ** (i / max(n_iter - 1, 1))
-            for _ in range(50):  # every iteration scores a flyable neighbour (rejecting is cheap)
-                cand = _propose(cur, K, axes, fly, rng)
-                if cand != cur and feasible(cand):
-                    break
-            else:
-                continue
+    if start is not None:
+        cur = [float(v) for v in start]
+    else:
+        cur = [float(v) for _ in range(axes) for v in _random_feasible(K, fly, rng)]
+    objective.reset(cur)
+    f_cur = objective(np.array(cur))
+    objective.commit()
+    deltas = []  # temperature scale from a few random feasible neighbours
+    for _ in range(60):
+        cand = _propose(cur, K, axes, fly, rng)
+        if feasible(cand):
             f = objective(np.array(cand))
-            if f >= f_cur or (np.isfinite(f) and (not np.isfinite(f_cur) or rng.random() < np.exp((f - f_cur) / T))):
-                cur, f_cur = cand, f
-                objective.commit()
-                if f_cur > r_best[0]:
-                    r_best = (f_cur, list(cur))
-        objective.reset(r_best[1])
-        cur, f_cur = _polish(objective, r_best[1], r_best[0], K, axes, fly.min_pulse, feasible)
-        trace.append(float(f_cur))
-        if best is None or f_cur > best[0]:
-            best = (f_cur, np.array(cur, dtype=float))
-        if progress is not None:
-            progress(r + 1, restarts)
-    best = _kick(objective, best, kicks, K, axes, fly, feasible, rng)
-    objective.reset()  # report the optimum scored from scratch, free of update round-off
-    value = objective(best[1])
-    return SearchResult(best[1], float(value), "annealing", objective.evaluations, time.perf_counter() - t0, trace)
+            if np.isfinite(f) and np.isfinite(f_cur):
+                deltas.append(abs(f - f_cur))
+    # hot enough that a typical worsening is accepted 80 % of the time at first: with peak
+    # responses in the criterion the landscape is rugged (an optimum can sit among neighbours
+    # far below it), and a walk at the median change never leaves its basin
+    T0 = max(float(np.mean(deltas)) / -np.log(0.8) if deltas else 1.0, 1e-3)
+    T_end = T0 * 1e-3
+    r_best = (f_cur, list(cur))
+    for i in range(n_iter):
+        T = T0 * (T_end / T0) ** (i / max(n_iter - 1, 1))
+        for _ in range(50):  # every iteration scores a flyable neighbour (rejecting is cheap)
+            cand = _propose(cur, K, axes, fly, rng)
+            if cand != cur and feasible(cand):
+                break
+        else:
+            continue
+        f = objective(np.array(cand))
+        if f >= f_cur or (np.isfinite(f) and (not np.isfinite(f_cur) or rng.random() < np.exp((f - f_cur) / T))):
+            cur, f_cur = cand, f
+            objective.commit()
+            if f_cur > r_best[0]:
+                r_best = (f_cur, list(cur))
+    objective.reset(r_best[1])
+    cur, f_cur = _polish(objective, r_best[1], r_best[0], K, axes, fly.min_pulse, feasible)
+    return float(f_cur), cur, objective.evaluations - e0
 
 
-def _kick(objective, best, kicks, K, axes, fly, feasible, rng):
-    """Iterated local search: perturb the best by 2..4 random flyable moves, polish, keep if better.
-    (Polishing only near the kick was 3x cheaper but rarely beat the best: the Navion's robust
-    figure fell below target on 2 of 4 seeds.)"""
-    f_best, levels = best[0], [float(v) for v in best[1]]
-    for _ in range(kicks):
+def _kick_chain(objective: Objective, fly: Flyability, levels, rounds: int, seed) -> tuple[float, list, int]:
+    """Iterated local search: perturb the best by 2..4 random flyable moves, polish, keep if better;
+    ``rounds`` times. (Polishing only near the kick was 3x cheaper but rarely beat the best: the
+    Navion's robust figure fell below target on 2 of 4 seeds.)"""
+    rng = np.random.default_rng(seed)
+    e0 = objective.evaluations
+    K, axes = objective.basis.n_steps, len(objective.basis.inputs)
+
+    def feasible(c):
+        return _feasible(c, K, axes, fly)
+
+    levels = [float(v) for v in levels]
+    objective.reset(levels)
+    f_best = objective(np.array(levels))
+    for _ in range(rounds):
         cand = list(levels)
         for _ in range(int(rng.integers(2, 5))):
             for _ in range(50):
@@ -195,11 +236,10 @@ def _kick(objective, best, kicks, K, axes, fly, feasible, rng):
         objective.reset(cand)
         f = objective(np.array(cand))
         objective.commit()
-        # a full polish: one polished only near the kick rarely beat the best (Navion, 6 seeds)
         cand, f = _polish(objective, cand, f, K, axes, fly.min_pulse, feasible)
         if f > f_best:
             f_best, levels = f, cand
-    return f_best, np.array(levels, dtype=float)
+    return float(f_best), levels, objective.evaluations - e0
 
 
 def _feasible(levels, K, axes, fly) -> bool:

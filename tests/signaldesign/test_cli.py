@@ -58,7 +58,7 @@ def test_design_command_writes_a_flyable_signal_within_the_limits(tmp_path, caps
     out = tmp_path / "opt.json"
     status, stdout, stderr = cli(capsys, "design", "--profile", "s61_hover_8state", "--input", "theta_s",
                                  "--duration", "3", "--record", "8", "--grid", "0.2", "--max-changes", "6",
-                                 "--criterion", "nominal", "--out", out, "--plot", tmp_path / "d.png")
+                                 "--criterion", "nominal", "--jobs", "2", "--out", out, "--plot", tmp_path / "d.png")
     assert status == 0, stderr
     for label in ("doublet, best width", "3211, best width", "multisine", "PRTS", "optimised",
                   "equal peak response", "BINDS", "limits: the profile's [limits]"):
@@ -94,6 +94,7 @@ def _profile_with_limits(tmp_path, limits: str):
      ["fewer than two"]),
     (["design", "--profile", "s61_hover_8state", "--input", "theta_s", "--dt", "0"], ["argument --dt", "must be positive"]),
     (["compare", "--profile", "s61_hover_8state", "x.json", "--dt", "0"], ["argument --dt", "must be positive"]),
+    (["design", "--profile", "s61_hover_8state", "--input", "theta_s", "--jobs", "0"], ["argument --jobs"]),
     (["design", "--profile", "s61_hover_8state", "--input", "theta_s", "--duration", "3", "--record", "8",
       "--amplitude", "1"], ["infeasible", "within its limit"]),
     (["make", "3211", "--out", "x.json"], ["needs a pulse width"]),

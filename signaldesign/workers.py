@@ -1,0 +1,111 @@
+"""Independent search tasks (annealing restarts, kick chains) run in worker processes.
+
+Each task gets its own seed, so the results do not depend on how many workers run them. On Linux
+the workers are forked: the objective (matrices of a few to a few hundred MB) is inherited, not
+pickled. Every worker caps BLAS at one thread (the tasks are many small matrix products; two
+workers on two cores must not each start a BLAS pool) and ignores Ctrl-C, which the parent handles
+by terminating the workers. A task that raises or a worker that dies ends the search with one
+:class:`~signaldesign.evaluate.DesignError` line.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+
+from identify import PseudostepError
+
+from .evaluate import DesignError
+
+_STATE: dict = {}  # the worker's objective and flyability (set once per worker by _init)
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (the default number of workers)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def check_jobs(jobs) -> int:
+    """``jobs`` as a positive int (None: the available CPUs)."""
+    if jobs is None:
+        return available_cpus()
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise DesignError(f"jobs must be a positive whole number, got {jobs!r}")
+    return jobs
+
+
+def _init(objective, fly) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the workers
+    try:
+        from threadpoolctl import threadpool_limits
+        _STATE["blas"] = threadpool_limits(limits=1, user_api="blas")
+    except ImportError:  # only the environment (read by a BLAS loaded after this point)
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = "1"
+    _STATE["objective"], _STATE["fly"] = objective, fly
+
+
+def _call(task, args):
+    return task(_STATE["objective"], _STATE["fly"], *args)
+
+
+def run_tasks(task, arg_list, objective, fly, jobs: int = 1, progress=None) -> list:
+    """``[task(objective, fly, *args) for args in arg_list]``, in ``jobs`` worker processes when
+    ``jobs`` > 1 (in order; ``progress(done, total)`` after each)."""
+    n = len(arg_list)
+    jobs = min(check_jobs(jobs), n)
+    if jobs <= 1:
+        out = []
+        for i, args in enumerate(arg_list):
+            out.append(task(objective, fly, *args))
+            if progress is not None:
+                progress(i + 1, n)
+        return out
+    methods = multiprocessing.get_all_start_methods()
+    context = multiprocessing.get_context("fork" if "fork" in methods else None)
+    pool = ProcessPoolExecutor(jobs, mp_context=context, initializer=_init, initargs=(objective, fly))
+    try:
+        futures = {pool.submit(_call, task, args): i for i, args in enumerate(arg_list)}
+        out = [None] * n
+        for done, future in enumerate(as_completed(futures), 1):
+            out[futures[future]] = future.result()
+            if progress is not None:
+                progress(done, n)
+        pool.shutdown(wait=True)
+        return out
+    except BrokenProcessPool as exc:
+        _stop(pool)
+        raise DesignError(f"a design worker process died ({exc}); retry with jobs=1 to see why") from None
+    except PseudostepError:
+        _stop(pool)
+        raise
+    except Exception as exc:
+        _stop(pool)
+        raise DesignError(f"design worker failed: {type(exc).__name__}: {exc}") from exc
+    except BaseException:  # KeyboardInterrupt, SystemExit: no worker outlives the parent's search
+        _stop(pool)
+        raise
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Cancel what has not started and terminate the workers (a running task is not waited for),
+    then wait for the pool's manager thread, which reaps what is left (a broken pool's workers)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        if p.is_alive():
+            p.terminate()
+    pool.shutdown(wait=True)  # every worker is dying: the manager thread ends at once
+    # the manager thread may reap a worker while we join it (then join returns early): poll
+    deadline = time.monotonic() + 5
+    while any(p.is_alive() for p in processes) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    for p in processes:
+        if p.is_alive():
+            p.kill()
