@@ -109,3 +109,4 @@ def _stop(pool: ProcessPoolExecutor) -> None:
     for p in processes:
         if p.is_alive():
             p.kill()
+        p.join(timeout=1)  # reaped here, not left to the pool's manager thread
