@@ -58,7 +58,6 @@ def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
-    from .estimators.registry import estimator_class
 
     if args.max_iter is not None and args.method not in ("iv", "ml"):
         raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
@@ -83,7 +82,7 @@ def cmd_estimate(args) -> int:
     options = {"ml": dict(progress=show, **iterations),
                "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
                "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
-    result = _fit(estimator_class(args.method), options, profile, runs)
+    result = _fit(args.method, options, profile, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
     from .frequency import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
@@ -95,18 +94,21 @@ def cmd_estimate(args) -> int:
     return 0
 
 
-def _fit(cls, options: dict, profile, runs):
+def _fit(method: str, options: dict, profile, runs):
     """The estimator's result; a refined profile's state-built nonlinear terms (ML only) from the
     model's simulated states, as refine fitted them, so that its estimates are reproduced."""
+    from .estimators.registry import estimator_class
     from .refine.evaluation import state_terms
 
-    if not (state_terms(profile) and cls.__name__ == "ML"):
+    cls, terms = estimator_class(method), state_terms(profile)
+    if not (terms and method == "ml"):
         return cls(profile, **options).fit(runs).result_
     from .estimators.output_error import auto_segment
     from .refine.evaluation import fit_state_terms
 
+    # ML's own automatic choice, fixed so that the terms are predicted over the same segments
     segment = auto_segment(LinearModel(profile), max(r.duration for r in runs))
-    print(f"note: {', '.join(state_terms(profile))} built from the model's simulated states (re-fitted until "
+    print(f"note: {', '.join(terms)} built from the model's simulated states (re-fitted until "
           f"the estimates settle)", file=sys.stderr)
     return fit_state_terms(lambda p: cls(p, segment=segment, **options), profile, runs,
                            segment=segment)[1]

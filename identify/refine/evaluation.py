@@ -227,7 +227,7 @@ def fit_state_terms(estimator, profile: Profile, runs: list[Run], zero_shifts: b
 
 
 def feedback_bounds(result: IdentificationResult, fitted: Profile, runs: list[Run], zero_shifts: bool = True,
-                    segment: float = math.inf) -> IdentificationResult:
+                    segment: float = math.inf, base: ModelFit | None = None) -> IdentificationResult:
     """``result`` (a settled fit of ``fitted``, whose state-built terms were held at their values)
     with its covariance widened for the terms' feedback. Each fit sees the terms as inputs, but they
     move with the estimates through the simulated states: the estimate is the fixed point
@@ -235,8 +235,9 @@ def feedback_bounds(result: IdentificationResult, fitted: Profile, runs: list[Ru
     delta method is ``K^-1 C K^-T`` with ``C`` the fit's own (coloured-residual) covariance and
     ``K = I - dg/dtheta = (J_h^T W J_h)^-1 J_h^T W J_t``: ``J_h`` the sensitivities with the terms
     held, ``J_t`` with them following the states (both with the nuisance refitted, by forward
-    differences), ``W`` the outputs' inverse noise variances."""
-    base = predict(fitted, runs, zero_shifts, segment)
+    differences), ``W`` the outputs' inverse noise variances. ``base``: ``predict(fitted, runs, ...)``
+    if the caller has it already."""
+    base = base or predict(fitted, runs, zero_shifts, segment)
     w = 1.0 / np.maximum(np.sqrt(np.mean(np.vstack(base.residuals) ** 2, axis=0)), 1e-300)
 
     def stacked(ev: ModelFit) -> np.ndarray:
@@ -348,6 +349,6 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["ModelFit", "evaluate", "predict", "settle", "fit_state_terms", "feedback_bounds", "state_terms", "simulated_terms", "errors",
-           "neg_log_likelihood", "unexplained", "split_validation",
+__all__ = ["ModelFit", "evaluate", "predict", "settle", "fit_state_terms", "feedback_bounds", "state_terms",
+           "simulated_terms", "errors", "neg_log_likelihood", "unexplained", "split_validation",
            "input_response", "check_identifiable", "MIN_SAMPLES"]

@@ -102,6 +102,7 @@ class Refine:
         validate = [validate] if isinstance(validate, Run) else list(validate or [])
         self._started = time.perf_counter()
         self._validate_options()
+        self.unconverged_: list[str] = []
         self._check(runs, validate)
         choose, judge = split_validation(validate)
         self._data = {"fit": runs, "choosing": choose, "validation": judge}
@@ -196,7 +197,6 @@ class Refine:
         self.declared_ = self.profile if isinstance(self.profile, Profile) else load_profile(self.profile)
         self._kinds, self._frequencies = tuple(self.kinds), tuple(self.frequencies or ())
         self._estimator_options = dict(self.estimator_options or {})
-        self.unconverged_: list[str] = []
 
     def _check(self, runs: list[Run], validate: list[Run]) -> None:
         if not runs:
@@ -363,7 +363,9 @@ class Refine:
             return fit(ext_p)
         fitted, result = settle(fit, ext_p)
         if bounds:
-            result = feedback_bounds(result, fitted, prepare_runs(fitted, self._raw), self.zero_shifts, self.segment_)
+            # the loop evaluates the fitted model anyway: its cached prediction is the bounds' base
+            result = feedback_bounds(result, fitted, prepare_runs(fitted, self._raw), self.zero_shifts, self.segment_,
+                                     base=self._eval(fitted))
         return fitted, result
 
     def residuals(self, p: Profile) -> list[np.ndarray]:
