@@ -1,0 +1,1 @@
+"""Whole pipelines and test campaigns on top of identify, signaldesign and cueing."""

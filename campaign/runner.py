@@ -1,0 +1,137 @@
+"""``campaign identify``: every test point's task, run on an executor, each record stored at once.
+
+The coordinator (this process) only builds tasks (file paths and the profile's text, a few kB
+each), hashes their inputs (:func:`campaign.store.point_key`), skips the points whose record
+exists, hands the rest to the executor and writes each record the moment it arrives. It holds
+no run data and no results beyond the one being written, so its memory does not depend on the
+number of points.
+"""
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from identify.errors import CampaignError, PseudostepError
+
+from .manifest import Campaign, Point
+from .point import identify_point
+from .store import Store, point_key
+
+
+def point_profile(point: Point):
+    """The point's a priori profile; a scheduled one evaluated at the point's condition."""
+    from identify.model.profile import load_profile
+    from identify.model.schedule import at_condition, schedule_of
+
+    profile = load_profile(point.profile_path())
+    schedule = schedule_of(profile)
+    if schedule is not None:
+        cond = schedule["condition"]
+        if not isinstance(point.condition.get(cond), (int, float)):
+            raise CampaignError(f"point {point.name}: the scheduled profile needs a numeric '{cond}' column")
+        profile = at_condition(profile, float(point.condition[cond]))
+    return profile
+
+
+def task_of(campaign: Campaign, point: Point) -> dict:
+    """The task of one point (plain data a worker process can receive); its ``key`` the hash of
+    its inputs. A point whose inputs cannot even be assembled raises :class:`PseudostepError`."""
+    from identify.errors import read_text
+
+    profile = point_profile(point)
+    task = {"name": point.name, "runs": [str(p) for p in point.files("runs")],
+            "validate": [str(p) for p in point.files("validate")],
+            "profile": profile.to_toml(), "profile_source": profile.source,
+            "channel_map": read_text(Path(point.root) / point.channel_map, CampaignError, "channel map")
+            if point.channel_map else None,
+            "method": campaign.method, "refine": campaign.refine, "options": dict(campaign.options)}
+    task["key"] = point_key(task)
+    return task
+
+
+def input_failure(point: Point, campaign: Campaign, exc: PseudostepError) -> tuple[str, dict]:
+    """A point whose inputs are missing or malformed: a failure record keyed by the point's name
+    and the error (recomputed next time, since the files may have been fixed)."""
+    import hashlib
+
+    key = "input-" + hashlib.sha256(f"{point.name}\n{exc}".encode()).hexdigest()[:18]
+    return key, {"point": point.name, "key": key, "status": "failed", "reason": str(exc),
+                 "method": campaign.method, "refine": campaign.refine, "warnings": [], "seconds": 0.0,
+                 "runs": list(point.runs), "validate": list(point.validate)}
+
+
+def point_keys(campaign: Campaign) -> dict[str, str]:
+    """{point name: key} for every point (the store's file names)."""
+    keys = {}
+    for point in campaign.points:
+        try:
+            keys[point.name] = task_of(campaign, point)["key"]
+        except PseudostepError as exc:
+            keys[point.name] = input_failure(point, campaign, exc)[0]
+    return keys
+
+
+def run_campaign(campaign: Campaign, out: str | Path, executor, *, retry_failed: bool = False,
+                 progress: bool = True, on_result: Callable | None = None) -> dict:
+    """Identify every point not yet in the store; return (and write to ``<out>/runs.jsonl``, one
+    line per invocation) the statistics: points total, already done, computed, failed, wall time,
+    the coordinator's peak memory."""
+    store = Store(out)
+    started = time.perf_counter()
+    stats = {"points": len(campaign.points), "already_done": 0, "computed": 0, "failed": 0,
+             "executor": executor.name, "workers": getattr(executor, "workers", None)}
+    seen: set[str] = set()
+
+    def todo():
+        for point in campaign.points:
+            try:
+                task = task_of(campaign, point)
+            except PseudostepError as exc:
+                key, record = input_failure(point, campaign, exc)
+                store.put(key, record)
+                stats["failed"] += 1
+                _say(f"FAILED {point.name}: {exc}")
+                continue
+            if task["key"] in seen:
+                continue  # two points with identical inputs share one record
+            seen.add(task["key"])
+            old = store.get(task["key"])
+            if old is not None and (old["status"] != "failed" or not retry_failed):
+                stats["already_done"] += 1
+                bar.update(1)
+                continue
+            yield task
+
+    bar = _bar(len(campaign.points), progress)
+    try:
+        for task, record in executor.map(identify_point, todo()):
+            store.put(task["key"], record)
+            stats["computed"] += 1
+            if record["status"] != "ok":
+                stats["failed"] += record["status"] == "failed"
+                _say(f"{record['status'].upper()} {task['name']}: {record['reason']}")
+            bar.update(1)
+            if on_result is not None:
+                on_result(task, record)
+    finally:
+        bar.close()
+    stats["seconds"] = time.perf_counter() - started
+    stats["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    with open(Path(out) / "runs.jsonl", "a") as f:
+        f.write(json.dumps(stats) + "\n")
+    return stats
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _bar(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="point", desc="identifying", disable=not enabled, file=sys.stderr,
+                dynamic_ncols=True, leave=True)
