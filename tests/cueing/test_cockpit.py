@@ -15,7 +15,7 @@ from cueing.cli import EXIT_ABORTED, main
 from cueing.clock import FakeClock
 from cueing.errors import CueingError
 from cueing.flightlog import read_frame_log
-from cueing.runner import Runner
+from cueing.runner import Runner, Schedule, Screen
 from cueing.scoring import MAX_LAG, PracticeScore, score_run, switch_timing, tracking_lag
 from cueing.session import fly
 from cueing.sources import MouseSource, PilotSource, ScriptedSource
@@ -144,8 +144,8 @@ def test_mouse_flies_two_axes_and_refuses_three(tmp_path):
         return 0.0
 
     pos["xy"] = (200, 400)
-    r = Runner(sigs, mouse, tmp_path / "m.frames.csv", clock=FakeClock(lateness=lateness), countdown=0.0,
-               display="headless", audio=False)
+    r = Runner(sigs, mouse, tmp_path / "m.frames.csv", clock=FakeClock(lateness=lateness), audio=False,
+               schedule=Schedule(countdown=0.0), screen=Screen(display="headless"))
     log = r.fly()
     k = np.arange(log.time.size)
     np.testing.assert_allclose(log.columns["theta_s"][1:], [r.display.value_of_x(200 + i - 1) for i in k[1:]])
@@ -181,8 +181,9 @@ def test_resized_window_relays_the_display_out(tmp_path):
         calls["n"] += 1
         return [pygame.event.Event(pygame.VIDEORESIZE, size=(1280, 720), w=1280, h=720)] if calls["n"] == 120 else []
 
-    r = Runner([sig], ScriptedSource(lambda t: -0.01), tmp_path / "z.frames.csv", clock=FakeClock(), countdown=0.0,
-               display="headless", audio=False, events=events, screenshot_dir=tmp_path / "shots", screenshot_every=1.0)
+    r = Runner([sig], ScriptedSource(lambda t: -0.01), tmp_path / "z.frames.csv", clock=FakeClock(), audio=False, events=events,
+               schedule=Schedule(countdown=0.0),
+               screen=Screen(display="headless", screenshot_dir=tmp_path / "shots", screenshot_every=1.0))
     log = r.fly()
     assert any("resized to 1280 x 720" in what for _, what in log.events)
     before = pygame.image.load(str(tmp_path / "shots" / "frame_00060.png"))

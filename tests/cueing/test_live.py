@@ -140,14 +140,14 @@ _EXTERNAL = {}
 
 
 def external_states(t, stick):
-    from cueing.live import SimulatedAircraft
+    from cueing.response import SimulatedAircraft
     if "aircraft" not in _EXTERNAL:
         _EXTERNAL["aircraft"] = SimulatedAircraft(LinearModel(load_profile(PROFILE)), signals(), RATE, 0.02, seed=9)
     return _EXTERNAL["aircraft"].read(t, stick)
 
 
 def test_external_response_feeds_the_live_estimate(tmp_path):
-    from cueing.live import ExternalResponse
+    from cueing.response import ExternalResponse
     _EXTERNAL.clear()
     response = ExternalResponse("external:tests.cueing.test_live:external_states")
     flight, live, ml = fly_live(signals(), PilotSource(skill=0.6, seed=3), tmp_path / "run.csv", PROFILE,
@@ -163,7 +163,7 @@ def three_states(t, stick):
 
 def test_external_response_of_the_wrong_size_is_named(tmp_path):
     from cueing.errors import CueingError
-    from cueing.live import ExternalResponse
+    from cueing.response import ExternalResponse
     with pytest.raises(CueingError, match="gave 3 states.*6"):
         fly_live(signals(), PilotSource(skill=0.6, seed=3), tmp_path / "run.csv", PROFILE,
                  response=ExternalResponse("tests.cueing.test_live:three_states"), fast=True, audio=False,
