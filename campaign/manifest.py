@@ -42,7 +42,7 @@ class Point:
 
     name: str
     condition: dict
-    runs: tuple[str, ...]
+    runs: tuple[str, ...] = ()
     validate: tuple[str, ...] = ()
     profile: str | None = None
     channel_map: str | None = None
@@ -52,6 +52,8 @@ class Point:
     def files(self, which: str = "runs") -> list[Path]:
         """The run files of ``runs`` or ``validate``: each pattern expanded (sorted), relative to
         the manifest's folder; a pattern that matches nothing is a :class:`CampaignError`."""
+        if which == "runs" and not self.runs:
+            raise CampaignError(f"point {self.name}: no runs listed")
         out = []
         for pattern in getattr(self, which):
             path = Path(pattern) if Path(pattern).is_absolute() else Path(self.root) / pattern
@@ -171,9 +173,7 @@ def _point(i: int, row: dict, head: dict, profile: str | None, path: Path) -> Po
             trim[k[len(TRIM):]] = float(v)
         else:
             cond[k] = v
-    runs = _patterns(row.get("runs"), f"{where}: runs", path)
-    if not runs:
-        raise CampaignError(f"{where}: no runs")
+    runs = _patterns(row.get("runs"), f"{where}: runs", path)  # none yet: a campaign to design
     prof = profile or row.get("profile") or head.get("profile")
     if not prof:
         raise CampaignError(f"{where}: no profile (give one per point or in [campaign])")
@@ -186,8 +186,8 @@ def _point(i: int, row: dict, head: dict, profile: str | None, path: Path) -> Po
 def _csv_rows(text: str, source: str) -> list[dict]:
     """Rows of a CSV test matrix; numeric cells become numbers, empty cells are left out."""
     reader = csv.DictReader(io.StringIO(text))
-    if not reader.fieldnames or "runs" not in reader.fieldnames:
-        raise CampaignError(f"{source}: a test matrix needs a header row with a 'runs' column")
+    if not reader.fieldnames or not {"point", "name"} & set(reader.fieldnames):
+        raise CampaignError(f"{source}: a test matrix needs a header row with a 'point' column")
     rows = []
     for row in reader:
         out = {}

@@ -64,39 +64,49 @@ def input_failure(point: Point, campaign: Campaign, exc: PseudostepError) -> tup
                  "runs": list(point.runs), "validate": list(point.validate)}
 
 
-def point_keys(campaign: Campaign) -> dict[str, str]:
+def point_keys(campaign: Campaign, make_task: Callable | None = None) -> dict[str, str]:
     """{point name: key} for every point (the store's file names)."""
+    make_task = make_task or task_of
     keys = {}
     for point in campaign.points:
         try:
-            keys[point.name] = task_of(campaign, point)["key"]
+            keys[point.name] = make_task(campaign, point)["key"]
         except PseudostepError as exc:
             keys[point.name] = input_failure(point, campaign, exc)[0]
     return keys
 
 
-def run_campaign(campaign: Campaign, out: str | Path, executor, *, retry_failed: bool = False,
-                 progress: bool = True, on_result: Callable | None = None) -> dict:
-    """Identify every point not yet in the store; return (and write to ``<out>/runs.jsonl``, one
-    line per invocation) the statistics: points total, already done, computed, failed, wall time,
+def run_campaign(campaign: Campaign, out: str | Path, executor, **kw) -> dict:
+    """Identify every point not yet in the store (:func:`run_tasks` with :func:`identify_point`)."""
+    return run_tasks(campaign, out, executor, task_of, identify_point, **kw)
+
+
+def run_tasks(campaign: Campaign, out: str | Path, executor, make_task: Callable, job: Callable, *,
+              folder: str = "points", label: str = "identifying", retry_failed: bool = False,
+              progress: bool = True, on_result: Callable | None = None) -> dict:
+    """Run ``job`` on every point's task (``make_task(campaign, point)``) not yet in the store
+    ``<out>/<folder>``, each record stored as it arrives; return (and append to
+    ``<out>/runs.jsonl``) the statistics: points, already done, computed, failed, wall time,
     the coordinator's peak memory."""
-    store = Store(out)
+    store = Store(out, folder)
     started = time.perf_counter()
-    stats = {"points": len(campaign.points), "already_done": 0, "computed": 0, "failed": 0,
+    stats = {"command": label, "points": len(campaign.points), "already_done": 0, "computed": 0, "failed": 0,
              "executor": executor.name, "workers": getattr(executor, "workers", None)}
     seen: set[str] = set()
 
     def todo():
         for point in campaign.points:
             try:
-                task = task_of(campaign, point)
+                task = make_task(campaign, point)
             except PseudostepError as exc:
                 key, record = input_failure(point, campaign, exc)
                 store.put(key, record)
                 stats["failed"] += 1
                 _say(f"FAILED {point.name}: {exc}")
+                bar.update(1)
                 continue
             if task["key"] in seen:
+                bar.update(1)
                 continue  # two points with identical inputs share one record
             seen.add(task["key"])
             old = store.get(task["key"])
@@ -106,9 +116,9 @@ def run_campaign(campaign: Campaign, out: str | Path, executor, *, retry_failed:
                 continue
             yield task
 
-    bar = _bar(len(campaign.points), progress)
+    bar = _bar(len(campaign.points), progress, label)
     try:
-        for task, record in executor.map(identify_point, todo()):
+        for task, record in executor.map(job, todo()):
             store.put(task["key"], record)
             stats["computed"] += 1
             if record["status"] != "ok":
@@ -130,8 +140,8 @@ def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def _bar(total: int, enabled: bool):
+def _bar(total: int, enabled: bool, label: str):
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="point", desc="identifying", disable=not enabled, file=sys.stderr,
+    return tqdm(total=total, unit="point", desc=label, disable=not enabled, file=sys.stderr,
                 dynamic_ncols=True, leave=True)

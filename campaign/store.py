@@ -17,6 +17,8 @@ from pathlib import Path
 
 RECORD_VERSION = 1
 CHUNK = 1 << 20
+LABELS = ("name", "key", "profile_source")  # not inputs: renaming a point recomputes nothing
+FILES = ("runs", "validate")
 
 
 def pseudostep_version() -> str:
@@ -37,21 +39,22 @@ def file_digest(path: str | Path) -> str:
 
 
 def point_key(task: dict) -> str:
-    """The hash of a point's inputs (a task of :func:`campaign.runner.tasks`): 24 hex digits."""
-    inputs = {"record": RECORD_VERSION, "pseudostep": pseudostep_version(),
-              "runs": [file_digest(p) for p in task["runs"]],
-              "validate": [file_digest(p) for p in task["validate"]],
-              "profile": task["profile"], "channel_map": task["channel_map"],
-              "method": task["method"], "refine": task["refine"], "options": task["options"]}
+    """The hash of a task's inputs (24 hex digits): every entry but its labels (``name``, ``key``,
+    ``profile_source``), run files (``runs``, ``validate``) by their contents, with the versions."""
+    inputs = {k: v for k, v in task.items() if k not in LABELS}
+    for k in FILES:
+        if k in inputs:
+            inputs[k] = [file_digest(p) for p in inputs[k]]
+    inputs.update(record=RECORD_VERSION, pseudostep=pseudostep_version())
     text = json.dumps(inputs, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
 class Store:
-    """Records under ``<out>/points/<key>.json``."""
+    """Records under ``<out>/<folder>/<key>.json`` (``points``: identification, ``designs``)."""
 
-    def __init__(self, out: str | Path):
-        self.folder = Path(out) / "points"
+    def __init__(self, out: str | Path, folder: str = "points"):
+        self.folder = Path(out) / folder
         self.folder.mkdir(parents=True, exist_ok=True)
         for stale in self.folder.glob(".*.tmp"):  # a write a kill interrupted: never a record
             stale.unlink(missing_ok=True)
