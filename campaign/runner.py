@@ -91,7 +91,7 @@ def run_tasks(campaign: Campaign, out: str | Path, executor, make_task: Callable
     store = Store(out, folder)
     started = time.perf_counter()
     stats = {"command": label, "points": len(campaign.points), "already_done": 0, "computed": 0, "failed": 0,
-             "executor": executor.name, "workers": getattr(executor, "workers", None)}
+             "shared": 0, "executor": executor.name, "workers": getattr(executor, "workers", None)}
     seen: set[str] = set()
 
     def todo():
@@ -106,6 +106,7 @@ def run_tasks(campaign: Campaign, out: str | Path, executor, make_task: Callable
                 bar.update(1)
                 continue
             if task["key"] in seen:
+                stats["shared"] += 1
                 bar.update(1)
                 continue  # two points with identical inputs share one record
             seen.add(task["key"])
