@@ -27,7 +27,7 @@ def add_demo(sub) -> None:
 
 COMMANDS = {"demo": add_demo}  # subcommand -> adds its parser
 COMMANDS.update(design=commands.add_design, identify=commands.add_identify,  # the test campaign
-                stitch=commands.add_stitch, report=commands.add_report)
+                stitch=commands.add_stitch, report=commands.add_report, synthetic=commands.add_synthetic)
 
 
 def build_parser() -> Parser:

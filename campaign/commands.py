@@ -60,7 +60,7 @@ def cmd_identify(args) -> int:
         executor.close()
     print(f"{stats['points']} points: {stats['computed']} identified now, {stats['already_done']} already "
           f"stored, {stats['failed']} failed ({stats['executor']}, {stats['workers']} workers, "
-          f"{stats['seconds']:.1f} s)")
+          f"{stats['seconds']:.1f} s after {stats['startup_s']:.1f} s to start them)")
     report = write_report(campaign, args.out)
     print(f"written to {args.out}: points/, results.csv, trends.png, {report.name}")
     return 0
@@ -167,6 +167,34 @@ def add_report(sub) -> None:
     p = sub.add_parser("report", help="(re)write the campaign report: failures, trends, stitch, tables")
     _common(p)
     p.set_defaults(func=cmd_report)
+
+
+def cmd_synthetic(args) -> int:
+    import numpy as np
+
+    from .synthetic import write_campaign
+
+    speeds = np.linspace(args.min_speed, args.max_speed, args.points)
+    undeclared = (args.points // 2,) if args.undeclared else ()
+    manifest = write_campaign(args.out, speeds, runs=args.runs, seed=args.seed, undeclared=undeclared,
+                              duration=args.duration)
+    print(f"{args.points} test points x {args.runs} runs written to {args.out}: {manifest.name} (the manifest), "
+          f"truth.csv (the true derivatives){f'; undeclared control delay at point {undeclared[0]}' if undeclared else ''}")
+    return 0
+
+
+def add_synthetic(sub) -> None:
+    p = sub.add_parser("synthetic", help="write a synthetic campaign (Navion over airspeed) to try the commands on")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="folder for the runs and the manifest")
+    p.add_argument("--points", type=positive_int, default=12, help="test points (default 12)")
+    p.add_argument("--runs", type=positive_int, default=4, help="runs per point, the last held out (default 4)")
+    p.add_argument("--min-speed", type=positive_float, default=35.0, metavar="M/S", help="lowest airspeed (35)")
+    p.add_argument("--max-speed", type=positive_float, default=80.0, metavar="M/S", help="highest airspeed (80)")
+    p.add_argument("--duration", type=positive_float, default=15.0, metavar="S", help="run length (15)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    p.add_argument("--undeclared", action="store_true",
+                   help="one point with a 0.15 s control delay no model declares (it breaks the trends)")
+    p.set_defaults(func=cmd_synthetic)
 
 
 def _say(text: str) -> None:

@@ -24,6 +24,17 @@ from identify.errors import CampaignError
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
+def warm_up(_=None) -> int:
+    """Load the identification libraries in a fresh worker (done once per worker at start, so
+    that a campaign's timing is the points' work, not the imports); returns the process id."""
+    import time
+
+    import identify.estimators.ml  # noqa: F401
+    import identify.refine.evaluation  # noqa: F401
+    time.sleep(0.2)  # long enough that each worker of a pool takes one
+    return os.getpid()
+
+
 def crash_record(task: dict, reason: str) -> dict:
     return {"point": task["name"], "key": task["key"], "status": "failed", "reason": reason,
             "method": task["method"], "refine": task["refine"], "warnings": [], "seconds": None,
@@ -35,6 +46,9 @@ class Serial:
 
     name = "serial"
     workers = 1
+
+    def start(self):
+        warm_up()
 
     def map(self, fn: Callable, tasks: Iterable) -> Iterator:
         for task in tasks:
@@ -56,6 +70,12 @@ class LocalPool:
         self.window = window or 4 * self.workers
         self.max_crashes = max_crashes
         self._pool = None
+
+    def start(self):
+        """Start the workers and load the libraries in each."""
+        if self._pool is None:
+            self._start()
+            list(self._pool.map(warm_up, range(self.workers)))
 
     def _start(self):
         import multiprocessing as mp
@@ -144,6 +164,7 @@ class DaskExecutor:
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                             host="127.0.0.1", dashboard_address=None, silence_logs=40)
             self.client = Client(self.cluster)
+            self.client.run(warm_up)
         else:
             try:
                 self.client = Client(self.scheduler, security=self.security, timeout="30s")

@@ -103,4 +103,4 @@ def _runs(path: Path) -> list[str]:
     return ["## Last run", "",
             f"{last['command']}: {last['computed']} computed, {last['already_done']} already stored, "
             f"{last['failed']} failed; executor {last['executor']} ({last['workers']} workers), "
-            f"{last['seconds']:.1f} s, coordinator peak memory {last['peak_rss_mb']:.0f} MB.", ""]
+            f"{last['seconds']:.1f} s (+ {last.get('startup_s', 0):.1f} s to start), coordinator peak memory {last['peak_rss_mb']:.0f} MB.", ""]
