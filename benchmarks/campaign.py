@@ -89,6 +89,22 @@ def subset(manifest: Path, count: int) -> Path:
     return small
 
 
+def truth_ratio(manifest: Path, name: str) -> float:
+    """Prediction error of the true model at a point over the point's own model's, on all its runs."""
+    from campaign.manifest import load_manifest
+    from campaign.point import prediction_error
+    from campaign.synthetic import truth
+    from identify.data.io import read_run_files
+    from identify.model.profile import parse_profile
+
+    point = next(p for p in load_manifest(manifest).points if p.name == name)
+    rec = next(json.loads(f.read_text()) for f in (OUT / "serial" / "points").glob("*.json")
+               if json.loads(f.read_text())["point"] == name)
+    own = parse_profile(rec["identified_profile"])
+    runs = read_run_files(rec["runs"] + rec["validate"], None, own)
+    return prediction_error(truth(point.condition["airspeed"]), runs) / prediction_error(own, runs)
+
+
 def main(n_points: int = 200) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     data = OUT / "data"
@@ -159,6 +175,12 @@ def main(n_points: int = 200) -> None:
     print("\n5. stitched model on 3 held-out airspeeds (campaign stitch --hold-out 3)", flush=True)
     proc = cli("stitch", manifest, "--out", OUT / "serial", "--hold-out", "3")
     print("  " + proc.stdout.strip().replace("\n", "\n  "), flush=True)
+    print("  reference, the true model on the same runs (the best a stitch can do; the own model, fitted to "
+          "turbulent runs, can beat it):")
+    for c in json.loads((OUT / "serial" / "stitch" / "stitch.json").read_text())["verification"]:
+        if "ratio" in c:
+            print(f"    {c['point']}: truth / own model x{truth_ratio(manifest, c['point']):.3f} "
+                  f"(stitched / own x{c['ratio']:.3f})", flush=True)
     print(f"\nreport: {OUT / 'serial' / 'report.md'}; {load()}")
 
 

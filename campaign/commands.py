@@ -128,7 +128,7 @@ def cmd_stitch(args) -> int:
         if unknown:
             raise CampaignError(f"--hold-out-points: no point named {', '.join(unknown)}")
     else:
-        held = st.held_out_points(campaign, recs, args.hold_out) if args.hold_out else []
+        held = st.held_out_points(campaign, recs, table, args.hold_out) if args.hold_out else []
     profile, summary = st.stitch(campaign, recs, table, exclude=held)
     checks = st.verify(profile, campaign, recs, held)
     paths = st.write(Path(args.out) / "stitch", profile, summary, checks)
@@ -136,9 +136,10 @@ def cmd_stitch(args) -> int:
           f"{summary['range'][0]:g}..{summary['range'][1]:g}: {paths['profile']}")
     for c in checks:
         if "ratio" in c:
+            held = f"; on its held-out runs x{c['validation_ratio']:.3f}" if "validation_ratio" in c else ""
             print(f"  held out {c['point']} ({summary['condition']} {c[summary['condition']]:g}): prediction error "
-                  f"own model {c['own_error']:.4f}, stitched {c['stitched_error']:.4f} (x{c['ratio']:.3f}, "
-                  f"{'within' if c['within_10pct'] else 'NOT within'} 10 %)")
+                  f"on its runs: own model {c['own_error']:.4f}, stitched {c['stitched_error']:.4f} "
+                  f"(x{c['ratio']:.3f}, {'within' if c['within_10pct'] else 'NOT within'} 10 %){held}")
         else:
             print(f"  held out {c['point']}: not verified ({c['error']})")
     write_report(campaign, args.out)

@@ -71,9 +71,12 @@ def _breaks(trends, cond) -> list[str]:
 
 
 def _poor(trends) -> list[str]:
-    lines = ["## Poorly identified estimates", "", "| parameter | points | of |", "| --- | ---: | ---: |"]
-    lines += [f"| `{t.parameter}` | {int(t.poor.sum())} | {len(t.points)} |" for t in trends]
-    return lines + [""]
+    lines = ["## Poorly identified estimates and scatter", "",
+             "| parameter | poorly identified | of | scatter / std |", "| --- | ---: | ---: | ---: |"]
+    lines += [f"| `{t.parameter}` | {int(t.poor.sum())} | {len(t.points)} | {t.scale:.2f} |" for t in trends]
+    return lines + ["", "Scatter / std: how much more the estimates scatter about their trend than their standard "
+                        "errors say (robust; at least 1). Above 1 the Cramér-Rao bounds are optimistic (turbulence, "
+                        "coloured residuals) and the 3-std test uses the observed scatter.", ""]
 
 
 def _stitch(path: Path, cond) -> list[str]:
@@ -86,11 +89,12 @@ def _stitch(path: Path, cond) -> list[str]:
     checks = [c for c in s.get("verification", []) if "ratio" in c]
     if checks:
         lines += ["Held-out points (not part of the stitch): prediction error of the stitched model against "
-                  "the point's own model, on the point's runs:", "",
-                  f"| point | {cond} | runs | own model | stitched | ratio | within 10 % |",
-                  "| --- | ---: | --- | ---: | ---: | ---: | --- |"]
-        lines += [f"| {c['point']} | {c[cond]:g} | {c['runs']} | {c['own_error']:.4f} | {c['stitched_error']:.4f} | "
-                  f"{c['ratio']:.3f} | {'yes' if c['within_10pct'] else 'NO'} |" for c in checks]
+                  "the point's own model, on all the point's runs (and on its held-out runs alone):", "",
+                  f"| point | {cond} | own model | stitched | ratio | within 10 % | ratio on held-out runs |",
+                  "| --- | ---: | ---: | ---: | ---: | --- | ---: |"]
+        lines += [f"| {c['point']} | {c[cond]:g} | {c['own_error']:.4f} | {c['stitched_error']:.4f} | "
+                  f"{c['ratio']:.3f} | {'yes' if c['within_10pct'] else 'NO'} | "
+                  f"{c.get('validation_ratio', float('nan')):.3f} |" for c in checks]
     errors = [c for c in s.get("verification", []) if "error" in c]
     lines += [f"- {c['point']}: not verified ({c['error']})" for c in errors]
     return lines + [""]

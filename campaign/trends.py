@@ -6,7 +6,9 @@ BIC; its covariance is inflated by the reduced chi-square when the points scatte
 standard errors say (never deflated). A point *breaks the trend* when it lies more than 3 standard
 deviations (its own and the trend's at that condition, combined) from the trend fitted without it
 (leave one out, so that the point cannot pull the trend towards itself); those points are left
-out of the final trend. A point is *poorly identified* when its relative standard error exceeds
+out of the final trend. A point's own std is taken at the campaign's observed scatter when that
+is larger (:func:`scatter_ratio`, robust): Cramér-Rao bounds from turbulent flight data are
+optimistic, and at their face value about one point in 20 would "break" some trend by chance. A point is *poorly identified* when its relative standard error exceeds
 the Cramér-Rao guideline (20 %, Tischler & Remple) or its fit did not converge; it is shaded in
 the plots and weighs little in the trend (its large std).
 """
@@ -93,6 +95,7 @@ class Trend:
     breaks: np.ndarray = field(default=None)
     z: np.ndarray = field(default=None)
     fit: Fit | None = None
+    scale: float = 1.0  # the points' scatter about the trend in units of their std (>= 1)
 
 
 def trend(parameter: str, points, x, value, std, poor) -> Trend:
@@ -100,18 +103,30 @@ def trend(parameter: str, points, x, value, std, poor) -> Trend:
     x, value, std, poor = (np.asarray(a, float) for a in (x, value, std, poor))
     poor = poor.astype(bool)
     usable = np.isfinite(value) & np.isfinite(std) & (std > 0)
-    z = np.full(len(x), np.nan)
+    resid, sd = np.full(len(x), np.nan), np.full(len(x), np.nan)
     idx = np.flatnonzero(usable)
     if len(idx) >= 4:  # fewer leave no trend to break
         for i in idx:
             rest = idx[idx != i]
-            f = best_fit(x[rest], value[rest], std[rest])
-            mean, sd = f(x[i])
-            z[i] = (value[i] - mean[0]) / math.hypot(std[i], sd[0])
+            mean, s = best_fit(x[rest], value[rest], std[rest])(x[i])
+            resid[i], sd[i] = value[i] - mean[0], s[0]
+    scale = scatter_ratio(resid[idx] / std[idx]) if len(idx) >= 4 else 1.0
+    z = resid / np.hypot(scale * std, sd)
     breaks = np.abs(z) > BREAK_SIGMA
     kept = usable & ~breaks
     fit = best_fit(x[kept], value[kept], std[kept]) if kept.sum() >= 1 else None
-    return Trend(parameter, list(points), x, value, std, poor, breaks, z, fit)
+    return Trend(parameter, list(points), x, value, std, poor, breaks, z, fit, scale)
+
+
+def scatter_ratio(normalised: np.ndarray) -> float:
+    """How much more the points scatter about their trend than their standard errors say: the
+    robust standard deviation (1.4826 x median absolute deviation) of the residuals in units of
+    each point's std, never below 1. Robust, so that the points with an undeclared effect (a few
+    at tens of std) do not hide themselves by inflating it."""
+    r = normalised[np.isfinite(normalised)]
+    if r.size < 4:
+        return 1.0
+    return max(1.0, float(1.4826 * np.median(np.abs(r - np.median(r)))))
 
 
 def campaign_trends(table: list[dict], condition: str) -> list[Trend]:
