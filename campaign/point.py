@@ -56,6 +56,8 @@ def _identify(task: dict) -> dict:
         refiner = Refine(profile, method=task["method"], estimator_options=options).fit(runs, validate=held)
         result, final = refiner.result_, refiner.profile_
         steps = [{"effect": s.effect, "target": s.target, "statistic": s.statistic} for s in refiner.steps_]
+        steps += [{"rejected": f"{s.effect} on {s.target}", "reason": s.reason} for s in refiner.rejected_]
+        steps.append({"stopped": refiner.stopped_})
     else:
         result = estimator_class(task["method"])(profile, **options).fit(runs).result_
         final = result.identified_profile()
@@ -77,10 +79,12 @@ def prediction_error(profile, runs) -> float:
     outputs (dimensionless; 0 is perfect, ~1 no better than the mean)."""
     import numpy as np
 
-    from identify.refine.evaluation import errors, predict
+    from identify.refine.evaluation import predict
 
-    scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in profile.outputs])
-    return errors(predict(profile, runs), profile.outputs, scale)["overall"]
+    residuals = np.vstack(predict(profile, runs).residuals)
+    measured = np.vstack([r.matrix(list(profile.outputs)) for r in runs])
+    spread = np.where(measured.std(axis=0) > 0, measured.std(axis=0), 1.0)
+    return float(np.sqrt(np.mean((np.sqrt(np.mean(residuals ** 2, axis=0)) / spread) ** 2)))
 
 
 def _jsonable(obj):

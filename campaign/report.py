@@ -39,6 +39,8 @@ def write_report(campaign, out) -> Path:
                   f"(weighted polynomial, degree by BIC) with its ±2 std band; red circles: points more than "
                   f"{BREAK_SIGMA:g} std from the trend fitted without them; grey and shaded: poorly identified "
                   f"(relative std > {POOR_REL_STD:g} % or not converged).", "", "![trends](trends.png)", ""]
+    if campaign.refine:
+        lines += _refined(out, campaign)
     lines += _stitch(out / "stitch" / "stitch.json", cond)
     lines += _runs(out / "runs.jsonl")
     lines += ["## Tables", "", f"- `{tables['csv'].name}`: one row per (point, parameter)"]
@@ -77,6 +79,18 @@ def _poor(trends) -> list[str]:
     return lines + ["", "Scatter / std: how much more the estimates scatter about their trend than their standard "
                         "errors say (robust; at least 1). Above 1 the Cramér-Rao bounds are optimistic (turbulence, "
                         "coloured residuals) and the 3-std test uses the observed scatter.", ""]
+
+
+def _refined(out, campaign) -> list[str]:
+    from .table import records
+
+    lines = ["## Refinement", "", "| point | effects added | stopped |", "| --- | --- | --- |"]
+    for point, rec in records(campaign, out):
+        steps = (rec or {}).get("refine_steps") or []
+        added = ", ".join(f"{s['effect']} on {s['target']}" for s in steps if "effect" in s) or "none"
+        stopped = next((s["stopped"] for s in steps if "stopped" in s), "")
+        lines.append(f"| {point.name} | {added} | {stopped.replace('|', '/')} |")
+    return lines + ["", "Rejected candidates and their reasons are in each point's record (`points/<key>.json`).", ""]
 
 
 def _stitch(path: Path, cond) -> list[str]:
