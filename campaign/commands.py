@@ -131,17 +131,29 @@ def cmd_stitch(args) -> int:
         held = st.held_out_points(campaign, recs, table, args.hold_out) if args.hold_out else []
     profile, summary = st.stitch(campaign, recs, table, exclude=held)
     checks = st.verify(profile, campaign, recs, held)
+    if args.check:  # a held-out campaign: its points identified (resumable), each judged
+        from .manifest import load_manifest
+        from .runner import run_campaign
+
+        other = load_manifest(args.check)
+        executor = _executor(args)
+        try:
+            run_campaign(other, Path(args.out) / "check", executor, progress=not args.no_progress)
+        finally:
+            executor.close()
+        checks += st.verify(profile, other, records(other, Path(args.out) / "check"), [p.name for p in other.points],
+                            label="check")
     paths = st.write(Path(args.out) / "stitch", profile, summary, checks)
     print(f"stitched {summary['points']} points over {summary['condition']} "
           f"{summary['range'][0]:g}..{summary['range'][1]:g}: {paths['profile']}")
     for c in checks:
         if "ratio" in c:
             held = f"; on its held-out runs x{c['validation_ratio']:.3f}" if "validation_ratio" in c else ""
-            print(f"  held out {c['point']} ({summary['condition']} {c[summary['condition']]:g}): prediction error "
+            print(f"  {c['set']} {c['point']} ({summary['condition']} {c[summary['condition']]:g}): prediction error "
                   f"on its runs: own model {c['own_error']:.4f}, stitched {c['stitched_error']:.4f} "
                   f"(x{c['ratio']:.3f}, {'within' if c['within_10pct'] else 'NOT within'} 10 %){held}")
         else:
-            print(f"  held out {c['point']}: not verified ({c['error']})")
+            print(f"  {c['set']} {c['point']}: not verified ({c['error']})")
     write_report(campaign, args.out)
     bad = [c for c in checks if not c.get("within_10pct")]
     return 1 if bad else 0
@@ -153,6 +165,9 @@ def add_stitch(sub) -> None:
     p.add_argument("--hold-out", type=int, default=0, metavar="N",
                    help="leave N interior points out of the stitch and check the stitched model on them")
     p.add_argument("--hold-out-points", metavar="NAMES", help="comma-separated points to leave out and check on")
+    p.add_argument("--check", metavar="MANIFEST",
+                   help="a held-out campaign: identify its points (into OUT/check) and check the stitched model on each")
+    _executor_options(p)
     p.set_defaults(func=cmd_stitch)
 
 

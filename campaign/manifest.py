@@ -33,6 +33,7 @@ from identify.errors import CampaignError
 POINT_KEYS = {"name", "runs", "validate", "profile", "channel_map"}
 CAMPAIGN_KEYS = {"name", "method", "refine", "condition", "profile", "channel_map", "matrix"}
 TRIM = "trim_"
+FILE_SUFFIXES = (".csv", ".mat", ".toml", ".json", ".txt")
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,7 @@ class Point:
             raise CampaignError(f"point {self.name}: no runs listed")
         out = []
         for pattern in getattr(self, which):
-            path = Path(pattern) if Path(pattern).is_absolute() else Path(self.root) / pattern
+            path = (Path(self.root) / pattern).resolve()  # absolute: a worker may run elsewhere
             if glob.has_magic(str(path)):
                 found = sorted(Path(p) for p in glob.glob(str(path)))
                 if not found:
@@ -167,6 +168,9 @@ def _point(i: int, row: dict, head: dict, profile: str | None, path: Path) -> Po
             continue
         if not isinstance(v, (int, float, str)) or isinstance(v, bool):
             raise CampaignError(f"{where}: condition '{k}' must be a number or text, got {v!r}")
+        if isinstance(v, str) and v.lower().endswith(FILE_SUFFIXES):  # a misspelt key, not a condition
+            raise CampaignError(f"{where}: '{k}' = {v!r} names a file but is no point key "
+                                f"(keys: {', '.join(sorted(POINT_KEYS))}; other keys are conditions)")
         if k.startswith(TRIM):
             if isinstance(v, str):
                 raise CampaignError(f"{where}: trim value '{k}' must be a number, got {v!r}")

@@ -104,9 +104,9 @@ def _stitch(path: Path, cond) -> list[str]:
     if checks:
         lines += ["Held-out points (not part of the stitch): prediction error of the stitched model against "
                   "the point's own model, on all the point's runs (and on its held-out runs alone):", "",
-                  f"| point | {cond} | own model | stitched | ratio | within 10 % | ratio on held-out runs |",
-                  "| --- | ---: | ---: | ---: | ---: | --- | ---: |"]
-        lines += [f"| {c['point']} | {c[cond]:g} | {c['own_error']:.4f} | {c['stitched_error']:.4f} | "
+                  f"| point | set | {cond} | own model | stitched | ratio | within 10 % | ratio on held-out runs |",
+                  "| --- | --- | ---: | ---: | ---: | ---: | --- | ---: |"]
+        lines += [f"| {c['point']} | {c.get('set', 'held out')} | {c[cond]:g} | {c['own_error']:.4f} | {c['stitched_error']:.4f} | "
                   f"{c['ratio']:.3f} | {'yes' if c['within_10pct'] else 'NO'} | "
                   f"{c.get('validation_ratio', float('nan')):.3f} |" for c in checks]
     errors = [c for c in s.get("verification", []) if "error" in c]

@@ -74,7 +74,7 @@ def stitch(campaign, records: list[tuple], table: list[dict], exclude=(), breakp
     meta = {**base.meta, "schedule": schedule, "stitched_from": [p.name for p, _ in ok],
             "condition": {cond: float(at[mid])}}
     from dataclasses import replace
-    profile = replace(profile, meta=meta, description=f"Stitched from {len(ok)} test points; "
+    profile = replace(profile, meta=meta, source="<stitched profile>", description=f"Stitched from {len(ok)} test points; "
                       f"values at {cond} = {at[mid]:g}; tables in [meta.schedule]")
     summary = {"condition": cond, "points": len(ok), "range": [float(at[0]), float(at[-1])],
                "held_out": sorted(held), "breaking_trends_left_out": breaking,
@@ -94,39 +94,43 @@ def breaking_points(table: list[dict], cond: str) -> dict[str, list[str]]:
     return out
 
 
-def verify(stitched, campaign, records: list[tuple], names) -> list[dict]:
+def verify(stitched, campaign, records: list[tuple], names, label: str = "held out") -> list[dict]:
     """Per point in ``names``: the stitched model at the point's condition against the point's
     own identified model, both judged on all the point's runs (fitted and held-out: the own model
     has the advantage of having been fitted to most of them) and, apart, on its held-out runs."""
     from identify.data.io import load_channel_map, read_run_files
     from identify.errors import PseudostepError
     from identify.model.pseudo_inputs import prepare
-    from identify.model.schedule import at_condition
+    from identify.model.schedule import at_condition, schedule_of
 
     from .point import prediction_error
 
-    cond = campaign.trend_condition
+    cond = schedule_of(stitched)["condition"]
     by_name = {p.name: (p, r) for p, r in records}
     out = []
     for name in names:
         point, rec = by_name[name]
         if not rec or rec["status"] != "ok":
-            out.append({"point": name, "error": "the point has no identified model"})
+            out.append({"point": name, "set": label, "error": "the point has no identified model"})
             continue
         own = parse_profile(rec["identified_profile"], source=name)
         cmap = load_channel_map(Path(point.root) / point.channel_map) if point.channel_map else None
+        if not isinstance(point.condition.get(cond), (int, float)):
+            out.append({"point": name, "set": label, "error": f"no numeric '{cond}' column"})
+            continue
         try:
             here = at_condition(stitched, float(point.condition[cond]))
         except PseudostepError as exc:  # outside the schedule
-            out.append({"point": name, "error": str(exc)})
+            out.append({"point": name, "set": label, "error": str(exc)})
             continue
-        check = {"point": name, cond: point.condition[cond]}
-        for label, files in (("", rec["runs"] + rec["validate"]), ("validation_", rec["validate"])):
+        check = {"point": name, "set": label, cond: point.condition[cond]}
+        fit, held = point.files("runs"), point.files("validate")  # as the manifest has them now
+        for prefix, files in (("", fit + held), ("validation_", held)):
             if files:
                 runs = read_run_files(files, cmap, own)
-                check[f"{label}own_error"] = prediction_error(own, prepare(own, runs))
-                check[f"{label}stitched_error"] = prediction_error(here, prepare(here, runs))
-                check[f"{label}ratio"] = check[f"{label}stitched_error"] / check[f"{label}own_error"]
+                check[f"{prefix}own_error"] = prediction_error(own, prepare(own, runs))
+                check[f"{prefix}stitched_error"] = prediction_error(here, prepare(here, runs))
+                check[f"{prefix}ratio"] = check[f"{prefix}stitched_error"] / check[f"{prefix}own_error"]
         check["within_10pct"] = bool(check["ratio"] <= TOLERANCE)
         out.append(check)
     return out
