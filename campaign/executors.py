@@ -160,7 +160,10 @@ class DaskExecutor:
         if self.client is not None:
             return self.client
         if self.scheduler is None:
-            with dask.config.set({"distributed.nanny.pre-spawn-environ": ONE_THREAD}):
+            # the workers' statistical profiler samples the running task every 10 ms: off, it only
+            # costs CPU here
+            with dask.config.set({"distributed.nanny.pre-spawn-environ": ONE_THREAD,
+                                  "distributed.worker.profile.enabled": False}):
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                             host="127.0.0.1", dashboard_address=None, silence_logs=40)
             self.client = Client(self.cluster)
