@@ -21,6 +21,8 @@ from collections.abc import Callable, Iterable, Iterator
 
 from identify.errors import CampaignError
 
+from .point import failure_record
+
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -33,12 +35,6 @@ def warm_up(_=None) -> int:
     import identify.refine.evaluation  # noqa: F401
     time.sleep(0.2)  # long enough that each worker of a pool takes one
     return os.getpid()
-
-
-def crash_record(task: dict, reason: str) -> dict:
-    return {"point": task["name"], "key": task["key"], "status": "failed", "reason": reason,
-            "method": task["method"], "refine": task["refine"], "warnings": [], "seconds": None,
-            "runs": [str(p) for p in task["runs"]], "validate": [str(p) for p in task["validate"]]}
 
 
 class Serial:
@@ -63,7 +59,7 @@ class LocalPool:
 
     name = "local"
 
-    def __init__(self, workers: int | None = None, window: int | None = None, max_crashes: int = 2):
+    def __init__(self, workers: int | None = None, window: int | None = None, max_crashes: int = 3):
         self.workers = workers or os.cpu_count() or 1
         if self.workers < 1:
             raise CampaignError(f"workers must be at least 1, got {self.workers}")
@@ -128,7 +124,7 @@ class LocalPool:
                     crashes[task["key"]] = crashes.get(task["key"], 0) + 1
                     if crashes[task["key"]] >= self.max_crashes:
                         retry.remove(task)
-                        yield task, crash_record(task, f"worker process died {crashes[task['key']]} times "
+                        yield task, failure_record(task, f"worker process died {crashes[task['key']]} times "
                                                        f"while this point was running")
             fill()
 
@@ -202,7 +198,7 @@ class DaskExecutor:
             try:
                 result = fut.result()
             except Exception as exc:  # the scheduler gave up on it (KilledWorker) or it never ran
-                result = crash_record(task, f"{type(exc).__name__} on the Dask cluster: {exc}")
+                result = failure_record(task, f"{type(exc).__name__} on the Dask cluster: {exc}")
             fut.release()
             yield task, result
             nxt = next(source, None)

@@ -18,6 +18,20 @@ RECORD_FIELDS = ("status", "reason", "method", "refine", "converged", "parameter
                  "validation_error", "identified_profile", "warnings", "runs", "validate", "refine_steps")
 
 
+def failure_record(task: dict, reason: str) -> dict:
+    """The record of a task that produced no result (its inputs, a worker that died): the task's
+    labels, ``status = "failed"`` and the reason; no estimates."""
+    record = {"point": task["name"], "key": task["key"], "status": "failed", "reason": reason,
+              "warnings": [], "seconds": None}
+    for k in ("method", "refine"):
+        if k in task:
+            record[k] = task[k]
+    for k in ("runs", "validate"):
+        if k in task:
+            record[k] = [str(p) for p in task[k]]
+    return record
+
+
 def identify_point(task: dict) -> dict:
     """The record of one test point (see the module docstring); ``seconds`` is the job's wall time."""
     from threadpoolctl import threadpool_limits

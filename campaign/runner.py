@@ -18,7 +18,7 @@ from pathlib import Path
 from identify.errors import CampaignError, PseudostepError
 
 from .manifest import Campaign, Point
-from .point import identify_point
+from .point import failure_record, identify_point
 from .store import Store, point_key
 
 
@@ -59,9 +59,9 @@ def input_failure(point: Point, campaign: Campaign, exc: PseudostepError) -> tup
     import hashlib
 
     key = "input-" + hashlib.sha256(f"{point.name}\n{exc}".encode()).hexdigest()[:18]
-    return key, {"point": point.name, "key": key, "status": "failed", "reason": str(exc),
-                 "method": campaign.method, "refine": campaign.refine, "warnings": [], "seconds": 0.0,
-                 "runs": list(point.runs), "validate": list(point.validate)}
+    task = {"name": point.name, "key": key, "method": campaign.method, "refine": campaign.refine,
+            "runs": point.runs, "validate": point.validate}
+    return key, failure_record(task, str(exc))
 
 
 def point_keys(campaign: Campaign, make_task: Callable | None = None) -> dict[str, str]:

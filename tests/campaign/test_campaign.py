@@ -158,16 +158,19 @@ def test_dask_worker_killed_mid_campaign_loses_nothing(synthetic, tmp_path, seri
     assert set(dask_executor.worker_pids().values()) != set(pids.values())  # the worker really died
 
 
-def test_stitched_model_predicts_held_out_points_as_well_as_their_own(tmp_path):
+def test_stitched_model_predicts_held_out_points_as_well_as_their_own(tmp_path, capsys):
+    from campaign.cli import main as campaign_main
+    from identify.cli import main as identify_main
+
     manifest = write_campaign(tmp_path / "c", np.linspace(35, 80, 16), runs=3, duration=12.0)
     out = tmp_path / "out"
     assert run_campaign(load_manifest(manifest), out, Serial(), progress=False)["failed"] == 0
     other = write_campaign(tmp_path / "other", [52.0], runs=4, seed=5)  # a held-out campaign, 1 point
-    proc = run_cli("campaign", "stitch", manifest, "--out", out, "--hold-out", "2", "--check", other,
-                   "--executor", "serial", "--no-progress")
+    status = campaign_main(["stitch", str(manifest), "--out", str(out), "--hold-out", "2", "--check", str(other),
+                            "--executor", "serial", "--no-progress"])
     checks = json.loads((out / "stitch" / "stitch.json").read_text())["verification"]
     assert [c["set"] for c in checks] == ["held out", "held out", "check"]
-    assert proc.returncode == (0 if all(c["within_10pct"] for c in checks) else 1), proc.stdout + proc.stderr
+    assert status == (0 if all(c["within_10pct"] for c in checks) else 1), capsys.readouterr()
     assert all(c["ratio"] <= 1.10 for c in checks[:2])
     # on the check point (a turbulence realisation the own model was fitted to), the stitched model
     # predicts as well as the true aircraft does: the most any model of the envelope can do
@@ -184,9 +187,13 @@ def test_stitched_model_predicts_held_out_points_as_well_as_their_own(tmp_path):
     from identify.model.schedule import at_condition
     nxt = load_manifest(other, profile=str(stitched))
     assert point_profile(nxt.points[0]).free == at_condition(load_profile(stitched), 52.0).free
-    shown = run_cli("identify", "model", stitched, "--at", "airspeed=50")
-    assert shown.returncode == 0 and "airspeed = 50" in shown.stdout and "trim:" in shown.stdout
-    one_error_line(run_cli("identify", "model", stitched, "--at", "airspeed=200"), "outside the schedule")
+    capsys.readouterr()
+    assert identify_main(["model", str(stitched), "--at", "airspeed=50"]) == 0
+    shown = capsys.readouterr().out
+    assert "airspeed = 50" in shown and "trim:" in shown
+    assert identify_main(["model", str(stitched), "--at", "airspeed=200"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "outside the schedule" in err[0]
     assert "## Stitched model" in (out / "report.md").read_text()
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
     assert header[:2] == ["point", "airspeed"] and {"parameter", "value", "std", "converged"} <= set(header)
