@@ -39,12 +39,15 @@ def _manifest(args):
 
     return load_manifest(args.manifest, method=getattr(args, "method", None),
                          refine=True if getattr(args, "refine", False) else None,
-                         profile=getattr(args, "profile", None))
+                         profile=getattr(args, "profile", None), condition=args.condition)
 
 
 def _common(p) -> None:
     p.add_argument("manifest", help="campaign manifest (.toml) or test matrix (.csv)")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="campaign output folder")
+    p.add_argument("--condition", metavar="NAME",
+                   help="the condition column trends and the stitch run over (default: the manifest's, else "
+                        "the first numeric column)")
 
 
 def cmd_identify(args) -> int:
@@ -63,7 +66,14 @@ def cmd_identify(args) -> int:
           f"{stats['seconds']:.1f} s after {stats['startup_s']:.1f} s to start them)")
     report = write_report(campaign, args.out)
     print(f"written to {args.out}: points/, results.csv, trends.png, {report.name}")
+    print(f"coordinator peak memory {peak_memory_mb():.0f} MB (this process, identification and report)")
     return 0
+
+
+def peak_memory_mb() -> float:
+    """This process's largest resident set so far (Linux reports kB)."""
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def add_identify(sub) -> None:

@@ -165,10 +165,17 @@ class DaskExecutor:
             self.client = Client(self.cluster)
             self.client.run(warm_up)
         else:
+            if self.security is None and self.scheduler.startswith("tls://"):
+                raise CampaignError(f"{self.scheduler} is a TLS scheduler: give --tls-ca, --tls-cert and --tls-key")
+            if self.security is None:
+                import warnings
+                warnings.warn(f"connecting to {self.scheduler} without TLS (no --tls-ca/--tls-cert/--tls-key): "
+                              f"tasks and results travel unencrypted; only inside a network you trust")
             try:
                 self.client = Client(self.scheduler, security=self.security, timeout="30s")
-            except (OSError, TimeoutError) as exc:
-                raise CampaignError(f"cannot reach the Dask scheduler at {self.scheduler} ({exc})") from None
+            except Exception as exc:  # unreachable, refused, a TLS mismatch: one line, not a traceback
+                raise CampaignError(f"cannot reach the Dask scheduler at {self.scheduler} "
+                                    f"({type(exc).__name__}: {exc})") from None
             self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         return self.client
 

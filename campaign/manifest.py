@@ -21,6 +21,7 @@ from __future__ import annotations
 import csv
 import glob
 import io
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,6 +169,8 @@ def _point(i: int, row: dict, head: dict, profile: str | None, path: Path) -> Po
             continue
         if not isinstance(v, (int, float, str)) or isinstance(v, bool):
             raise CampaignError(f"{where}: condition '{k}' must be a number or text, got {v!r}")
+        if isinstance(v, float) and not math.isfinite(v):
+            raise CampaignError(f"{where}: '{k}' = {v} is not a finite number")
         if isinstance(v, str) and v.lower().endswith(FILE_SUFFIXES):  # a misspelt key, not a condition
             raise CampaignError(f"{where}: '{k}' = {v!r} names a file but is no point key "
                                 f"(keys: {', '.join(sorted(POINT_KEYS))}; other keys are conditions)")
