@@ -222,7 +222,7 @@ def test_panels_are_fed_every_frame_and_drawn_right_of_the_needles(tmp_path, dis
     log = r.fly()
     for panel in panels:  # every frame, the countdown's included, with the frame log's own numbers
         assert [f[0] for f in panel.frames] == list(range(log.time.size))
-        np.testing.assert_allclose([f[1] for f in panel.frames], log.time, atol=1e-6)  # the frame log keeps microseconds
+        np.testing.assert_allclose([f[1] for f in panel.frames], log.time, atol=1e-6)  # logged to 1 µs
         np.testing.assert_allclose([f[2] for f in panel.frames], log.columns["theta_s"])
     if display is None:  # fed without a display, never drawn
         assert not panels[0].rects and not panels[1].rects

@@ -224,8 +224,8 @@ def test_closed_window_aborts_but_keeps_the_log(s3211, tmp_path):
         calls["n"] += 1
         return [pygame.event.Event(pygame.QUIT)] if calls["n"] == 200 else []
 
-    r = Runner([s3211], PilotSource(skill=0.5, seed=2), tmp_path / "q.frames.csv", clock=FakeClock(), events=events, audio=False,
-               schedule=Schedule(countdown=0.5))
+    r = Runner([s3211], PilotSource(skill=0.5, seed=2), tmp_path / "q.frames.csv", clock=FakeClock(), events=events,
+               audio=False, schedule=Schedule(countdown=0.5))
     log = r.fly()
     assert log.aborted and "window closed" in log.status and len(log.time) == 199  # frame 200 never happened
     run = log_to_run(log)
