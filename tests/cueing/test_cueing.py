@@ -357,3 +357,16 @@ def test_practice_history_and_learning_curve(tmp_path):
         load_history("Kaletka", tmp_path)
     with pytest.raises(CueingError, match="pilot name"):
         load_history("../etc", tmp_path)
+
+
+def test_figures_use_no_pyplot_state():
+    """cueing's and campaign's figures are drawn on their own Agg canvas (matplotlib.figure.Figure):
+    no pyplot, no matplotlib.use() switching a caller's backend."""
+    import re
+
+    from tests.helpers import ROOT
+    pyplot = re.compile(r"matplotlib\.pyplot|from matplotlib import .*pyplot|matplotlib\.use\(")
+    files = [f for package in ("cueing", "campaign") for f in sorted((ROOT / package).rglob("*.py"))]
+    hits = [f"{f.relative_to(ROOT)}:{i}" for f in files
+            for i, line in enumerate(f.read_text().splitlines(), 1) if pyplot.search(line)]
+    assert not hits, hits
