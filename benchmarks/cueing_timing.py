@@ -36,7 +36,8 @@ RATE = 60.0
 
 def cueing_run(signal, folder: Path):
     runner = Runner([signal], PilotSource(skill=0.5, seed=1), folder / "t.frames.csv",
-                    schedule=Schedule(rate=RATE, countdown=1.0, tail=0.5), screen=Screen(display="headless"), audio=False)
+                    schedule=Schedule(rate=RATE, countdown=1.0, tail=0.5), screen=Screen(display="headless"),
+                    audio=False)
     log = runner.fly()
     return log, np.array(runner.render_times_)
 

@@ -181,8 +181,8 @@ def test_resized_window_relays_the_display_out(tmp_path):
         calls["n"] += 1
         return [pygame.event.Event(pygame.VIDEORESIZE, size=(1280, 720), w=1280, h=720)] if calls["n"] == 120 else []
 
-    r = Runner([sig], ScriptedSource(lambda t: -0.01), tmp_path / "z.frames.csv", clock=FakeClock(), audio=False, events=events,
-               schedule=Schedule(countdown=0.0),
+    r = Runner([sig], ScriptedSource(lambda t: -0.01), tmp_path / "z.frames.csv", clock=FakeClock(), audio=False,
+               events=events, schedule=Schedule(countdown=0.0),
                screen=Screen(display="headless", screenshot_dir=tmp_path / "shots", screenshot_every=1.0))
     log = r.fly()
     assert any("resized to 1280 x 720" in what for _, what in log.events)
@@ -196,6 +196,41 @@ def test_resized_window_relays_the_display_out(tmp_path):
         assert xp.size == disp.NEEDLE_WIDTH and abs(xp.mean() - expected) <= 1.0
         scale = needle_columns(img, disp.SCALE_COLOR, (y - 1, y + 1))
         assert scale.min() == disp.MARGIN and scale.max() == w - disp.MARGIN  # the scale spans the new width
+
+
+class FilledPanel:
+    """A Panel that records what the runner gives it and fills its rectangle with one colour."""
+
+    def __init__(self, width, color):
+        self.width, self.color, self.frames, self.rects = width, color, [], []
+
+    def update(self, k, t, t_signal, flown, paused):
+        self.frames.append((k, t, float(flown[0])))
+
+    def draw(self, surface, rect):
+        self.rects.append(tuple(rect))
+        surface.fill(self.color, rect)
+
+
+@pytest.mark.parametrize("display", ["headless", None])
+def test_panels_are_fed_every_frame_and_drawn_right_of_the_needles(tmp_path, display):
+    sig = Signal("doublet", "theta_s", 1.0, [1, -1], AMP, delay=0.5)
+    panels = [FilledPanel(100, (255, 0, 0)), FilledPanel(60, (0, 0, 255))]
+    r = Runner([sig], ScriptedSource(lambda t: 0.5 * AMP), tmp_path / "p.frames.csv", clock=FakeClock(), audio=False,
+               schedule=Schedule(countdown=0.5), screen=Screen(display=display, screenshot_dir=tmp_path / "s"),
+               panels=panels)
+    log = r.fly()
+    for panel in panels:  # every frame, the countdown's included, with the frame log's own numbers
+        assert [f[0] for f in panel.frames] == list(range(log.time.size))
+        np.testing.assert_allclose([f[1] for f in panel.frames], log.time, atol=1e-6)  # logged to 1 µs
+        np.testing.assert_allclose([f[2] for f in panel.frames], log.columns["theta_s"])
+    if display is None:  # fed without a display, never drawn
+        assert not panels[0].rects and not panels[1].rects
+        return
+    assert set(panels[0].rects) == {(640, 0, 100, 480)} and set(panels[1].rects) == {(740, 0, 60, 480)}
+    assert r.needle_surface.get_size() == (640, 480)  # the needles' layout leaves the panels their room
+    shot = pygame.image.load(str(r.screenshot("last.png")))
+    assert tuple(shot.get_at((700, 240)))[:3] == (255, 0, 0) and tuple(shot.get_at((790, 240)))[:3] == (0, 0, 255)
 
 
 def test_scale_shows_the_input_unit_rad_as_degrees(design):

@@ -224,8 +224,8 @@ def test_closed_window_aborts_but_keeps_the_log(s3211, tmp_path):
         calls["n"] += 1
         return [pygame.event.Event(pygame.QUIT)] if calls["n"] == 200 else []
 
-    r = Runner([s3211], PilotSource(skill=0.5, seed=2), tmp_path / "q.frames.csv", clock=FakeClock(), events=events, audio=False,
-               schedule=Schedule(countdown=0.5))
+    r = Runner([s3211], PilotSource(skill=0.5, seed=2), tmp_path / "q.frames.csv", clock=FakeClock(), events=events,
+               audio=False, schedule=Schedule(countdown=0.5))
     log = r.fly()
     assert log.aborted and "window closed" in log.status and len(log.time) == 199  # frame 200 never happened
     run = log_to_run(log)
@@ -357,3 +357,16 @@ def test_practice_history_and_learning_curve(tmp_path):
         load_history("Kaletka", tmp_path)
     with pytest.raises(CueingError, match="pilot name"):
         load_history("../etc", tmp_path)
+
+
+def test_figures_use_no_pyplot_state():
+    """cueing's and campaign's figures are drawn on their own Agg canvas (matplotlib.figure.Figure):
+    no pyplot, no matplotlib.use() switching a caller's backend."""
+    import re
+
+    from tests.helpers import ROOT
+    pyplot = re.compile(r"matplotlib\.pyplot|from matplotlib import .*pyplot|matplotlib\.use\(")
+    files = [f for package in ("cueing", "campaign") for f in sorted((ROOT / package).rglob("*.py"))]
+    hits = [f"{f.relative_to(ROOT)}:{i}" for f in files
+            for i, line in enumerate(f.read_text().splitlines(), 1) if pyplot.search(line)]
+    assert not hits, hits
