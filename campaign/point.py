@@ -52,9 +52,25 @@ def identify_point(task: dict) -> dict:
     return _jsonable(record)
 
 
+def make_estimator(method: str, profile, options: dict):
+    """The estimator instance of ``method`` with the manifest's ``[options]``; an option the
+    method does not take is one error line (checked by the coordinator before any work)."""
+    import inspect
+
+    from identify.errors import CampaignError
+    from identify.estimators.registry import estimator_class
+
+    cls = estimator_class(method)
+    accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "profile", "progress"}
+    unknown = sorted(set(options) - accepted)
+    if unknown:
+        raise CampaignError(f"[options] {', '.join(unknown)} do not apply to {method} "
+                            f"(its options: {', '.join(sorted(accepted))})")
+    return cls(profile, **options)
+
+
 def _identify(task: dict) -> dict:
     from identify.data.io import load_channel_map, read_run_files
-    from identify.estimators.registry import estimator_class
     from identify.model.profile import parse_profile
     from identify.model.pseudo_inputs import prepare
 
@@ -62,18 +78,18 @@ def _identify(task: dict) -> dict:
     cmap = load_channel_map(task["channel_map"]) if task["channel_map"] else None
     runs = read_run_files(task["runs"], cmap, profile)
     held = read_run_files(task["validate"], cmap, profile)
-    options = dict(task["options"])
+    estimator = make_estimator(task["method"], profile, task["options"])
     steps = []
     if task["refine"]:
         from identify.refine.loop import Refine
 
-        refiner = Refine(profile, method=task["method"], estimator_options=options).fit(runs, validate=held)
+        refiner = Refine(profile, method=task["method"], estimator_options=task["options"]).fit(runs, validate=held)
         result, final = refiner.result_, refiner.profile_
         steps = [{"effect": s.effect, "target": s.target, "statistic": s.statistic} for s in refiner.steps_]
         steps += [{"rejected": f"{s.effect} on {s.target}", "reason": s.reason} for s in refiner.rejected_]
         steps.append({"stopped": refiner.stopped_})
     else:
-        result = estimator_class(task["method"])(profile, **options).fit(runs).result_
+        result = estimator.fit(runs).result_
         final = result.identified_profile()
     out = {"status": "ok" if result.converged else "not converged",
            "reason": "" if result.converged else f"did not converge ({result.info.get('stop', 'no reason given')})",

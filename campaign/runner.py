@@ -18,7 +18,7 @@ from pathlib import Path
 from identify.errors import CampaignError, PseudostepError
 
 from .manifest import Campaign, Point
-from .point import failure_record, identify_point
+from .point import failure_record, identify_point, make_estimator
 from .store import Store, point_key
 
 
@@ -77,7 +77,9 @@ def point_keys(campaign: Campaign, make_task: Callable | None = None) -> dict[st
 
 
 def run_campaign(campaign: Campaign, out: str | Path, executor, **kw) -> dict:
-    """Identify every point not yet in the store (:func:`run_tasks` with :func:`identify_point`)."""
+    """Identify every point not yet in the store (:func:`run_tasks` with :func:`identify_point`);
+    the estimator options are checked first (a wrong one would fail every point)."""
+    make_estimator(campaign.method, None, campaign.options)
     return run_tasks(campaign, out, executor, task_of, identify_point, **kw)
 
 

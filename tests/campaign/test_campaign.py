@@ -230,7 +230,11 @@ def test_design_writes_every_point_and_the_flight_time(tmp_path):
     assert again["computed"] == 0 and again["already_done"] == 1 and again["shared"] == 1  # one a priori model
 
 
-def test_cli_bad_manifest_is_one_line(tmp_path):
+def test_cli_bad_manifest_is_one_line(tmp_path, synthetic):
     bad = tmp_path / "m.toml"
     bad.write_text("[[point]]\nruns = 3\n")
     one_error_line(run_cli("campaign", "identify", bad, "--out", tmp_path / "o"), "runs")
+    wrong = tmp_path / "wrong_option.toml"  # would fail every point: refused before any work
+    wrong.write_text(synthetic.read_text().replace("[campaign]", "[options]\nmax_iterations = 3\n[campaign]", 1))
+    one_error_line(run_cli("campaign", "identify", wrong, "--out", tmp_path / "o"), "max_iterations", "ml")
+    assert not (tmp_path / "o" / "points").exists()
