@@ -172,8 +172,8 @@ def cmd_refine(args) -> int:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
     profile = load_profile(args.profile)
     refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
-                     kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
-                     tau_max=args.tau_max, progress=True)
+                     kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
+                     frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)
     refiner.fit(_read_runs(args.runs, args.channel_map, profile),
                 validate=_read_runs(args.validate or [], args.channel_map, profile))
     if refiner.nothing_found:
