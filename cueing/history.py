@@ -92,8 +92,8 @@ def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
     from matplotlib.figure import Figure
 
     n = np.arange(1, len(records) + 1)
-    fig = Figure(figsize=(7, 7))
-    FigureCanvasAgg(fig)  # drawn off-screen, no pyplot state
+    fig = Figure(figsize=(7, 7))  # on its own Agg canvas: no pyplot state, no display
+    FigureCanvasAgg(fig)
     axes = fig.subplots(3, 1, sharex=True)
     axes[0].plot(n, [100 * _num(r["rms"]) for r in records], "o-")
     axes[0].set_ylabel("RMS error [% amp.]")
