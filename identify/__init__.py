@@ -30,7 +30,7 @@ _LAZY = {
     **dict.fromkeys(["IV", "LS", "state_derivatives"], "estimators.equation_error"),
     **dict.fromkeys(["ML"], "estimators.ml"),  # output-error maximum likelihood
     # the frequency home: equation error (batch, streamed for the cockpit), frequency responses
-    **dict.fromkeys(["FDEE", "RecursiveFDEE"], "estimators.frequency.equation_error"),
+    **dict.fromkeys(["FDEE"], "estimators.frequency.equation_error"),
     **dict.fromkeys(["FrequencyResponse", "frequency_response", "fit_cost"], "estimators.frequency.response"),
 }
 
