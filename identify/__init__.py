@@ -17,7 +17,8 @@ from .errors import ConvergenceWarning, EstimationError, ProfileError, Pseudoste
 
 # public name -> submodule that defines it
 _LAZY = {
-    **dict.fromkeys(["Run", "read_run", "read_runs"], "data.runs"),
+    **dict.fromkeys(["Run"], "data.runs"),
+    **dict.fromkeys(["read_run", "read_runs"], "data.csvfile"),
     **dict.fromkeys(["IdentificationResult"], "estimators.result"),
     **dict.fromkeys(["LinearModel", "Mode", "format_modes", "modes_of", "residualize"], "model.linear"),
     **dict.fromkeys(["Profile", "load_profile", "output_units", "parse_profile"], "model.profile"),

@@ -215,7 +215,7 @@ def cmd_freq(args) -> int:
     """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
     from pathlib import Path
 
-    from .data.runs import read_run
+    from .data.csvfile import read_run
     from .estimators.frequency.bode import plot_bode
     from .estimators.frequency.response import cost_report, frequency_response
 
