@@ -96,6 +96,7 @@ def _estimator(args, profile, show_progress: bool = True):
               file=sys.stderr, flush=True)
 
     estimator = build(args.method, profile, progress=show if show_progress else None,
+                      names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff"},
                       max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None))
     return estimator
 

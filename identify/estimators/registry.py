@@ -30,16 +30,18 @@ def estimator_class(method: str) -> type:
     return estimator_classes()[method]
 
 
-def build(method: str, profile, *, progress=None, **options):
+def build(method: str, profile, *, progress=None, names: dict[str, str] | None = None, **options):
     """An estimator instance of ``method`` for ``profile``. ``options`` (their value None: not
-    given) must be parameters of that estimator, else one clear error naming them; ``progress``
-    (a callable ``(iteration, value, theta)``) is passed where the estimator reports progress."""
+    given) must be parameters of that estimator, else one clear error naming them as the caller
+    calls them (``names``: parameter -> e.g. its command-line flag); ``progress`` (a callable
+    ``(iteration, value, theta)``) is passed where the estimator reports progress."""
     cls = estimator_class(method)
     accepted = set(cls.param_names())
     given = {k: v for k, v in options.items() if v is not None}
     unknown = sorted(set(given) - accepted)
     if unknown:
-        raise EstimationError(f"option(s) {', '.join(unknown)} do not apply to {method} "
+        called = ", ".join((names or {}).get(k, k) for k in unknown)
+        raise EstimationError(f"{called} does not apply to {method} "
                               f"(its options: {', '.join(sorted(accepted - {'profile', 'progress'}))})")
     if progress is not None and "progress" in accepted:
         given["progress"] = progress
