@@ -3,7 +3,9 @@
 Every simulated response in cueing goes through :func:`simulate_profile` (identify's exact
 zero-order-hold simulation): the live source frame by frame (:class:`SimulatedAircraft`) and the
 test point after the flight (:func:`simulate_test_point`). Honouring a profile's declared delays
-and pseudo-inputs is a change to that one function.
+and pseudo-inputs is a change to that one function; the live source hands it one frame interval
+from its current state, so a declared delay will also need it to hand over the inputs of the last
+delay's worth of frames.
 """
 from __future__ import annotations
 
