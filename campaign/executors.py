@@ -32,7 +32,7 @@ def warm_up(_=None) -> int:
     import time
 
     import identify.estimators.ml  # noqa: F401
-    import identify.refine.evaluation  # noqa: F401
+    import identify.estimators.prediction  # noqa: F401
     time.sleep(0.2)  # long enough that each worker of a pool takes one
     return os.getpid()
 

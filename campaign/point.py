@@ -53,20 +53,12 @@ def identify_point(task: dict) -> dict:
 
 
 def make_estimator(method: str, profile, options: dict):
-    """The estimator instance of ``method`` with the manifest's ``[options]``; an option the
-    method does not take is one error line (checked by the coordinator before any work)."""
-    import inspect
+    """The estimator instance of ``method`` with the manifest's ``[options]`` (identify's
+    registry); an option the method does not take is one error line (checked by the coordinator
+    before any work)."""
+    from identify.estimators.registry import build
 
-    from identify.errors import CampaignError
-    from identify.estimators.registry import estimator_class
-
-    cls = estimator_class(method)
-    accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "profile", "progress"}
-    unknown = sorted(set(options) - accepted)
-    if unknown:
-        raise CampaignError(f"[options] {', '.join(unknown)} do not apply to {method} "
-                            f"(its options: {', '.join(sorted(accepted))})")
-    return cls(profile, **options)
+    return build(method, profile, names={k: f"[options] {k}" for k in options}, **options)
 
 
 def _identify(task: dict) -> dict:
@@ -83,7 +75,7 @@ def _identify(task: dict) -> dict:
     if task["refine"]:
         from identify.refine.loop import Refine
 
-        refiner = Refine(profile, method=task["method"], estimator_options=task["options"]).fit(runs, validate=held)
+        refiner = Refine(profile, estimator=estimator).fit(runs, validate=held)
         result, final = refiner.result_, refiner.profile_
         steps = [{"effect": s.effect, "target": s.target, "statistic": s.statistic} for s in refiner.steps_]
         steps += [{"rejected": f"{s.effect} on {s.target}", "reason": s.reason} for s in refiner.rejected_]
@@ -109,7 +101,7 @@ def prediction_error(profile, runs) -> float:
     outputs (dimensionless; 0 is perfect, ~1 no better than the mean)."""
     import numpy as np
 
-    from identify.refine.evaluation import predict
+    from identify.estimators.prediction import predict
 
     residuals = np.vstack(predict(profile, runs).residuals)
     measured = np.vstack([r.matrix(list(profile.outputs)) for r in runs])
