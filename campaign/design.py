@@ -10,11 +10,11 @@ each point's signals are also written to ``<out>/designs/<point>.signals.json``,
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
-from .runner import point_profile, run_tasks
-from .store import point_key
+from .point import guarded
+from .runner import point_keys, point_profile, run_tasks
+from .store import Store, point_key
 
 DEFAULTS = {"duration": 7.0, "record": 20.0}
 
@@ -32,30 +32,22 @@ def design_task(options: dict):
 
 def design_point(task: dict) -> dict:
     """One point's designs (one per input axis); failures recorded, never raised."""
-    from threadpoolctl import threadpool_limits
+    return guarded(_design, task, {"point": task["name"], "key": task["key"]})
 
-    started = time.perf_counter()
-    record = {"point": task["name"], "key": task["key"]}
-    with threadpool_limits(1):
-        try:
-            from identify.model.linear import LinearModel
-            from identify.model.profile import parse_profile
-            from signaldesign.design import SequenceDesign
 
-            model = LinearModel(parse_profile(task["profile"], source=task["profile_source"]))
-            signals, records = [], []
-            for axis in model.profile.input_names:
-                d = SequenceDesign(axis, jobs=1, **task["options"]).fit(model)
-                signals += [s.to_dict() for s in d.signals_]
-                records.append(d.record)
-            record.update(status="ok", reason="", signals=signals, inputs=model.profile.input_names,
-                          records_s=records, flight_time_s=float(sum(records)))
-        except Exception as exc:
-            from identify.errors import PseudostepError
-            reason = str(exc) if isinstance(exc, PseudostepError) else f"{type(exc).__name__}: {exc}"
-            record.update(status="failed", reason=reason.splitlines()[0] if reason else type(exc).__name__)
-    record["seconds"] = time.perf_counter() - started
-    return record
+def _design(task: dict) -> dict:
+    from identify.model.linear import LinearModel
+    from identify.model.profile import parse_profile
+    from signaldesign.design import SequenceDesign
+
+    model = LinearModel(parse_profile(task["profile"], source=task["profile_source"]))
+    signals, records = [], []
+    for axis in model.profile.input_names:  # one run per control axis, as flight tests are flown
+        d = SequenceDesign(axis, jobs=1, **task["options"]).fit(model)
+        signals += [s.to_dict() for s in d.signals_]
+        records.append(d.record)
+    return {"status": "ok", "reason": "", "signals": signals, "inputs": model.profile.input_names,
+            "records_s": records, "flight_time_s": float(sum(records))}
 
 
 def run_design(campaign, out, executor, options: dict, progress: bool = True) -> dict:
@@ -72,8 +64,6 @@ def run_design(campaign, out, executor, options: dict, progress: bool = True) ->
 
     stats = run_tasks(campaign, out, executor, design_task(options), design_point, folder="designs",
                       label="designing", progress=progress, on_result=written)
-    from .store import Store
-    from .runner import point_keys
     store, keys = Store(out, "designs"), point_keys(campaign, design_task(options))
     total, done = 0.0, 0
     for point in campaign.points:

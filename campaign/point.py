@@ -14,10 +14,6 @@ import math
 import time
 import warnings
 
-RECORD_FIELDS = ("status", "reason", "method", "refine", "converged", "parameters", "fit_error",
-                 "validation_error", "identified_profile", "warnings", "runs", "validate", "refine_steps")
-
-
 def failure_record(task: dict, reason: str) -> dict:
     """The record of a task that produced no result (its inputs, a worker that died): the task's
     labels, ``status = "failed"`` and the reason; no estimates."""
@@ -34,15 +30,21 @@ def failure_record(task: dict, reason: str) -> dict:
 
 def identify_point(task: dict) -> dict:
     """The record of one test point (see the module docstring); ``seconds`` is the job's wall time."""
+    labels = {"point": task["name"], "key": task["key"], "method": task["method"], "refine": task["refine"],
+              "runs": [str(p) for p in task["runs"]], "validate": [str(p) for p in task["validate"]]}
+    return guarded(_identify, task, labels)
+
+
+def guarded(work, task: dict, record: dict) -> dict:
+    """``record`` updated with ``work(task)``, run on one BLAS thread; never raises: an exception
+    becomes ``status = "failed"`` with its reason; every warning and the wall time recorded."""
     from threadpoolctl import threadpool_limits
 
     started = time.perf_counter()
-    record = {"point": task["name"], "key": task["key"], "method": task["method"], "refine": task["refine"],
-              "runs": [str(p) for p in task["runs"]], "validate": [str(p) for p in task["validate"]]}
     with threadpool_limits(1), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            record.update(_identify(task))
+            record.update(work(task))
         except Exception as exc:  # recorded, never raised: the campaign goes on
             from identify.errors import PseudostepError
             reason = str(exc) if isinstance(exc, PseudostepError) else f"{type(exc).__name__}: {exc}"
