@@ -1,7 +1,7 @@
 """Where test points run: serially, in a local process pool, or on a Dask cluster.
 
-Every executor has one method, ``map(fn, tasks)``, yielding ``(task, result)`` as each task
-finishes (in completion order). At most ``window`` tasks are in flight at once: tasks are drawn
+Every executor has ``start()`` (workers up, libraries loaded: timed apart), ``map(fn, tasks)``,
+yielding ``(task, result)`` as each task finishes (in completion order), and ``close()``. At most ``window`` tasks are in flight at once: tasks are drawn
 from the (lazy) iterable only as earlier ones finish, so the coordinator's memory does not grow
 with the number of test points. ``fn`` must not raise (:func:`campaign.point.identify_point`
 returns failures as records); a worker that dies is handled by the executor:
@@ -26,14 +26,15 @@ from .point import failure_record
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def warm_up(_=None) -> int:
+def warm_up(pause: float = 0.0) -> int:
     """Load the identification libraries in a fresh worker (done once per worker at start, so
-    that a campaign's timing is the points' work, not the imports); returns the process id."""
+    that a campaign's timing is the points' work, not the imports), then wait ``pause`` s (a
+    pool's workers each take one); returns the process id."""
     import time
 
     import identify.estimators.ml  # noqa: F401
     import identify.estimators.prediction  # noqa: F401
-    time.sleep(0.2)  # long enough that each worker of a pool takes one
+    time.sleep(pause)
     return os.getpid()
 
 
@@ -71,7 +72,6 @@ class LocalPool:
         """Start the workers and load the libraries in each."""
         if self._pool is None:
             self._start()
-            list(self._pool.map(warm_up, range(self.workers)))
 
     def _start(self):
         import multiprocessing as mp
@@ -81,6 +81,9 @@ class LocalPool:
         os.environ.update(ONE_THREAD)  # inherited by the spawned workers before they import numpy
         try:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
+            # the pool spawns its processes on the first submissions: every worker starts here,
+            # inside the environment above, each loading the libraries once
+            list(self._pool.map(warm_up, [0.2] * self.workers))
         finally:
             for k, v in saved.items():
                 if v is None:
