@@ -5,8 +5,6 @@ libraries load only when a command runs, so ``--help`` answers at once.
 """
 from __future__ import annotations
 
-import sys
-
 from identify.cliutil import output_dir, positive_float, positive_int
 
 
@@ -221,7 +219,3 @@ def add_synthetic(sub) -> None:
     p.add_argument("--undeclared", action="store_true",
                    help="one point with a 0.15 s control delay no model declares (it breaks the trends)")
     p.set_defaults(func=cmd_synthetic)
-
-
-def _say(text: str) -> None:
-    print(text, file=sys.stderr)

@@ -106,7 +106,7 @@ def run_tasks(campaign: Campaign, out: str | Path, executor, make_task: Callable
                 key, record = input_failure(point, campaign, exc)
                 store.put(key, record)
                 stats["failed"] += 1
-                _say(f"FAILED {point.name}: {exc}")
+                bar.write(f"FAILED {point.name}: {exc}", file=sys.stderr)
                 bar.update(1)
                 continue
             if task["key"] in seen:
@@ -128,7 +128,7 @@ def run_tasks(campaign: Campaign, out: str | Path, executor, make_task: Callable
             stats["computed"] += 1
             if record["status"] != "ok":
                 stats["failed"] += record["status"] == "failed"
-                _say(f"{record['status'].upper()} {task['name']}: {record['reason']}")
+                bar.write(f"{record['status'].upper()} {task['name']}: {record['reason']}", file=sys.stderr)
             bar.update(1)
             if on_result is not None:
                 on_result(task, record)
@@ -140,10 +140,6 @@ def run_tasks(campaign: Campaign, out: str | Path, executor, make_task: Callable
     with open(Path(out) / "runs.jsonl", "a") as f:
         f.write(json.dumps(stats) + "\n")
     return stats
-
-
-def _say(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
 
 
 def _bar(total: int, enabled: bool, label: str):
