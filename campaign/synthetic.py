@@ -115,11 +115,11 @@ RUN_PLAN = (("3211", 0.6, 0.03), ("3211", 0.9, -0.025), ("doublet", 1.2, 0.04), 
 
 def write_campaign(out: str | Path, airspeeds, *, runs: int = 4, seed: int = 0, undeclared=(),
                    delay: float = 0.15, noise: float = 0.03, turbulence: float = 0.3, duration: float = 15.0,
-                   method: str = "ml", validate_last: bool = True) -> Path:
+                   dt: float = 0.05, method: str = "ml", validate_last: bool = True) -> Path:
     """Simulate a campaign into ``out``: per point a folder of ``runs`` run CSVs and its a priori
     profile, and ``campaign.toml`` listing them (the last run of each point held out for
     validation when ``validate_last``). Points whose index is in ``undeclared`` carry an
-    undeclared ``delay`` s control delay. Returns the manifest's path; ``truth.csv`` beside it
+    undeclared ``delay`` s control delay; runs of ``duration`` s sampled every ``dt`` s. Returns the manifest's path; ``truth.csv`` beside it
     holds the true derivatives per point."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -136,7 +136,7 @@ def write_campaign(out: str | Path, airspeeds, *, runs: int = 4, seed: int = 0, 
         for k in range(runs):
             kind, width, amp = RUN_PLAN[k % len(RUN_PLAN)]
             run = simulate_point_run(v, kind, width, amp, seed * 100003 + i * 101 + k, duration=duration,
-                                     noise=noise, turbulence=turbulence,
+                                     dt=dt, noise=noise, turbulence=turbulence,
                                      delay=delay if i in undeclared else 0.0)
             path = folder / f"run{k + 1}.csv"
             run.to_csv(path)
