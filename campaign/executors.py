@@ -202,13 +202,13 @@ class DaskExecutor:
         first = [submit(t) for t in _take(source, window)]
         if not first:
             return
-        queue = as_completed(first)
-        for fut in queue:
+        # results gathered by as_completed itself (in batches, in the background): one round trip
+        # per finished point is what costs a 2-core machine most of Dask's overhead
+        queue = as_completed(first, with_results=True, raise_errors=False)
+        for fut, result in queue:
             task = owner.pop(fut.key)
-            try:
-                result = fut.result()
-            except Exception as exc:  # the scheduler gave up on it (KilledWorker) or it never ran
-                result = failure_record(task, f"{type(exc).__name__} on the Dask cluster: {exc}")
+            if isinstance(result, BaseException):  # the scheduler gave up on it (KilledWorker)
+                result = failure_record(task, f"{type(result).__name__} on the Dask cluster: {result}")
             fut.release()
             yield task, result
             nxt = next(source, None)
