@@ -65,7 +65,7 @@ def cmd_identify(args) -> int:
     report = write_report(campaign, args.out)
     print(f"written to {args.out}: points/, results.csv, trends.png, {report.name}")
     print(f"coordinator peak memory {peak_memory_mb():.0f} MB (this process, identification and report)")
-    return 0
+    return 1 if stats["failed"] else 0  # a script sees that some point needs attention
 
 
 def peak_memory_mb() -> float:
@@ -77,7 +77,8 @@ def peak_memory_mb() -> float:
 def add_identify(sub) -> None:
     from identify.estimators.registry import METHOD_NAMES
 
-    p = sub.add_parser("identify", help="identify every test point (in parallel; resumes)")
+    p = sub.add_parser("identify", help="identify every test point (in parallel; resumes); exit status 1 "
+                                        "when a point failed (listed first in report.md)")
     _common(p)
     p.add_argument("--method", choices=METHOD_NAMES, help="estimator (default: the manifest's, else ml)")
     p.add_argument("--refine", action="store_true", help="refine every point (default: the manifest's)")
@@ -170,9 +171,10 @@ def cmd_stitch(args) -> int:
 def add_stitch(sub) -> None:
     p = sub.add_parser("stitch", help="derivatives and trim as functions of the condition: one stitched profile")
     _common(p)
-    p.add_argument("--hold-out", type=int, default=0, metavar="N",
-                   help="leave N interior points out of the stitch and check the stitched model on them")
-    p.add_argument("--hold-out-points", metavar="NAMES", help="comma-separated points to leave out and check on")
+    held = p.add_mutually_exclusive_group()
+    held.add_argument("--hold-out", type=int, default=0, metavar="N",
+                      help="leave N interior points out of the stitch and check the stitched model on them")
+    held.add_argument("--hold-out-points", metavar="NAMES", help="comma-separated points to leave out and check on")
     p.add_argument("--check", metavar="MANIFEST",
                    help="a held-out campaign: identify its points (into OUT/check) and check the stitched model on each")
     _executor_options(p)
