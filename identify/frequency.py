@@ -41,7 +41,10 @@ correlated, so the composite error is the weighted mean of the windows' errors, 
 
 Fit cost (:func:`fit_cost`): Tischler's ``J = 20 / n_w * sum W_g (dB error)^2 + W_p (deg error)^2``
 weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies where the coherence is at
-least 0.6; ``J <= 100`` per pair (mean ``<= 50``) is the usual mark of a model that fits.
+least 0.6 at frequencies with a valid estimate (nothing is judged where nothing is resolved), and
+only for pairs with MIN_POINTS such points and an input some run moves; a mean ``J <= 100`` with no
+pair above 200 is the usual mark of a model that fits (Tischler & Remple). The report states the
+lowest resolved frequency against the slowest mode the inputs excite: below it no model is judged.
 """
 from __future__ import annotations
 
@@ -59,9 +62,11 @@ from .model.linear import LinearModel
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
 OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
 MAX_LEAKAGE = 2.0  # a window's leakage bias (corrected to first order) may be at most this many random errors
-MIN_CYCLES = 3.0  # a window must hold this many periods of a frequency (fewer: leakage bias)
+MIN_CYCLES = 2.0  # a window must hold this many periods of a frequency (Tischler & Remple: w_min = 2 (2 pi / T_max))
 N_WINDOWS = 5
 W_GAIN, W_PHASE = 1.0, 0.01745  # Tischler's weights on dB and deg errors
+MIN_POINTS = 5  # resolved coherent points a pair needs before its J says anything about a model
+J_MEAN_FITS, J_PAIR_MAX = 100.0, 200.0  # Tischler & Remple: mean J <= 100 and no pair above 200
 
 
 @dataclass
@@ -84,6 +89,7 @@ class FrequencyResponse:
     outputs: list[str]
     windows: list[float] = field(default_factory=list)
     runs: list[str] = field(default_factory=list)
+    unmoved: list[str] = field(default_factory=list)  # inputs no run moves: their pairs say nothing
 
     @property
     def magnitude_db(self) -> np.ndarray:
@@ -110,14 +116,45 @@ class FrequencyResponse:
         """Per pair the frequency range (Hz) with a valid estimate and its coherent share, for reports."""
         f = self.omega / (2 * np.pi)
         lines = [f"resolved frequencies (a valid window; coherence >= {MIN_COHERENCE} of them):"]
+        if self.unmoved:
+            lines.append(f"  inputs no run moves (their pairs left out): {', '.join(self.unmoved)}")
         for j, y in enumerate(self.outputs):
             for i, u in enumerate(self.inputs):
+                if u in self.unmoved:
+                    continue
                 ok = self.resolved[:, j, i]
                 coherent = int((ok & (self.coherence[:, j, i] >= MIN_COHERENCE)).sum())
                 span = f"{f[ok].min():.3g}..{f[ok].max():.3g} Hz, {ok.sum()} of {f.size} frequencies" if ok.any() \
                     else "none"
                 lines.append(f"  {y + '/' + u:<22}{span} ({coherent} coherent)")
         return lines
+
+    @property
+    def lowest_resolved(self) -> float:
+        """Lowest frequency (rad/s) with a valid estimate for some pair of a moved input (nan if none)."""
+        moved = [i for i, u in enumerate(self.inputs) if u not in self.unmoved]
+        ok = self.resolved[:, :, moved].any(axis=(1, 2)) if moved else np.zeros(len(self.omega), bool)
+        return float(self.omega[ok].min()) if ok.any() else float("nan")
+
+    def resolution_line(self, model: LinearModel | None = None) -> str:
+        """The lowest resolved frequency against the model's slowest mode that the inputs excite,
+        and what record would resolve it when the data do not reach it."""
+        lo = self.lowest_resolved
+        head = f"lowest resolved frequency {lo / (2 * np.pi):.3g} Hz ({lo:.3g} rad/s; longest window " \
+               f"{max(self.windows):.3g} s, at least {MIN_CYCLES:g} cycles per window)"
+        if model is None or not np.isfinite(lo):
+            return head
+        slow = excited_modes(model, [u for u in self.inputs if u not in self.unmoved])
+        if not slow:
+            return head + "; the inputs excite no mode of the model"
+        w = slow[0]
+        if w >= lo:
+            return head + f": reaches the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz)"
+        T = MIN_CYCLES * 2 * np.pi / w
+        return (head + f": does NOT reach the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz, "
+                f"{w:.3g} rad/s): that needs windows of {T:.3g} s, i.e. records of at least {2 * T:.3g} s "
+                f"(the windows here allow records of {2 * max(self.windows):.3g} s); below "
+                f"{lo / (2 * np.pi):.3g} Hz the models are not judged")
 
     def pair(self, output: str, input: str) -> tuple[int, int]:
         return self.outputs.index(output), self.inputs.index(input)
@@ -174,10 +211,13 @@ def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[s
         omega = 2 * np.pi * np.geomspace(lo, hi, n_freq)
     omega = np.asarray(omega, dtype=float)
     data = [r.matrix(names) for r in runs]
+    # an input no run moves (held at trim, or absent from every record) has no response to estimate
+    unmoved = [u for i, u in enumerate(inputs) if all(np.ptp(x[:, i]) <= 1e-12 * (1 + np.abs(x[:, i]).max())
+                                                        for x in data)]
     per_window = [_window_estimate(data, dt, T, omega, nu, overlap) for T in windows]
     H, coh, mult, err = _composite(per_window)
     return FrequencyResponse(omega, H, coh, mult, err, list(inputs), list(outputs), list(windows),
-                             [r.source for r in runs])
+                             [r.source for r in runs], unmoved)
 
 
 def default_windows(durations: list[float], n_inputs: int, overlap: float = 0.5) -> list[float]:
@@ -215,19 +255,33 @@ def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndar
     F, G = tr.F, tr.G
     # averages that count: segments whose input power at a frequency is small add nothing, so a
     # 3211 (power in one or two segments) or a sweep (each frequency in a few) has few per frequency
-    power = (np.abs(F[:, :, :nu]) ** 2).sum(axis=2)  # (K, nf)
-    n_eff = power.sum(axis=0) ** 2 / np.maximum((power ** 2).sum(axis=0), 1e-300)
-    n_d = n_eff / (OVERLAP_VARIANCE_FACTOR if overlap > 0 else 1.0) - (nu - 1)
-    valid = valid & (n_d >= 2)  # coherence from fewer averages is near 1 whatever the data
+    n_d = _averages(np.abs(F[:, :, :nu]) ** 2, overlap)  # (nf, nu)
+    valid = valid[:, None] & (n_d >= 2)  # coherence from fewer averages is near 1 whatever the data
     H = np.swapaxes(tr.solve(G[:, :nu, nu:]), 1, 2)  # (nf, ny, nu)
     coh, mult = _coherences(G, nu)
     bias = tr.leakage_bias(H)
     with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.sqrt((1 - coh) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, None]))
+        err = np.sqrt((1 - coh) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, :]))
         leak = np.abs(bias) / np.abs(H)
-    valid = valid[:, None, None] & (leak <= MAX_LEAKAGE * err)
+    valid = valid[:, None, :] & (leak <= MAX_LEAKAGE * err)
     err[~valid | ~np.isfinite(err)] = np.inf
     return H - bias, coh, mult, err
+
+
+def _averages(power: np.ndarray, overlap: float) -> np.ndarray:
+    """Effective number of averages (nf, nu) per frequency and input from the segments' input powers
+    (K, nf, nu): ``(sum_s p_s)^2 / sum_s p_s^2`` counts only the segments that carry the input
+    (a 3211 or a sweep puts each frequency in a few), less the overlap's correlation and one
+    degree of freedom per other input sharing those segments (conditioning on an input that is
+    silent where this one acts costs nothing: runs flown one axis at a time keep their averages)."""
+    K, nf, nu = power.shape
+    sums, squares = power.sum(axis=0), (power ** 2).sum(axis=0)  # (nf, nu)
+    n_eff = sums ** 2 / np.maximum(squares, 1e-300)
+    # share of segments input k shares with input i, 0..1 (Cauchy-Schwarz)
+    shared = np.einsum("sfi,sfk->fik", power, power) / np.sqrt(np.maximum(
+        squares[:, :, None] * squares[:, None, :], 1e-300))
+    others = shared.sum(axis=2) - np.einsum("fii->fi", shared)
+    return n_eff / (OVERLAP_VARIANCE_FACTOR if overlap > 0 else 1.0) - others
 
 
 def _coherences(G: np.ndarray, nu: int) -> tuple[np.ndarray, np.ndarray]:
@@ -331,47 +385,84 @@ def model_response(model: LinearModel, omega: np.ndarray, inputs: list[str] | No
     n = model.n_states
     s = 1j * np.asarray(omega, dtype=float)
     X = np.linalg.solve(s[:, None, None] * np.eye(n) - model.A, np.broadcast_to(model.B[:, ui], (len(s), n, len(ui))))
-    return np.einsum("yn,fnu->fyu", model.C[yi], X) + model.D[np.ix_(yi, ui)]
+    H = np.einsum("yn,fnu->fyu", model.C[yi], X) + model.D[np.ix_(yi, ui)]
+    # the profile's declared input delays (refine's, a control system's): e^{-jw tau} per input
+    delays = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
+    tau = np.array([delays.get(p.input_names[i], 0.0) for i in ui])
+    return H * np.exp(-s[:, None] * tau[None, :])[:, None, :] if tau.any() else H
+
+
+def excited_modes(model: LinearModel, inputs: list[str]) -> list[float]:
+    """Natural frequencies (rad/s, ascending) of the model's modes that ``inputs`` excite (nonzero
+    controllability through the input matrix); zero eigenvalues (pure integrations) left out."""
+    p = model.profile
+    ui = [p.input_names.index(u) for u in inputs if u in p.input_names]
+    if not ui:
+        return []
+    lam, V = np.linalg.eig(model.A)
+    try:
+        W = np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        return sorted({float(abs(v)) for v in lam if abs(v) > 1e-9})
+    gain = np.abs(W @ model.B[:, ui]).max(axis=1) * np.abs(model.C @ V).max(axis=0)
+    keep = (gain > 1e-9 * max(gain.max(), 1e-300)) & (np.abs(lam) > 1e-6)
+    return sorted({round(float(abs(v)), 12) for v in lam[keep]})
 
 
 def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE) -> dict:
     """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
 
-    Returns ``{"pairs": {"y/u": J or None}, "mean": J, "n_frequencies": {"y/u": n}}``; a pair with
-    fewer than 3 frequencies of coherence >= ``min_coherence`` gets None (not judged).
+    Only points that are resolved (a valid window) and coherent (>= ``min_coherence``) count; a pair
+    with fewer than MIN_POINTS of them is not judged, and pairs of inputs no run moves are left out.
+    Returns ``{"pairs": {"y/u": J}, "mean": J or None, "n_frequencies": {"y/u": n}, "not_judged":
+    {"y/u": n}, "left_out": [inputs], "worst": "y/u" or None, "fits": bool or None}``.
     """
     p = model.profile
     outs = [y for y in fr.outputs if y in p.outputs]
-    ins = [u for u in fr.inputs if u in p.input_names]
+    ins = [u for u in fr.inputs if u in p.input_names and u not in fr.unmoved]
     Hm = model_response(model, fr.omega, ins, outs)
-    pairs, counts = {}, {}
+    pairs, counts, not_judged = {}, {}, {}
     for jm, y in enumerate(outs):
         for im, u in enumerate(ins):
             j, i = fr.pair(y, u)
             g2 = fr.coherence[:, j, i]
-            use = (g2 >= min_coherence) & np.isfinite(fr.H[:, j, i]) & (np.abs(Hm[:, jm, im]) > 0)
+            use = fr.resolved[:, j, i] & (g2 >= min_coherence) & np.isfinite(fr.H[:, j, i]) & \
+                (np.abs(Hm[:, jm, im]) > 0)
             key = f"{y}/{u}"
             counts[key] = int(use.sum())
-            if use.sum() < 3:
-                pairs[key] = None
+            if use.sum() < MIN_POINTS:
+                not_judged[key] = int(use.sum())
                 continue
             Hd, Hc = fr.H[use, j, i], Hm[use, jm, im]
             mag = 20 * np.log10(np.abs(Hc) / np.abs(Hd))
             phase = np.degrees(np.angle(Hc / Hd))  # wrapped difference: no unwrapping ambiguity
             w = (1.58 * (1 - np.exp(-g2[use]))) ** 2
             pairs[key] = float(20 / use.sum() * np.sum(w * (W_GAIN * mag ** 2 + W_PHASE * phase ** 2)))
-    judged = [v for v in pairs.values() if v is not None]
-    return {"pairs": pairs, "mean": float(np.mean(judged)) if judged else None, "n_frequencies": counts}
+    mean = float(np.mean(list(pairs.values()))) if pairs else None
+    worst = max(pairs, key=pairs.get) if pairs else None
+    fits = None if mean is None else bool(mean <= J_MEAN_FITS and pairs[worst] <= J_PAIR_MAX)
+    return {"pairs": pairs, "mean": mean, "n_frequencies": counts, "not_judged": not_judged,
+            "left_out": [u for u in fr.inputs if u in fr.unmoved and u in p.input_names], "worst": worst,
+            "fits": fits}
 
 
 def format_cost(cost: dict, label: str = "model") -> str:
-    """Lines of J per pair and the mean, for reports."""
-    lines = [f"frequency-domain fit cost J of the {label} (Tischler; coherence >= {MIN_COHERENCE}; "
-             f"J <= 100 per pair fits):"]
-    for key, value in cost["pairs"].items():
-        lines.append(f"  {key:<22}" + (f"{value:10.1f}" if value is not None else
-                                       f"{'-':>10}  (fewer than 3 coherent frequencies)"))
-    lines.append(f"  {'mean':<22}" + (f"{cost['mean']:10.1f}" if cost["mean"] is not None else f"{'-':>10}"))
+    """One verdict line per model, then J per judged pair on one line; the pairs not judged and the
+    inputs left out on one line each."""
+    if cost.get("mean") is None:
+        lines = [f"J of the {label}: not judged (no pair has {MIN_POINTS} resolved points of coherence "
+                 f">= {MIN_COHERENCE})"]
+    else:
+        w = cost["worst"]
+        verdict = "fits" if cost["fits"] else "does NOT fit"
+        lines = [f"J of the {label}: mean {cost['mean']:.1f} over {len(cost['pairs'])} pair(s), worst {w} "
+                 f"{cost['pairs'][w]:.1f}: {verdict} (Tischler: mean <= {J_MEAN_FITS:g}, no pair > {J_PAIR_MAX:g})",
+                 "  " + ", ".join(f"{k} {v:.1f}" for k, v in cost["pairs"].items())]
+    if cost.get("not_judged"):
+        lines.append(f"  not judged (fewer than {MIN_POINTS} resolved points of coherence >= {MIN_COHERENCE}): "
+                     + ", ".join(cost["not_judged"]))
+    if cost.get("left_out"):
+        lines.append(f"  left out: the pairs of {', '.join(cost['left_out'])} (no run moves it)")
     return "\n".join(lines)
 
 
@@ -468,4 +559,8 @@ def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, d
     except EstimationError as exc:
         return f"frequency-domain fit cost J: not computed ({exc})", {"not_computed": str(exc)}
     costs = {label: fit_cost(fr, m) for label, m in models.items()}
-    return "\n".join(format_cost(c, label) for label, c in costs.items()), costs
+    line = fr.resolution_line(next(iter(models.values())))
+    text = "\n".join([f"frequency-domain fit cost J (Tischler), {line}"] +
+                     [format_cost(c, label) for label, c in costs.items()])
+    costs["resolution"] = line
+    return text, costs
