@@ -29,8 +29,9 @@ _LAZY = {
                      "smooth_derivative"], "data.preprocess"),
     **dict.fromkeys(["IV", "LS", "state_derivatives"], "estimators.equation_error"),
     **dict.fromkeys(["ML"], "estimators.ml"),  # output-error maximum likelihood
-    # frequency-domain equation error, batch and recursive (the cockpit's live estimate)
-    **dict.fromkeys(["FDEE", "RecursiveFDEE"], "estimators.frequency_ee"),
+    # the frequency home: equation error (batch, streamed for the cockpit), frequency responses
+    **dict.fromkeys(["FDEE", "RecursiveFDEE"], "estimators.frequency.equation_error"),
+    **dict.fromkeys(["FrequencyResponse", "frequency_response", "fit_cost"], "estimators.frequency.response"),
 }
 
 __all__ = ["ConvergenceWarning", "EstimationError", "ProfileError", "PseudostepError", "RunError",

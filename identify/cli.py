@@ -84,7 +84,7 @@ def cmd_estimate(args) -> int:
                "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
     result = _fit(args.method, options, profile, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
-    from .frequency import cost_report
+    from .estimators.frequency.response import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
@@ -213,7 +213,8 @@ def cmd_freq(args) -> int:
     from pathlib import Path
 
     from .data.runs import read_run
-    from .frequency import cost_report, frequency_response, plot_bode
+    from .estimators.frequency.bode import plot_bode
+    from .estimators.frequency.response import cost_report, frequency_response
 
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]

@@ -6,7 +6,7 @@ std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``e
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
 ``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
 the declared model's fit and of the refined model against the fit runs' frequency responses, per
-input-output pair and the mean: :func:`identify.frequency.cost_report`) and ``final_profile`` (the
+input-output pair and the mean: :func:`identify.estimators.frequency.response.cost_report`) and ``final_profile`` (the
 refined model as profile TOML text).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..estimators.result import _jsonable
-from ..frequency import cost_report, format_cost
+from ..estimators.frequency.response import cost_report, format_cost
 from .diagnostics import spectral_peak
 from .loop import Refine
 

@@ -60,7 +60,7 @@ class ResponseData:
         return self.resolved & np.isfinite(self.H) & (self.coherence >= min_coherence)
 
 
-def model_response(model: LinearModel, omega: np.ndarray, yi: list[int], ui: list[int],
+def response_and_jacobian(model: LinearModel, omega: np.ndarray, yi: list[int], ui: list[int],
                    tau: np.ndarray | None = None, jacobian: bool = False):
     """``H`` (nf, ny, nu) of the model (rows ``yi``, columns ``ui``) with input delays ``tau`` (nu,);
     with ``jacobian`` also ``dH/dtheta`` (p, nf, ny, nu) and ``dH/dtau`` (nf, ny, nu) (the
@@ -156,7 +156,7 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
     usable = data.usable(min_coherence)[:, dj][:, :, di]
     Hd = data.H[:, dj][:, :, di]
     W = (1.58 * (1 - np.exp(-data.coherence[:, dj][:, :, di] ** 2))) ** 2
-    H0, dH0, _ = model_response(model, data.omega, yi, ui, jacobian=True)
+    H0, dH0, _ = response_and_jacobian(model, data.omega, yi, ui, jacobian=True)
     pairs, left_out = [], {}
     for a, y in enumerate(outs):
         for b, u in enumerate(ins):
@@ -236,7 +236,7 @@ def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, act
     def residuals(x, jac=False):
         theta, tau = unpack(x)
         m = model.with_theta(theta)
-        out = model_response(m, omega, yi, ui, tau, jacobian=jac)
+        out = response_and_jacobian(m, omega, yi, ui, tau, jacobian=jac)
         H = out[0] if jac else out
         r, G = [], []
         for a, b, key, use in sel:

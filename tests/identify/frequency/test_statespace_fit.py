@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from identify import LinearModel, load_profile
-from identify.estimators.frequency.statespace import ResponseData, fit_frequency_responses, model_response
+from identify.estimators.frequency.statespace import ResponseData, fit_frequency_responses, response_and_jacobian
 
 
 @pytest.fixture(scope="module")
@@ -13,7 +13,7 @@ def s61():
 
 def exact_data(model, omega, tau=None, coherence=1.0):
     p = model.profile
-    H = model_response(model, omega, list(range(len(p.outputs))), list(range(len(p.input_names))), tau)
+    H = response_and_jacobian(model, omega, list(range(len(p.outputs))), list(range(len(p.input_names))), tau)
     return ResponseData(omega, H, np.full(H.shape, coherence), np.ones(H.shape, bool), p.input_names,
                         list(p.outputs))
 

@@ -6,8 +6,8 @@ response (a priori, identified) is checked by Tischler's cost J.
 
 Estimation (:func:`frequency_response`): each run is cut into overlapping (default 50 %) segments of
 several window lengths ``T_w``; each segment is detrended, Hann-windowed and Fourier-transformed at
-the frequencies of a log-spaced grid (a direct evaluation of the DFT at arbitrary frequencies, the
-job a chirp-z transform does in CIFER). Segments of all runs are pooled (runs are concatenated
+the frequencies of a log-spaced grid (:func:`~identify.estimators.frequency.base.fourier_sum`, a
+direct evaluation at arbitrary frequencies, the job a chirp-z transform does in CIFER). Segments of all runs are pooled (runs are concatenated
 without any window spanning two runs), giving per window the spectral matrix
 ``G_ab(w) = mean_s conj(A_s) B_s`` of inputs and outputs. Per output ``y`` the frequency responses
 to all inputs together solve ``G_uu H_y = G_uy`` (multi-input conditioning: correct even when the
@@ -32,7 +32,8 @@ window: 15 % in |H| at 3 cycles). Each window's estimate is corrected by this fi
 ``H'`` taken from the window's own estimate (its derivative in frequency), and a window is not used
 at a frequency where the term exceeds MAX_LEAKAGE random errors (the higher-order rest is then
 small against the random error). A window is also used only at frequencies where it holds
-MIN_CYCLES cycles and has enough averages; where no window is valid nothing is estimated (H nan,
+MIN_CYCLES cycles (the longest window MIN_CYCLES_LONGEST: it alone sets the lowest frequency) and
+has enough averages; where no window is valid nothing is estimated (H nan,
 coherence 0, :attr:`FrequencyResponse.resolved` False, shaded grey in the plots).
 The composite estimate combines the windows per frequency and pair with weights ``1 / eps_k^2``
 (the most accurate window dominates); because all windows see the same data their errors are
@@ -55,14 +56,18 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import detrend
 
-from .data.runs import Run
-from .errors import EstimationError
-from .model.linear import LinearModel
+from ...data.runs import Run
+from ...errors import EstimationError
+from ...model.linear import LinearModel
+from .base import fourier_sum
 
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
 OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
 MAX_LEAKAGE = 2.0  # a window's leakage bias (corrected to first order) may be at most this many random errors
-MIN_CYCLES = 2.0  # a window must hold this many periods of a frequency (Tischler & Remple: w_min = 2 (2 pi / T_max))
+MIN_CYCLES = 3.0  # a window must hold this many periods of a frequency (fewer: leakage bias) ...
+MIN_CYCLES_LONGEST = 2.0  # ... except the longest, which sets the lowest frequency (Tischler & Remple:
+# w_min = 2 (2 pi / T_max)); a shorter window at 2-3 cycles would only add a worse estimate where a
+# longer one already holds 3
 N_WINDOWS = 5
 W_GAIN, W_PHASE = 1.0, 0.01745  # Tischler's weights on dB and deg errors
 MIN_POINTS = 5  # resolved coherent points a pair needs before its J says anything about a model
@@ -141,7 +146,7 @@ class FrequencyResponse:
         and what record would resolve it when the data do not reach it."""
         lo = self.lowest_resolved
         head = f"lowest resolved frequency {lo / (2 * np.pi):.3g} Hz ({lo:.3g} rad/s; longest window " \
-               f"{max(self.windows):.3g} s, at least {MIN_CYCLES:g} cycles per window)"
+               f"{max(self.windows):.3g} s holding at least {MIN_CYCLES_LONGEST:g} cycles)"
         if model is None or not np.isfinite(lo):
             return head
         slow = excited_modes(model, [u for u in self.inputs if u not in self.unmoved])
@@ -150,7 +155,7 @@ class FrequencyResponse:
         w = slow[0]
         if w >= lo:
             return head + f": reaches the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz)"
-        T = MIN_CYCLES * 2 * np.pi / w
+        T = MIN_CYCLES_LONGEST * 2 * np.pi / w
         return (head + f": does NOT reach the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz, "
                 f"{w:.3g} rad/s): that needs windows of {T:.3g} s, i.e. records of at least {2 * T:.3g} s "
                 f"(the windows here allow records of {2 * max(self.windows):.3g} s); below "
@@ -205,7 +210,7 @@ def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[s
     nu = len(inputs)
     windows = sorted(windows or default_windows([r.duration for r in runs], nu, overlap), reverse=True)
     if omega is None:
-        lo, hi = f_range or (MIN_CYCLES / windows[0], min(0.4 / dt, 5.0))
+        lo, hi = f_range or (MIN_CYCLES_LONGEST / windows[0], min(0.4 / dt, 5.0))
         if not 0 < lo < hi:
             raise EstimationError(f"frequency range {lo:g}..{hi:g} Hz is empty")
         omega = 2 * np.pi * np.geomspace(lo, hi, n_freq)
@@ -214,7 +219,8 @@ def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[s
     # an input no run moves (held at trim, or absent from every record) has no response to estimate
     unmoved = [u for i, u in enumerate(inputs) if all(np.ptp(x[:, i]) <= 1e-12 * (1 + np.abs(x[:, i]).max())
                                                         for x in data)]
-    per_window = [_window_estimate(data, dt, T, omega, nu, overlap) for T in windows]
+    per_window = [_window_estimate(data, dt, T, omega, nu, overlap, MIN_CYCLES_LONGEST if k == 0 else MIN_CYCLES)
+                  for k, T in enumerate(windows)]
     H, coh, mult, err = _composite(per_window)
     return FrequencyResponse(omega, H, coh, mult, err, list(inputs), list(outputs), list(windows),
                              [r.source for r in runs], unmoved)
@@ -242,7 +248,8 @@ def _segments(x: np.ndarray, L: int, step: int) -> np.ndarray:
     return np.stack([x[s:s + L] for s in starts]) if len(x) >= L else np.zeros((0, L, x.shape[1]))
 
 
-def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndarray, nu: int, overlap: float):
+def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndarray, nu: int, overlap: float,
+                     min_cycles: float = MIN_CYCLES):
     """For one window length: H corrected for leakage, partial and multiple coherence, and the
     random error (inf where this window's estimate is not valid)."""
     L = max(int(round(T / dt)), 4)
@@ -250,38 +257,24 @@ def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndar
     seg = np.concatenate([_segments(x, L, step) for x in data])  # (K, L, nch)
     if len(seg) == 0:
         return None
-    valid = (omega * L * dt >= 2 * np.pi * MIN_CYCLES) & (omega < np.pi / dt)
+    valid = (omega * L * dt >= 2 * np.pi * min_cycles) & (omega < np.pi / dt)
     tr = _Transforms(detrend(seg, axis=1), dt, omega, nu)
     F, G = tr.F, tr.G
     # averages that count: segments whose input power at a frequency is small add nothing, so a
     # 3211 (power in one or two segments) or a sweep (each frequency in a few) has few per frequency
-    n_d = _averages(np.abs(F[:, :, :nu]) ** 2, overlap)  # (nf, nu)
-    valid = valid[:, None] & (n_d >= 2)  # coherence from fewer averages is near 1 whatever the data
+    power = (np.abs(F[:, :, :nu]) ** 2).sum(axis=2)  # (K, nf)
+    n_eff = power.sum(axis=0) ** 2 / np.maximum((power ** 2).sum(axis=0), 1e-300)
+    n_d = n_eff / (OVERLAP_VARIANCE_FACTOR if overlap > 0 else 1.0) - (nu - 1)
+    valid = valid & (n_d >= 2)  # coherence from fewer averages is near 1 whatever the data
     H = np.swapaxes(tr.solve(G[:, :nu, nu:]), 1, 2)  # (nf, ny, nu)
     coh, mult = _coherences(G, nu)
     bias = tr.leakage_bias(H)
     with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.sqrt((1 - coh) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, :]))
+        err = np.sqrt((1 - coh) / (coh * 2 * np.maximum(n_d, 1e-9)[:, None, None]))
         leak = np.abs(bias) / np.abs(H)
-    valid = valid[:, None, :] & (leak <= MAX_LEAKAGE * err)
+    valid = valid[:, None, None] & (leak <= MAX_LEAKAGE * err)
     err[~valid | ~np.isfinite(err)] = np.inf
     return H - bias, coh, mult, err
-
-
-def _averages(power: np.ndarray, overlap: float) -> np.ndarray:
-    """Effective number of averages (nf, nu) per frequency and input from the segments' input powers
-    (K, nf, nu): ``(sum_s p_s)^2 / sum_s p_s^2`` counts only the segments that carry the input
-    (a 3211 or a sweep puts each frequency in a few), less the overlap's correlation and one
-    degree of freedom per other input sharing those segments (conditioning on an input that is
-    silent where this one acts costs nothing: runs flown one axis at a time keep their averages)."""
-    K, nf, nu = power.shape
-    sums, squares = power.sum(axis=0), (power ** 2).sum(axis=0)  # (nf, nu)
-    n_eff = sums ** 2 / np.maximum(squares, 1e-300)
-    # share of segments input k shares with input i, 0..1 (Cauchy-Schwarz)
-    shared = np.einsum("sfi,sfk->fik", power, power) / np.sqrt(np.maximum(
-        squares[:, :, None] * squares[:, None, :], 1e-300))
-    others = shared.sum(axis=2) - np.einsum("fii->fi", shared)
-    return n_eff / (OVERLAP_VARIANCE_FACTOR if overlap > 0 else 1.0) - others
 
 
 def _coherences(G: np.ndarray, nu: int) -> tuple[np.ndarray, np.ndarray]:
@@ -305,8 +298,7 @@ class _Transforms:
 
     def __init__(self, seg: np.ndarray, dt: float, omega: np.ndarray, nu: int):
         self.seg, self.nu = seg, nu
-        self.t = np.arange(seg.shape[1]) * dt
-        self.E = np.exp(-1j * np.outer(self.t, omega))  # (L, nf)
+        self.t, self.omega = np.arange(seg.shape[1]) * dt, omega
         self.hann = np.hanning(seg.shape[1])
         self.F = self._transform(self.hann)
         self.G = np.einsum("sfa,sfb->fab", self.F.conj(), self.F) / len(seg)
@@ -314,7 +306,7 @@ class _Transforms:
         self._Guu = Guu + _ridge(Guu)
 
     def _transform(self, taper: np.ndarray, channels=slice(None)) -> np.ndarray:
-        return np.einsum("slc,lf->sfc", self.seg[:, :, channels] * taper[None, :, None], self.E)
+        return fourier_sum(self.seg[:, :, channels] * taper[None, :, None], self.t, self.omega)
 
     def _cross(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(nf, nu, nb) mean over segments of conj(A) B, A's inputs only."""
@@ -375,26 +367,24 @@ def _composite(per_window):
     return H_c, coh_c, mult_c, err_c
 
 
-# -- models --------------------------------------------------------------------------------------
+# -- models against the estimate -----------------------------------------------------------------
 def model_response(model: LinearModel, omega: np.ndarray, inputs: list[str] | None = None,
                    outputs: list[str] | None = None) -> np.ndarray:
-    """``C (jwI - A)^-1 B + D`` at ``omega`` (rad/s): (nf, ny, nu), solved for all frequencies at once."""
+    """The model's response (nf, ny, nu) as flown: :meth:`LinearModel.frequency_response` times
+    ``e^{-jw tau}`` for the profile's declared input delays (``meta.delays``: refine's, a control
+    system's), which the runs' recorded inputs do not carry."""
     p = model.profile
-    yi = [p.outputs.index(y) for y in (outputs or p.outputs)]
-    ui = [p.input_names.index(u) for u in (inputs or p.input_names)]
-    n = model.n_states
-    s = 1j * np.asarray(omega, dtype=float)
-    X = np.linalg.solve(s[:, None, None] * np.eye(n) - model.A, np.broadcast_to(model.B[:, ui], (len(s), n, len(ui))))
-    H = np.einsum("yn,fnu->fyu", model.C[yi], X) + model.D[np.ix_(yi, ui)]
-    # the profile's declared input delays (refine's, a control system's): e^{-jw tau} per input
+    H = model.frequency_response(omega, inputs, outputs)
     delays = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
-    tau = np.array([delays.get(p.input_names[i], 0.0) for i in ui])
+    tau = np.array([delays.get(u, 0.0) for u in (inputs or p.input_names)])
+    s = 1j * np.atleast_1d(np.asarray(omega, dtype=float))
     return H * np.exp(-s[:, None] * tau[None, :])[:, None, :] if tau.any() else H
 
 
 def excited_modes(model: LinearModel, inputs: list[str]) -> list[float]:
     """Natural frequencies (rad/s, ascending) of the model's modes that ``inputs`` excite (nonzero
-    controllability through the input matrix); zero eigenvalues (pure integrations) left out."""
+    controllability through the input matrix and observability in the outputs); zero eigenvalues
+    (pure integrations) left out."""
     p = model.profile
     ui = [p.input_names.index(u) for u in inputs if u in p.input_names]
     if not ui:
@@ -464,90 +454,6 @@ def format_cost(cost: dict, label: str = "model") -> str:
     if cost.get("left_out"):
         lines.append(f"  left out: the pairs of {', '.join(cost['left_out'])} (no run moves it)")
     return "\n".join(lines)
-
-
-# -- plots ---------------------------------------------------------------------------------------
-def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = None, outdir: str | Path = ".",
-              min_coherence: float = MIN_COHERENCE) -> list[Path]:
-    """One PNG per input: magnitude, phase and coherence of every output, models overlaid."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import matplotlib.ticker
-
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    models = models or {}
-    responses = {}
-    for label, m in models.items():
-        outs = [y for y in fr.outputs if y in m.profile.outputs]
-        ins = [u for u in fr.inputs if u in m.profile.input_names]
-        responses[label] = (outs, ins, model_response(m, fr.omega, ins, outs))
-    f_hz = fr.omega / (2 * np.pi)
-    paths = []
-    for i, u in enumerate(fr.inputs):
-        ny = len(fr.outputs)
-        fig, axes = plt.subplots(3, ny, figsize=(3.2 * ny, 7.5), sharex=True, squeeze=False)
-        for j, y in enumerate(fr.outputs):
-            coherent = fr.coherence[:, j, i] >= min_coherence
-            mag, ph = fr.magnitude_db[:, j, i], fr.phase_deg[:, j, i]
-            a_m, a_p, a_c = axes[0, j], axes[1, j], axes[2, j]
-            a_m.semilogx(f_hz, np.where(coherent, mag, np.nan), "k-", lw=1.5, label="flight data")
-            a_m.semilogx(f_hz, mag, "k:", lw=0.8)
-            a_p.semilogx(f_hz, np.where(coherent, ph, np.nan), "k-", lw=1.5)
-            a_p.semilogx(f_hz, ph, "k:", lw=0.8)
-            for (label, (outs, ins, Hm)), style in zip(responses.items(), ("C1--", "C0-", "C2-.")):
-                if y in outs and u in ins:
-                    h = Hm[:, outs.index(y), ins.index(u)]
-                    a_m.semilogx(f_hz, 20 * np.log10(np.abs(h)), style, lw=1.2, label=label)
-                    a_p.semilogx(f_hz, _phase_near(h, ph), style, lw=1.2)
-            for a in (a_m, a_p, a_c):
-                _shade_unresolved(a, f_hz, fr.resolved[:, j, i])
-            a_c.semilogx(f_hz, fr.coherence[:, j, i], "k-")
-            a_c.axhline(min_coherence, color="0.6", ls=":")
-            a_c.set_ylim(0, 1.05)
-            a_m.set_title(f"{y} / {u}")
-            a_c.set_xlabel("frequency [Hz]")
-            a_c.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-            a_c.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        axes[0, 0].set_ylabel("magnitude [dB]")
-        axes[1, 0].set_ylabel("phase [deg]")
-        axes[2, 0].set_ylabel("coherence")
-        axes[0, 0].legend(fontsize=7)
-        fig.suptitle(f"frequency responses to {u} (solid: coherence >= {min_coherence}; "
-                     f"grey: no valid window, nothing estimated)")
-        fig.tight_layout()
-        path = outdir / f"bode_{u}.png"
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        paths.append(path)
-    return paths
-
-
-def _shade_unresolved(ax, f_hz: np.ndarray, resolved: np.ndarray) -> None:
-    """Grey bands over the frequencies without a valid estimate (edges half-way in log frequency)."""
-    edges = np.sqrt(f_hz[1:] * f_hz[:-1])
-    edges = np.concatenate([[f_hz[0] ** 2 / edges[0]], edges, [f_hz[-1] ** 2 / edges[-1]]]) if f_hz.size > 1 \
-        else np.array([f_hz[0] / 1.1, f_hz[0] * 1.1])
-    k = 0
-    while k < f_hz.size:
-        if resolved[k]:
-            k += 1
-            continue
-        k1 = k
-        while k1 < f_hz.size and not resolved[k1]:
-            k1 += 1
-        ax.axvspan(edges[k], edges[k1], color="0.88", lw=0)
-        k = k1
-
-
-def _phase_near(h: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:
-    """Unwrapped model phase (deg) shifted by whole turns to lie near the data's."""
-    ph = np.degrees(np.unwrap(np.angle(h)))
-    ok = np.isfinite(reference_deg)
-    if ok.any():
-        ph += 360 * np.round(np.median(reference_deg[ok] - ph[ok]) / 360)
-    return ph
 
 
 def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, dict]:
