@@ -81,15 +81,30 @@ def cmd_estimate(args) -> int:
     iterations = {} if args.max_iter is None else {"max_iter": args.max_iter}
     options = {"ml": dict(progress=show, **iterations),
                "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
-               "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
+               "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {},
+               "fr": dict(delays=_names(args.fr_delays), prune=args.prune)}[args.method]
+    if args.method != "fr" and (args.fr_delays or args.prune):
+        raise EstimationError(f"--fr-delays and --prune apply to --method fr, not {args.method}")
     result = _fit(args.method, options, profile, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
+    if "report_lines" in result.info:  # the frequency-response fit's J, pruning and delays
+        print("\n" + "\n".join(result.info["report_lines"]), flush=True)
     from .estimators.frequency.response import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
+    verification = None
+    if args.verify:  # VERIFY: the identified model predicts runs that took no part
+        from .estimators.frequency.verify import verify
+        verification = verify(result.model, _read_runs(args.verify, args.channel_map, result.profile))
+        result.info["verify"] = verification.to_dict()
+        print("\n" + "\n".join(verification.lines()), flush=True)
     out = result.save(args.out)
     plots = save_plots(result, out)
+    if verification is not None:
+        from .estimators.frequency.verify import plot_verification
+        from .model.profile import output_units
+        plots.append(plot_verification(verification, out / "verify.png", output_units(result.profile)))
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
     return 0
 
@@ -124,7 +139,16 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
                    help="iterations at most for iv (default 30) and ml (default 100)")
+    p.add_argument("--verify", nargs="+", metavar="RUN", help="held-out runs the identified model must predict "
+                   "(VERIFY: initial state and zero shifts fitted; Theil coefficient and J_rms reported)")
+    p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")
+    p.add_argument("--prune", action="store_true", help="fr: fix parameters that fail CIFER's gates "
+                   "(insensitivity <= 10 %%, Cramér-Rao <= 20 %%) at their a priori values, one at a time")
     p.set_defaults(func=cmd_estimate)
+
+
+def _names(text: str | None) -> tuple[str, ...]:
+    return tuple(n.strip() for n in (text or "").split(",") if n.strip())
 
 
 def _read_runs(paths, channel_map, profile):

@@ -11,7 +11,7 @@ from ..errors import EstimationError
 
 # method name -> (module under identify.estimators, class)
 _CLASSES = {"ml": ("ml", "ML"), "ls": ("equation_error", "LS"), "iv": ("equation_error", "IV"),
-            "fdee": ("frequency.equation_error", "FDEE")}
+            "fdee": ("frequency.equation_error", "FDEE"), "fr": ("frequency.response_fit", "FR")}
 METHOD_NAMES = tuple(_CLASSES)
 
 

@@ -37,8 +37,9 @@ DB = 20 / np.log(10)
 
 
 def coherence_weight(coherence: np.ndarray) -> np.ndarray:
-    """Tischler's W_gamma = (1.58 (1 - exp(-gamma^2)))^2 (about 1 at coherence 1)."""
-    return (1.58 * (1 - np.exp(-np.asarray(coherence) ** 2))) ** 2
+    """Tischler's W_gamma = (1.58 (1 - exp(-gamma^2)))^2 (about 1 at coherence 1); ``coherence`` is
+    gamma^2, as every coherence here."""
+    return (1.58 * (1 - np.exp(-np.asarray(coherence)))) ** 2
 
 
 @dataclass

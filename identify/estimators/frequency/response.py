@@ -50,6 +50,7 @@ lowest resolved frequency against the slowest mode the inputs excite: below it n
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,6 +60,7 @@ from scipy.signal import detrend
 from ...data.runs import Run
 from ...errors import EstimationError
 from ...model.linear import LinearModel
+from ...model.pseudo_inputs import APPLIED
 from .base import fourier_sum
 
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
@@ -369,14 +371,15 @@ def _composite(per_window):
 
 # -- models against the estimate -----------------------------------------------------------------
 def model_response(model: LinearModel, omega: np.ndarray, inputs: list[str] | None = None,
-                   outputs: list[str] | None = None) -> np.ndarray:
+                   outputs: list[str] | None = None, applied: dict[str, float] | None = None) -> np.ndarray:
     """The model's response (nf, ny, nu) as flown: :meth:`LinearModel.frequency_response` times
     ``e^{-jw tau}`` for the profile's declared input delays (``meta.delays``: refine's, a control
-    system's), which the runs' recorded inputs do not carry."""
+    system's), less those ``applied`` already to the runs' inputs (prepared runs carry them)."""
     p = model.profile
     H = model.frequency_response(omega, inputs, outputs)
     delays = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
-    tau = np.array([delays.get(u, 0.0) for u in (inputs or p.input_names)])
+    applied = applied or {}
+    tau = np.array([delays.get(u, 0.0) - float(applied.get(u, 0.0)) for u in (inputs or p.input_names)])
     s = 1j * np.atleast_1d(np.asarray(omega, dtype=float))
     return H * np.exp(-s[:, None] * tau[None, :])[:, None, :] if tau.any() else H
 
@@ -399,7 +402,8 @@ def excited_modes(model: LinearModel, inputs: list[str]) -> list[float]:
     return sorted({round(float(abs(v)), 12) for v in lam[keep]})
 
 
-def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE) -> dict:
+def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE,
+             applied: dict[str, float] | None = None) -> dict:
     """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
 
     Only points that are resolved (a valid window) and coherent (>= ``min_coherence``) count; a pair
@@ -410,7 +414,7 @@ def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = M
     p = model.profile
     outs = [y for y in fr.outputs if y in p.outputs]
     ins = [u for u in fr.inputs if u in p.input_names and u not in fr.unmoved]
-    Hm = model_response(model, fr.omega, ins, outs)
+    Hm = model_response(model, fr.omega, ins, outs, applied)
     pairs, counts, not_judged = {}, {}, {}
     for jm, y in enumerate(outs):
         for im, u in enumerate(ins):
@@ -464,7 +468,9 @@ def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, d
         fr = frequency_response(runs, p.input_names, list(p.outputs))
     except EstimationError as exc:
         return f"frequency-domain fit cost J: not computed ({exc})", {"not_computed": str(exc)}
-    costs = {label: fit_cost(fr, m) for label, m in models.items()}
+    # runs prepared for a profile carry its delays in their inputs already (their metadata says so)
+    applied = {k: float(v) for k, v in json.loads(runs[0].meta.get(APPLIED, "{}")).items()} if runs else {}
+    costs = {label: fit_cost(fr, m, applied=applied) for label, m in models.items()}
     line = fr.resolution_line(next(iter(models.values())))
     text = "\n".join([f"frequency-domain fit cost J (Tischler), {line}"] +
                      [format_cost(c, label) for label, c in costs.items()])

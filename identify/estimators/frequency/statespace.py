@@ -18,13 +18,16 @@ Accuracy (Tischler & Remple): the Cramér-Rao bound from the Gauss-Newton inform
 s^2`` (``G`` the Jacobian of the weighted residuals, ``s^2 = 2 J_sum / (n_r - p)`` the residual
 variance of the fit, the usual estimate when the point errors are not known), reported as CR %
 ``= 100 CR / |theta|``; the insensitivity ``1 / sqrt(F_ii)`` in % likewise. CIFER's gates: CR <= 20 %,
-insensitivity <= 10 %. With ``prune=True`` the worst offender (largest insensitivity %, else largest
+insensitivity <= 10 %. With ``prune=True`` the parameters the data cannot move at the start values
+(insensitivity over its gate there, with the start's residual variance: a conservative screen) are
+fixed first, then after each fit the worst offender (largest insensitivity %, else largest
 CR %) is fixed at its a priori value, the model re-fitted, and so on until every free parameter
 passes; each step is recorded with its reason and the J it leaves.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -33,7 +36,7 @@ from ...model.linear import LinearModel
 from ...model.profile import Profile
 
 MIN_COHERENCE = 0.6
-MIN_POINTS = 3
+MIN_POINTS = 5  # as J's judgement (response.MIN_POINTS): fewer points say nothing about a pair
 W_GAIN, W_PHASE = 1.0, 0.01745
 DB = 20 / np.log(10)
 CR_GATE, INSENSITIVITY_GATE = 20.0, 10.0
@@ -133,8 +136,13 @@ class FrequencyFit:
         lines += [f"  {k:<22}{v:10.1f}  ({self.n_points[k]} points)" for k, v in self.J.items()]
         if self.left_out:
             lines.append("  not fitted: " + "; ".join(f"{k} ({v})" for k, v in self.left_out.items()))
+        screened = [n for n, _, J in self.pruned if not np.isfinite(J)]
+        if screened:
+            lines.append(f"  fixed at a priori before fitting (insensitivity > {INSENSITIVITY_GATE:g} % at the start "
+                         f"values: the data do not move them): {', '.join(screened)}")
         for name, reason, J in self.pruned:
-            lines.append(f"  fixed at a priori: {name} ({reason}); mean J then {J:.1f}")
+            if np.isfinite(J):
+                lines.append(f"  fixed at a priori: {name} ({reason}); mean J then {J:.1f}")
         return lines
 
 
@@ -155,7 +163,7 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
     di = [data.inputs.index(u) for u in ins]
     usable = data.usable(min_coherence)[:, dj][:, :, di]
     Hd = data.H[:, dj][:, :, di]
-    W = (1.58 * (1 - np.exp(-data.coherence[:, dj][:, :, di] ** 2))) ** 2
+    W = (1.58 * (1 - np.exp(-data.coherence[:, dj][:, :, di]))) ** 2  # coherence is gamma^2
     H0, dH0, _ = response_and_jacobian(model, data.omega, yi, ui, jacobian=True)
     pairs, left_out = [], {}
     for a, y in enumerate(outs):
@@ -172,6 +180,16 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
         raise ValueError("frequency-response fit: no input/output pair has resolved coherent points")
     active = np.ones(len(profile.free), bool)
     pruned = []
+    if prune:  # screen at the start values: what the data cannot move at all is not fitted
+        screen = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ins_pct = np.nan_to_num(100 * screen["ins"] / np.abs(model.theta), nan=np.inf)
+        for k in np.flatnonzero(ins_pct > INSENSITIVITY_GATE):
+            if active.sum() > 1:
+                active[k] = False
+                pruned.append((profile.free_names[k], f"insensitivity {ins_pct[k]:.3g} % > "
+                               f"{INSENSITIVITY_GATE:g} % at the start values (screened before fitting)",
+                               float("nan")))
     fit = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev)
     while prune:
         acc = _gates(fit["theta"], fit["std"], fit["ins"], active)
@@ -262,8 +280,11 @@ def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, act
     lo = np.concatenate([np.full(n_act, -np.inf), np.zeros(len(d_idx))])
     hi = np.concatenate([np.full(n_act, np.inf), np.full(len(d_idx), tau_max)])
     x0 = np.clip(x0, lo + 1e-9, hi - 1e-9) if d_idx else x0
-    sol = least_squares(lambda x: residuals(x), x0, jac=lambda x: residuals(x, True)[1], bounds=(lo, hi),
-                        x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=max_nfev, method="trf")
+    if max_nfev:
+        sol = least_squares(lambda x: residuals(x), x0, jac=lambda x: residuals(x, True)[1], bounds=(lo, hi),
+                            x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=max_nfev, method="trf")
+    else:  # evaluate only (the screen at the start values)
+        sol = SimpleNamespace(x=x0, success=True, message="not fitted", nfev=0)
     r, G = residuals(sol.x, True)
     theta, tau = unpack(sol.x)
     # per-pair J (the residuals are scaled by 1/n_pairs: undo it)
