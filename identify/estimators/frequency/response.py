@@ -42,7 +42,7 @@ correlated, so the composite error is the weighted mean of the windows' errors, 
 
 Fit cost (:func:`fit_cost`): Tischler's ``J = 20 / n_w * sum W_g (dB error)^2 + W_p (deg error)^2``
 weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies where the coherence is at
-least 0.6 at frequencies with a valid estimate (nothing is judged where nothing is resolved), and
+least 0.6 and random error at most MAX_RANDOM_ERROR at frequencies with a valid estimate (nothing is judged where nothing is resolved), and
 only for pairs with MIN_POINTS such points and an input some run moves; a mean ``J <= 100`` with no
 pair above 200 is the usual mark of a model that fits (Tischler & Remple). The report states the
 lowest resolved frequency against the slowest mode the inputs excite: below it no model is judged.
@@ -73,6 +73,9 @@ MIN_CYCLES_LONGEST = 2.0  # ... except the longest, which sets the lowest freque
 N_WINDOWS = 5
 W_GAIN, W_PHASE = 1.0, 0.01745  # Tischler's weights on dB and deg errors
 MIN_POINTS = 5  # resolved coherent points a pair needs before its J says anything about a model
+# a point judges models only if its random error is at most this: with few averages a coherence of
+# 0.6 still leaves 30 % errors, more than the difference between a good and a 30 %-off model
+MAX_RANDOM_ERROR = 0.2
 J_MEAN_FITS, J_PAIR_MAX = 100.0, 200.0  # Tischler & Remple: mean J <= 100 and no pair above 200
 
 
@@ -158,10 +161,14 @@ class FrequencyResponse:
         if w >= lo:
             return head + f": reaches the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz)"
         T = MIN_CYCLES_LONGEST * 2 * np.pi / w
-        return (head + f": does NOT reach the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz, "
-                f"{w:.3g} rad/s): that needs windows of {T:.3g} s, i.e. records of at least {2 * T:.3g} s "
-                f"(the windows here allow records of {2 * max(self.windows):.3g} s); below "
-                f"{lo / (2 * np.pi):.3g} Hz the models are not judged")
+        miss = f": does NOT reach the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz, {w:.3g} rad/s): "
+        if T > max(self.windows):
+            why = (f"that needs windows of {T:.3g} s, i.e. records of at least {2 * T:.3g} s "
+                   f"(the windows here allow records of {2 * max(self.windows):.3g} s)")
+        else:  # long enough, but the input's power there sits in too few segments
+            why = ("the longest window holds it, but too few segments carry input at that frequency "
+                   "(fewer than 2 averages: a single sweep passes it once); repeat the low end or fly more runs")
+        return head + miss + why + f"; below {lo / (2 * np.pi):.3g} Hz the models are not judged"
 
     def pair(self, output: str, input: str) -> tuple[int, int]:
         return self.outputs.index(output), self.inputs.index(input)
@@ -406,7 +413,8 @@ def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = M
              applied: dict[str, float] | None = None) -> dict:
     """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
 
-    Only points that are resolved (a valid window) and coherent (>= ``min_coherence``) count; a pair
+    Only points that are resolved (a valid window), coherent (>= ``min_coherence``) and accurate
+    (random error <= MAX_RANDOM_ERROR) count; a pair
     with fewer than MIN_POINTS of them is not judged, and pairs of inputs no run moves are left out.
     Returns ``{"pairs": {"y/u": J}, "mean": J or None, "n_frequencies": {"y/u": n}, "not_judged":
     {"y/u": n}, "left_out": [inputs], "worst": "y/u" or None, "fits": bool or None}``.
@@ -421,7 +429,7 @@ def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = M
             j, i = fr.pair(y, u)
             g2 = fr.coherence[:, j, i]
             use = fr.resolved[:, j, i] & (g2 >= min_coherence) & np.isfinite(fr.H[:, j, i]) & \
-                (np.abs(Hm[:, jm, im]) > 0)
+                (fr.random_error[:, j, i] <= MAX_RANDOM_ERROR) & (np.abs(Hm[:, jm, im]) > 0)
             key = f"{y}/{u}"
             counts[key] = int(use.sum())
             if use.sum() < MIN_POINTS:
@@ -445,7 +453,7 @@ def format_cost(cost: dict, label: str = "model") -> str:
     inputs left out on one line each."""
     if cost.get("mean") is None:
         lines = [f"J of the {label}: not judged (no pair has {MIN_POINTS} resolved points of coherence "
-                 f">= {MIN_COHERENCE})"]
+                 f">= {MIN_COHERENCE} and random error <= {MAX_RANDOM_ERROR:g})"]
     else:
         w = cost["worst"]
         verdict = "fits" if cost["fits"] else "does NOT fit"
@@ -453,7 +461,8 @@ def format_cost(cost: dict, label: str = "model") -> str:
                  f"{cost['pairs'][w]:.1f}: {verdict} (Tischler: mean <= {J_MEAN_FITS:g}, no pair > {J_PAIR_MAX:g})",
                  "  " + ", ".join(f"{k} {v:.1f}" for k, v in cost["pairs"].items())]
     if cost.get("not_judged"):
-        lines.append(f"  not judged (fewer than {MIN_POINTS} resolved points of coherence >= {MIN_COHERENCE}): "
+        lines.append(f"  not judged (fewer than {MIN_POINTS} resolved points of coherence >= {MIN_COHERENCE}, "
+                     f"random error <= {MAX_RANDOM_ERROR:g}): "
                      + ", ".join(cost["not_judged"]))
     if cost.get("left_out"):
         lines.append(f"  left out: the pairs of {', '.join(cost['left_out'])} (no run moves it)")

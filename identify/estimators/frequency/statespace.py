@@ -8,8 +8,8 @@ theta (and the delays) that minimise the mean over input/output pairs of Tischle
     J_pair = 20 / n_w sum_w W_gamma [ (|H_m|dB - |H|dB)^2 + 0.01745 (phase_m - phase)^2 (deg) ],
     W_gamma = (1.58 (1 - exp(-gamma^2)))^2,
 
-over the points each pair has that are **resolved** (a valid window) and **coherent** (coherence
->= 0.6); a pair with fewer than ``MIN_POINTS`` such points is not fitted and is listed once, as are
+over the points each pair has that are **resolved** (a valid window), **coherent** (coherence
+>= 0.6) and accurate (random error <= 0.2, when known); a pair with fewer than ``MIN_POINTS`` such points is not fitted and is listed once, as are
 pairs the model has no path for. Gauss-Newton with the exact Jacobian (``dH = dC R B + C R dA R B
 + C R dB + dD``, ``R = (jwI - A)^-1``) inside ``scipy.optimize.least_squares``; delays bounded to
 ``[0, tau_max]``.
@@ -36,6 +36,7 @@ from ...model.linear import LinearModel
 from ...model.profile import Profile
 
 MIN_COHERENCE = 0.6
+MAX_RANDOM_ERROR = 0.2  # as J's judgement (response.MAX_RANDOM_ERROR)
 MIN_POINTS = 5  # as J's judgement (response.MIN_POINTS): fewer points say nothing about a pair
 W_GAIN, W_PHASE = 1.0, 0.01745
 DB = 20 / np.log(10)
@@ -53,14 +54,17 @@ class ResponseData:
     resolved: np.ndarray
     inputs: list[str]
     outputs: list[str]
+    random_error: np.ndarray | None = None  # (nf, ny, nu) normalised random error of |H|, if known
 
     @classmethod
     def from_response(cls, fr) -> "ResponseData":
         """From a composite frequency response (any object with these attributes)."""
-        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs))
+        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error)
 
     def usable(self, min_coherence: float = MIN_COHERENCE) -> np.ndarray:
-        return self.resolved & np.isfinite(self.H) & (self.coherence >= min_coherence)
+        """Resolved, coherent and (when the random errors are known) accurate points, as J judges them."""
+        ok = self.resolved & np.isfinite(self.H) & (self.coherence >= min_coherence)
+        return ok if self.random_error is None else ok & (self.random_error <= MAX_RANDOM_ERROR)
 
 
 def response_and_jacobian(model: LinearModel, omega: np.ndarray, yi: list[int], ui: list[int],
