@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import sys
 
+import numpy as np
+
 from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
                       output_dir, output_file, positive_float, positive_int, run)
 from .errors import EstimationError
@@ -49,6 +51,7 @@ def build_parser() -> Parser:
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
     _add_freq_parser(sub)
+    _add_hq_parsers(sub)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser
@@ -267,6 +270,95 @@ def _add_freq_parser(sub) -> None:
     p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)
+
+
+def cmd_hq(args) -> int:
+    """ADS-33 bandwidth and phase delay, the chart, short-period LOES: of runs or of a model."""
+    from .estimators.frequency.hq import hq_of_model, hq_of_response
+
+    profile = load_profile(args.profile)
+    options = dict(task=args.task, pitch=args.pitch, roll=args.roll, category=args.category)
+    if args.runs:
+        from .estimators.frequency.response import frequency_response
+
+        runs = _read_runs(args.runs, args.channel_map, profile)
+        fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
+        report = hq_of_response(fr, **options)
+    else:
+        report = hq_of_model(LinearModel(profile), **options)
+    print("\n".join(report.lines()), flush=True)
+    paths = report.save(args.out)
+    print(f"written to {args.out}: {', '.join(p.name for p in paths)}")
+    return 0
+
+
+def cmd_loes(args) -> int:
+    """A transfer function (chosen orders, equivalent delay, bounds) fitted to one measured response."""
+    from pathlib import Path
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from .estimators.frequency.loes import fit_transfer_function, plot_fit, short_period
+    from .estimators.frequency.response import frequency_response
+
+    profile = load_profile(args.profile)
+    output, _, input_ = args.pair.partition("/")
+    if output not in profile.outputs or input_ not in profile.input_names:
+        raise EstimationError(f"--pair {args.pair}: give OUTPUT/INPUT of the profile (outputs "
+                              f"{', '.join(profile.outputs)}; inputs {', '.join(profile.input_names)})")
+    runs = _read_runs(args.runs, args.channel_map, profile)
+    fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
+    j, i = fr.pair(output, input_)
+    band = None if args.w_min is None and args.w_max is None else (args.w_min or 0.0, args.w_max or np.inf)
+    coh = np.where(fr.resolved[:, j, i], fr.coherence[:, j, i], 0.0)
+    try:
+        fit = fit_transfer_function(fr.omega, fr.H[:, j, i], coh, n_num=args.num, n_den=args.den,
+                                    delay=not args.no_delay, tau_bounds=(0.0, args.tau_max), omega_range=band)
+    except ValueError as exc:
+        raise EstimationError(f"loes {args.pair}: {exc}") from None
+    text = [f"{args.pair}: numerator order {args.num}, denominator order {args.den}"
+            + ("" if args.no_delay else f", equivalent delay in [0, {args.tau_max:g}] s"), fit.summary()]
+    if args.den == 2 and not args.no_delay:
+        text += short_period(fit, args.category).lines()
+    print("\n".join(text), flush=True)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "loes.md").write_text("```\n" + "\n".join(text) + "\n```\n")
+    fig = plot_fit(fr.omega, fr.H[:, j, i], coh, fit, f"{args.pair}: transfer-function fit")
+    FigureCanvasAgg(fig)
+    fig.savefig(out / "loes.png", dpi=90)
+    print(f"written to {out}: loes.md, loes.png")
+    return 0
+
+
+def _add_hq_parsers(sub) -> None:
+    p = sub.add_parser("hq", help="handling qualities: ADS-33 bandwidth/phase delay chart, short-period LOES")
+    p.add_argument("runs", nargs="*", help="run files (.csv or .mat); none: the profile's model itself")
+    p.add_argument("--profile", required=True, help="profile (or identified profile) TOML path or bundled name")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--task", choices=("tracking", "other"), default="tracking",
+                   help="ADS-33 task category (default tracking: target acquisition and tracking)")
+    p.add_argument("--pitch", metavar="INPUT", help="pitch control (default theta_s or delta_e)")
+    p.add_argument("--roll", metavar="INPUT", help="roll control (default theta_c or delta_a)")
+    p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
+    p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
+    p.set_defaults(func=cmd_hq)
+    p = sub.add_parser("loes", help="transfer function (LOES) with an equivalent delay fitted to one response")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat)")
+    p.add_argument("--profile", required=True, help="profile naming the inputs and outputs")
+    p.add_argument("--pair", required=True, metavar="OUTPUT/INPUT", help="the response fitted, e.g. q/theta_s")
+    p.add_argument("--num", type=nonnegative_int, default=1, help="numerator order (default 1)")
+    p.add_argument("--den", type=positive_int, default=2, help="denominator order (default 2)")
+    p.add_argument("--no-delay", action="store_true", help="no equivalent time delay")
+    p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay (default 0.5)")
+    p.add_argument("--w-min", type=positive_float, metavar="RAD_S", help="lowest frequency fitted")
+    p.add_argument("--w-max", type=positive_float, metavar="RAD_S", help="highest frequency fitted")
+    p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
+    p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.set_defaults(func=cmd_loes)
 
 
 def main(argv=None) -> int:

@@ -92,8 +92,11 @@ def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = N
         return Bandwidth(*[float("nan")] * 4, notes=["fewer than 2 usable frequencies"])
     w, h = omega[use], H[use]
     phase = np.degrees(np.unwrap(np.angle(h)))
-    phase -= 360 * np.floor((phase[0] + 180) / 360)  # first point in [-180, 180)
-    inverted = bool(phase[0] > 0)  # an attitude response lags: a leading start is a sign convention
+    # the branch and the sign from the middle of the band (in log frequency), where an attitude
+    # response lags by 90-270 deg; its low end may be ruled by slow (even unstable) modes
+    mid = int(np.argmin(np.abs(np.log(w) - 0.5 * (np.log(w[0]) + np.log(w[-1])))))
+    phase -= 360 * np.floor((phase[mid] + 270) / 360)  # middle point in [-270, 90)
+    inverted = bool(phase[mid] > -45)  # a leading attitude response: a sign convention
     if inverted:
         phase -= 180
         notes.append("response sign inverted (negative control gain convention)")
@@ -101,10 +104,10 @@ def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = N
     w180 = _crossing(w, phase, -180.0)
     w135 = _crossing(w, phase, -135.0)
     if not np.isfinite(w135):
-        notes.append(f"phase does not reach -135 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
+        notes.append(f"phase does not fall through -135 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
                      "phase bandwidth not determined")
     if not np.isfinite(w180):
-        notes.append(f"phase does not reach -180 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
+        notes.append(f"phase does not fall through -180 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
                      "gain bandwidth and phase delay not determined")
         return Bandwidth(float("nan"), w135, float("nan"), float("nan"), inverted, notes)
     g180 = _interp_log(w180, w, gain_db)
@@ -122,9 +125,10 @@ def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = N
 
 
 def _crossing(w: np.ndarray, y: np.ndarray, level: float) -> float:
-    """The lowest frequency where y crosses ``level`` (either way), linear in log w; NaN if none."""
+    """The lowest frequency where y falls through ``level`` (from above), linear in log w; NaN if
+    none. A rise through it (a slow mode's phase lead) is not a crossover."""
     d = y - level
-    idx = np.nonzero((d[:-1] > 0) != (d[1:] > 0))[0]
+    idx = np.nonzero((d[:-1] > 0) & (d[1:] <= 0))[0]
     if idx.size == 0:
         return float("nan")
     k = idx[0]

@@ -288,3 +288,37 @@ def mil1797_short_period_level(zeta: float, tau_e: float, category: str = "A") -
     reasons = [f"zeta_sp {zeta:.3g}: Level {lz if lz < 4 else 'worse than 3'} (category {category})",
                f"tau_e {tau_e:.3g} s: Level {lt if lt < 4 else 'worse than 3'}"]
     return min(max(lz, lt), 3) if max(lz, lt) < 4 else 3, reasons
+
+
+def plot_fit(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None, fit: TransferFunctionFit,
+             title: str, min_coherence: float = MIN_COHERENCE):
+    """Bode plot (magnitude dB, phase deg, coherence against frequency in rad/s, log axis) of the
+    measured response beside the fitted transfer function; an Agg :class:`Figure`."""
+    from matplotlib.figure import Figure
+
+    coh = np.ones(omega.shape) if coherence is None else coherence
+    ok = np.isfinite(H) & (coh >= min_coherence)
+    fig = Figure(figsize=(6.0, 6.5))
+    a_m, a_p, a_c = fig.subplots(3, 1, sharex=True)
+    Hf = fit.response(omega)
+    ph_d = np.full(omega.shape, np.nan)
+    if ok.any():
+        ph_d[ok] = np.degrees(np.unwrap(np.angle(H[ok])))
+    ph_f = np.degrees(np.unwrap(np.angle(Hf)))
+    if ok.any():  # the fit's phase by whole turns near the data's
+        ph_f += 360 * np.round(np.nanmedian(ph_d[ok] - ph_f[ok]) / 360)
+    a_m.semilogx(omega[ok], 20 * np.log10(np.abs(H[ok])), "k.", ms=4, label=f"data (coherence >= {min_coherence})")
+    a_m.semilogx(omega, 20 * np.log10(np.abs(Hf)), "C3-", lw=1.2, label=f"fit (J {fit.J:.1f})")
+    a_p.semilogx(omega[ok], ph_d[ok], "k.", ms=4)
+    a_p.semilogx(omega, ph_f, "C3-", lw=1.2)
+    a_c.semilogx(omega, coh, "k-", lw=1.0)
+    a_c.axhline(min_coherence, color="0.6", ls=":")
+    a_c.set_ylim(0, 1.05)
+    a_m.set_ylabel("magnitude [dB]")
+    a_p.set_ylabel("phase [deg]")
+    a_c.set_ylabel("coherence [-]")
+    a_c.set_xlabel("frequency [rad/s]")
+    a_m.legend(fontsize=7)
+    a_m.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
