@@ -100,6 +100,9 @@ class FrequencyResponse:
     windows: list[float] = field(default_factory=list)
     runs: list[str] = field(default_factory=list)
     unmoved: list[str] = field(default_factory=list)  # inputs no run moves: their pairs say nothing
+    # (nf, ny, nu) window length (s) behind each composite point, weighted as the estimate: its
+    # resolution ~1.5/window Hz says how many neighbouring grid points share its errors
+    window: np.ndarray | None = None
 
     @property
     def magnitude_db(self) -> np.ndarray:
@@ -230,9 +233,9 @@ def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[s
                                                         for x in data)]
     per_window = [_window_estimate(data, dt, T, omega, nu, overlap, MIN_CYCLES_LONGEST if k == 0 else MIN_CYCLES)
                   for k, T in enumerate(windows)]
-    H, coh, mult, err = _composite(per_window)
+    H, coh, mult, err, window = _composite(per_window, windows)
     return FrequencyResponse(omega, H, coh, mult, err, list(inputs), list(outputs), list(windows),
-                             [r.source for r in runs], unmoved)
+                             [r.source for r in runs], unmoved, window)
 
 
 def default_windows(durations: list[float], n_inputs: int, overlap: float = 0.5) -> list[float]:
@@ -354,8 +357,10 @@ def _ridge(M: np.ndarray) -> np.ndarray:
     return np.einsum("fi,ij->fij", np.broadcast_to(scale, d.shape), np.eye(M.shape[1]))
 
 
-def _composite(per_window):
-    """Combine window estimates with weights 1/eps^2 (see the module notes)."""
+def _composite(per_window, windows):
+    """Combine window estimates with weights 1/eps^2 (see the module notes); also the weighted
+    window length behind each point."""
+    lengths = np.array([T for w, T in zip(per_window, windows) if w is not None])
     est = [w for w in per_window if w is not None]
     if not est:
         raise EstimationError("frequency response: no window fits in the runs")
@@ -373,7 +378,8 @@ def _composite(per_window):
     err_c = np.where(has, (wn * np.where(np.isfinite(err), err, 0.0)).sum(axis=0), np.inf)
     w_out = wn.mean(axis=3)  # output-level weights for the multiple coherence
     mult_c = (w_out * mult).sum(axis=0)
-    return H_c, coh_c, mult_c, err_c
+    window_c = np.where(has, np.tensordot(lengths, wn, axes=1), np.nan)
+    return H_c, coh_c, mult_c, err_c, window_c
 
 
 # -- models against the estimate -----------------------------------------------------------------

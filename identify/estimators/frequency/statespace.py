@@ -15,8 +15,11 @@ pairs the model has no path for. Gauss-Newton with the exact Jacobian (``dH = dC
 ``[0, tau_max]``.
 
 Accuracy (Tischler & Remple): the Cramér-Rao bound from the Gauss-Newton information ``F = G^T G /
-s^2`` (``G`` the Jacobian of the weighted residuals, ``s^2 = 2 J_sum / (n_r - p)`` the residual
-variance of the fit, the usual estimate when the point errors are not known), reported as CR %
+s^2`` (``G`` the Jacobian of the weighted residuals, ``s^2 = sum r^2 / (n_r - p)`` the residual
+variance of the fit, the usual estimate when the point errors are not known, times the number of
+grid points per resolution cell: neighbouring points of a composite response closer than a window's
+resolution 1.5/T share their errors, so n points carry the information of about n / cells
+independent ones), reported as CR %
 ``= 100 CR / |theta|``; the insensitivity ``1 / sqrt(F_ii)`` in % likewise. CIFER's gates: CR <= 20 %,
 insensitivity <= 10 %. With ``prune=True`` the parameters the data cannot move at the start values
 (insensitivity over its gate there, with the start's residual variance: a conservative screen) are
@@ -55,11 +58,24 @@ class ResponseData:
     inputs: list[str]
     outputs: list[str]
     random_error: np.ndarray | None = None  # (nf, ny, nu) normalised random error of |H|, if known
+    window: np.ndarray | None = None  # (nf, ny, nu) window length (s) behind each point, if known
 
     @classmethod
     def from_response(cls, fr) -> "ResponseData":
         """From a composite frequency response (any object with these attributes)."""
-        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error)
+        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error,
+                   getattr(fr, "window", None))
+
+    def points_per_cell(self) -> np.ndarray | None:
+        """(nf, ny, nu) grid points within one resolution cell (Hann: 1.5 / window Hz) of each point,
+        at least 1: neighbours closer than that share their errors. None if the windows are unknown."""
+        if self.window is None:
+            return None
+        f = self.omega / (2 * np.pi)
+        spacing = np.gradient(f) if f.size > 1 else np.ones(1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n = (1.5 / self.window) / spacing[:, None, None]
+        return np.maximum(np.nan_to_num(n, nan=1.0), 1.0)
 
     def usable(self, min_coherence: float = MIN_COHERENCE) -> np.ndarray:
         """Resolved, coherent and (when the random errors are known) accurate points, as J judges them."""
@@ -185,7 +201,7 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
     active = np.ones(len(profile.free), bool)
     pruned = []
     if prune:  # screen at the start values: what the data cannot move at all is not fitted
-        screen = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, 0)
+        screen = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, 0)  # noqa
         with np.errstate(divide="ignore", invalid="ignore"):
             ins_pct = np.nan_to_num(100 * screen["ins"] / np.abs(model.theta), nan=np.inf)
         for k in np.flatnonzero(ins_pct > INSENSITIVITY_GATE):
@@ -194,7 +210,12 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
                 pruned.append((profile.free_names[k], f"insensitivity {ins_pct[k]:.3g} % > "
                                f"{INSENSITIVITY_GATE:g} % at the start values (screened before fitting)",
                                float("nan")))
-    fit = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev)
+    cells = data.points_per_cell()
+    # adjacent points of a composite response share errors: the information of n points is that of
+    # about n / (points per resolution cell) independent ones, so the bounds grow by that factor
+    inflation = 1.0 if cells is None else float(np.mean(
+        np.concatenate([cells[:, dj][:, :, di][usable[:, a, b], a, b] for a, b, _ in pairs])))
+    fit = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev, inflation=inflation)
     while prune:
         acc = _gates(fit["theta"], fit["std"], fit["ins"], active)
         if not acc:
@@ -204,7 +225,7 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
         theta = fit["theta"].copy()
         theta[name_i] = model.theta[name_i]
         fit = _solve(model.with_theta(theta), data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max,
-                     active, max_nfev, tau0=fit["tau"])
+                     active, max_nfev, tau0=fit["tau"], inflation=inflation)
         pruned.append((profile.free_names[name_i], reason, fit["J_mean"]))
     p = profile
     if pruned:  # the pruned parameters become fixed in the identified structure
@@ -215,6 +236,9 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
     tau = {u: float(t) for u, t in zip(delays, fit["tau"])}
     tau_std = {u: float(t) for u, t in zip(delays, fit["tau_std"])}
     notes = [] if fit["converged"] else [f"optimiser stopped before convergence: {fit['message']}"]
+    if inflation > 1:
+        notes.append(f"bounds scaled for correlated neighbouring points: {inflation:.3g} grid points per "
+                     f"resolution cell on average (variance x {inflation:.3g})")
     at_bound = [u for u, t in tau.items() if t <= 1e-9 or t >= tau_max - 1e-9]
     if at_bound:
         notes.append(f"delay at its bound (0 or {tau_max:g} s): {', '.join(at_bound)}")
@@ -240,7 +264,8 @@ def _gates(theta, std, ins, active) -> tuple[int, str] | None:
     return None
 
 
-def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev, tau0=None):
+def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev, tau0=None,
+           inflation=1.0):
     """One Gauss-Newton fit of the active parameters and the delays; cost, bounds and per-pair J."""
     d_idx = [ins.index(u) for u in delays]
     theta_all = model.theta.copy()
@@ -299,7 +324,7 @@ def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, act
         n[key] = int(use.sum())
         k += m
     J_mean = float(np.mean(list(J.values())))
-    s2 = np.sum(r ** 2) / max(len(r) - G.shape[1], 1)
+    s2 = inflation * np.sum(r ** 2) / max(len(r) - G.shape[1], 1)
     F = G.T @ G / max(s2, 1e-300)
     try:
         cov_x = np.linalg.inv(F)
