@@ -250,8 +250,9 @@ def cmd_freq(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models = {"a priori": LinearModel(profile)}
-    if args.identified:  # e.g. identified_profile.toml from identify estimate
-        models["identified"] = LinearModel(load_profile(args.identified))
+    for k, path in enumerate(args.identified or []):  # e.g. identified_profile.toml from identify estimate
+        label = "identified" if len(args.identified) == 1 else f"identified {k + 1} ({Path(path).parent.name})"
+        models[label] = LinearModel(load_profile(path))
     plots = plot_bode(fr, models, out)
     fr.to_csv(out / "frequency_response.csv")
     print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
@@ -266,7 +267,8 @@ def _add_freq_parser(sub) -> None:
     p.add_argument("runs", nargs="+", help="run files (.csv)")
     p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
-    p.add_argument("--identified", metavar="TOML", help="an identified profile to overlay and judge (J) too")
+    p.add_argument("--identified", metavar="TOML", action="append",
+                   help="an identified profile to overlay and judge (J) too; repeat for several (e.g. ML and FR)")
     p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)

@@ -454,9 +454,9 @@ def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = M
             "fits": fits}
 
 
-def format_cost(cost: dict, label: str = "model") -> str:
-    """One verdict line per model, then J per judged pair on one line; the pairs not judged and the
-    inputs left out on one line each."""
+def format_cost(cost: dict, label: str = "model", details: bool = True) -> str:
+    """One verdict line per model, then J per judged pair on one line; with ``details`` the pairs
+    not judged and the inputs left out on one line each (the data's, the same for every model)."""
     if cost.get("mean") is None:
         lines = [f"J of the {label}: not judged (no pair has {MIN_POINTS} resolved points of coherence "
                  f">= {MIN_COHERENCE} and random error <= {MAX_RANDOM_ERROR:g})"]
@@ -466,6 +466,8 @@ def format_cost(cost: dict, label: str = "model") -> str:
         lines = [f"J of the {label}: mean {cost['mean']:.1f} over {len(cost['pairs'])} pair(s), worst {w} "
                  f"{cost['pairs'][w]:.1f}: {verdict} (Tischler: mean <= {J_MEAN_FITS:g}, no pair > {J_PAIR_MAX:g})",
                  "  " + ", ".join(f"{k} {v:.1f}" for k, v in cost["pairs"].items())]
+    if not details:
+        return "\n".join(lines)
     if cost.get("not_judged"):
         lines.append(f"  not judged (fewer than {MIN_POINTS} resolved points of coherence >= {MIN_COHERENCE}, "
                      f"random error <= {MAX_RANDOM_ERROR:g}): "
@@ -487,7 +489,8 @@ def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, d
     applied = {k: float(v) for k, v in json.loads(runs[0].meta.get(APPLIED, "{}")).items()} if runs else {}
     costs = {label: fit_cost(fr, m, applied=applied) for label, m in models.items()}
     line = fr.resolution_line(next(iter(models.values())))
+    labels = list(costs)
     text = "\n".join([f"frequency-domain fit cost J (Tischler), {line}"] +
-                     [format_cost(c, label) for label, c in costs.items()])
+                     [format_cost(costs[k], k, details=k == labels[-1]) for k in labels])
     costs["resolution"] = line
     return text, costs
