@@ -163,6 +163,14 @@ def _read_runs(paths, channel_map, profile):
     return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
 
 
+def _recorded_runs(paths, channel_map, profile):
+    """The runs as recorded (the pilot's inputs, no declared delay applied): handling qualities
+    and LOES judge the aircraft from the stick, its delays included."""
+    from .data.io import load_channel_map, read_run_files
+
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+
+
 def _overlaps(run, t_start, t_end) -> bool:
     """Whether a run has two or more samples in the window (a gap's segment may have none)."""
     lo = -float("inf") if t_start is None else t_start
@@ -283,13 +291,14 @@ def cmd_hq(args) -> int:
     if args.runs:
         from .estimators.frequency.response import frequency_response
 
-        runs = _read_runs(args.runs, args.channel_map, profile)
+        runs = _recorded_runs(args.runs, args.channel_map, profile)
         fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
         report = hq_of_response(fr, **options)
+        model = hq_of_model(LinearModel(profile), **options) if args.with_model else None
     else:
-        report = hq_of_model(LinearModel(profile), **options)
-    print("\n".join(report.lines()), flush=True)
-    paths = report.save(args.out)
+        report, model = hq_of_model(LinearModel(profile), **options), None
+    print("\n".join(report.lines() + (["model:"] + model.lines() if model else [])), flush=True)
+    paths = report.save(args.out, model)
     print(f"written to {args.out}: {', '.join(p.name for p in paths)}")
     return 0
 
@@ -308,7 +317,7 @@ def cmd_loes(args) -> int:
     if output not in profile.outputs or input_ not in profile.input_names:
         raise EstimationError(f"--pair {args.pair}: give OUTPUT/INPUT of the profile (outputs "
                               f"{', '.join(profile.outputs)}; inputs {', '.join(profile.input_names)})")
-    runs = _read_runs(args.runs, args.channel_map, profile)
+    runs = _recorded_runs(args.runs, args.channel_map, profile)
     fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
     j, i = fr.pair(output, input_)
     band = None if args.w_min is None and args.w_max is None else (args.w_min or 0.0, args.w_max or np.inf)
@@ -345,6 +354,7 @@ def _add_hq_parsers(sub) -> None:
     p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
     p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
     p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
+    p.add_argument("--with-model", action="store_true", help="with runs: also the profile's model, on the same charts")
     p.set_defaults(func=cmd_hq)
     p = sub.add_parser("loes", help="transfer function (LOES) with an equivalent delay fitted to one response")
     p.add_argument("runs", nargs="+", help="run files (.csv or .mat)")

@@ -52,6 +52,8 @@ class Bandwidth:
     phase_delay: float
     sign_inverted: bool = False
     notes: list[str] = field(default_factory=list)
+    # when the phase is past -135 deg already at the lowest usable frequency: the bandwidth lies below it
+    bandwidth_below: float = float("nan")
 
     @property
     def bandwidth(self) -> float:
@@ -66,14 +68,18 @@ class Bandwidth:
         return bool(np.isfinite(self.omega_bw_gain) and self.omega_bw_gain < self.omega_bw_phase)
 
     def level(self, axis: str, task: str = "tracking") -> int | None:
-        """ADS-33 level (1, 2 or 3) of (bandwidth, phase delay); None if either is not determined."""
+        """ADS-33 level (1, 2 or 3) of (bandwidth, phase delay); None if either is not determined,
+        except Level 3 when the bandwidth is known to lie below the Level 2 minimum."""
+        if np.isfinite(self.bandwidth_below) and self.bandwidth_below < _boundaries(axis, task)[1][0]:
+            return 3
         return ads33_level(self.bandwidth, self.phase_delay, axis, task)
 
     def to_dict(self) -> dict:
         return {"omega_180": self.omega_180, "omega_bw_phase": self.omega_bw_phase,
                 "omega_bw_gain": self.omega_bw_gain, "bandwidth": self.bandwidth,
                 "phase_delay": self.phase_delay, "gain_limited": self.gain_limited,
-                "sign_inverted": self.sign_inverted, "notes": list(self.notes)}
+                "sign_inverted": self.sign_inverted, "bandwidth_below": self.bandwidth_below,
+                "notes": list(self.notes)}
 
 
 def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = None,
@@ -103,13 +109,19 @@ def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = N
     gain_db = 20 * np.log10(np.abs(h))
     w180 = _crossing(w, phase, -180.0)
     w135 = _crossing(w, phase, -135.0)
+    below = float("nan")
     if not np.isfinite(w135):
-        notes.append(f"phase does not fall through -135 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
-                     "phase bandwidth not determined")
+        if -180 < phase[0] < -135:  # between the bandwidth and omega_180 already (lower: a slow mode's branch)
+            below = float(w[0])
+            notes.append(f"phase already past -135 deg at the lowest usable frequency {w[0]:.3g} rad/s: "
+                         f"the phase bandwidth lies below it (not determined further)")
+        else:
+            notes.append(f"phase does not fall through -135 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
+                         "phase bandwidth not determined")
     if not np.isfinite(w180):
         notes.append(f"phase does not fall through -180 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
                      "gain bandwidth and phase delay not determined")
-        return Bandwidth(float("nan"), w135, float("nan"), float("nan"), inverted, notes)
+        return Bandwidth(float("nan"), w135, float("nan"), float("nan"), inverted, notes, below)
     g180 = _interp_log(w180, w, gain_db)
     w_gain = _crossing(w, gain_db, g180 + 6.0)
     if not np.isfinite(w_gain):
@@ -121,7 +133,7 @@ def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = N
         tau = float("nan")
     else:
         tau = float(-np.radians(_interp_log(2 * w180, w, phase) + 180.0) / (2 * w180))
-    return Bandwidth(w180, w135, w_gain, tau, inverted, notes)
+    return Bandwidth(w180, w135, w_gain, tau, inverted, notes, below)
 
 
 def _crossing(w: np.ndarray, y: np.ndarray, level: float) -> float:
@@ -180,11 +192,16 @@ def ads33_chart(points: dict[str, Bandwidth], axis: str, task: str = "tracking")
     ax.text(0.5 * (w1 + w_hi), 0.5 * t1, "Level 1", ha="center", va="center")
     ax.text(0.5 * (w2 + w1), 0.5 * t1, "Level 2", ha="center", va="center")
     ax.text(0.5 * w2, 0.5 * t2, "Level 3", ha="center", va="center")
-    for (label, b), marker in zip(points.items(), "o^sDv<>"):
+    for k, ((label, b), marker) in enumerate(zip(points.items(), "o^sDv>")):
+        colour = ("C3", "C0", "C2", "C4", "C1", "C5")[k]
         if np.isfinite(b.bandwidth) and np.isfinite(b.phase_delay):
             lvl = b.level(axis, task)
-            ax.plot(b.bandwidth, b.phase_delay, marker, ms=9, mfc="C3", mec="k",
+            ax.plot(b.bandwidth, b.phase_delay, marker, ms=9, mfc=colour, mec="k",
                     label=f"{label}: {b.bandwidth:.2f} rad/s, {b.phase_delay:.3f} s (Level {lvl})")
+        elif np.isfinite(b.bandwidth_below) and np.isfinite(b.phase_delay):
+            ax.plot(b.bandwidth_below, b.phase_delay, "<", ms=9, mfc=colour, mec="k",
+                    label=f"{label}: < {b.bandwidth_below:.2f} rad/s, {b.phase_delay:.3f} s "
+                          f"(Level {b.level(axis, task) or '?'})")
         else:
             ax.plot([], [], marker, mfc="none", mec="0.5", label=f"{label}: not determined")
     ax.set_xlim(0, w_hi)

@@ -58,7 +58,9 @@ class HQReport:
             b = a.bandwidth
             lvl = b.level(a.axis, self.task)
             lines.append(f"| {a.axis} | {a.response} | {_f(b.omega_180)} | {_f(b.omega_bw_phase)} | "
-                         f"{_f(b.omega_bw_gain)} | {_f(b.bandwidth)} | {_f(b.phase_delay, 4)} | "
+                         f"{_f(b.omega_bw_gain)} | "
+                         f"{_f(b.bandwidth) if not np.isfinite(b.bandwidth_below) else f'< {b.bandwidth_below:.3g}'} | "
+                         f"{_f(b.phase_delay, 4)} | "
                          f"{lvl if lvl else 'not determined'} |")
         for a in self.axes:
             for n in a.bandwidth.notes:
@@ -81,7 +83,9 @@ class HQReport:
         for a in self.axes:
             b = a.bandwidth
             lvl = b.level(a.axis, self.task)
-            out.append(f"  {a.axis} ({a.response}): bandwidth {_f(b.bandwidth, unit='rad/s')}, phase delay "
+            bw = _f(b.bandwidth, unit="rad/s") if not np.isfinite(b.bandwidth_below) else \
+                f"< {b.bandwidth_below:.3g} rad/s"
+            out.append(f"  {a.axis} ({a.response}): bandwidth {bw}, phase delay "
                        f"{_f(b.phase_delay, 4, 's')}: ADS-33 level {lvl if lvl else 'not determined'}"
                        + (f" ({'; '.join(b.notes)})" if b.notes else ""))
             if a.loes is not None:
@@ -90,16 +94,21 @@ class HQReport:
                 out.append(f"  short-period LOES not fitted: {a.loes_note}")
         return out + [f"  {n}" for n in self.notes]
 
-    def save(self, outdir: str | Path) -> list[Path]:
-        """hq.md and one chart PNG per axis (``hq_<axis>.png``)."""
+    def save(self, outdir: str | Path, model: "HQReport | None" = None) -> list[Path]:
+        """hq.md and one chart PNG per axis (``hq_<axis>.png``); ``model``: a model's report whose
+        points are drawn beside these (flight data against the model)."""
         from matplotlib.backends.backend_agg import FigureCanvasAgg
 
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         paths = [outdir / "hq.md"]
-        paths[0].write_text(self.markdown())
+        paths[0].write_text(self.markdown() + ("\n" + model.markdown() if model else ""))
+        others = {a.axis: a for a in (model.axes if model else [])}
         for a in self.axes:
-            fig = ads33_chart({f"{a.axis} ({a.input})": a.bandwidth}, a.axis, self.task)
+            points = {f"{'flight data' if model else a.axis} ({a.response})": a.bandwidth}
+            if a.axis in others:
+                points[f"model ({others[a.axis].response})"] = others[a.axis].bandwidth
+            fig = ads33_chart(points, a.axis, self.task)
             FigureCanvasAgg(fig)
             path = outdir / f"hq_{a.axis}.png"
             fig.savefig(path, dpi=90)

@@ -253,6 +253,9 @@ class ShortPeriod:
 
     def lines(self) -> list[str]:
         s = self.std
+        if not np.isfinite(self.omega):
+            return [f"short period: not determined (the LOES denominator s^2 + {self.fit.den[1]:.4g} s + "
+                    f"{self.fit.den[2]:.4g} has no stable pair; LOES J {self.fit.J:.1f})"]
         return [f"short period: omega_sp {self.omega:.4g} ± {s['omega']:.2g} rad/s, zeta_sp {self.zeta:.4g} ± "
                 f"{s['zeta']:.2g}, tau_e {self.tau_e:.4g} ± {s['tau_e']:.2g} s (LOES J {self.fit.J:.1f})",
                 f"MIL-STD-1797A level: {self.level if self.level else 'not determined'} "
