@@ -351,9 +351,7 @@ def _add_hq_parsers(sub) -> None:
                    help="ADS-33 task category (default tracking: target acquisition and tracking)")
     p.add_argument("--pitch", metavar="INPUT", help="pitch control (default theta_s or delta_e)")
     p.add_argument("--roll", metavar="INPUT", help="roll control (default theta_c or delta_a)")
-    p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
-    p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
-    p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
+    _add_response_options(p)
     p.add_argument("--with-model", action="store_true", help="with runs: also the profile's model, on the same charts")
     p.set_defaults(func=cmd_hq)
     p = sub.add_parser("loes", help="transfer function (LOES) with an equivalent delay fitted to one response")
@@ -366,11 +364,16 @@ def _add_hq_parsers(sub) -> None:
     p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay (default 0.5)")
     p.add_argument("--w-min", type=positive_float, metavar="RAD_S", help="lowest frequency fitted")
     p.add_argument("--w-max", type=positive_float, metavar="RAD_S", help="highest frequency fitted")
+    _add_response_options(p)
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.set_defaults(func=cmd_loes)
+
+
+def _add_response_options(p) -> None:
+    """Options hq and loes share: the LOES level's category, the response grid, the channel map."""
     p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
     p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
     p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
-    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
-    p.set_defaults(func=cmd_loes)
 
 
 def main(argv=None) -> int:

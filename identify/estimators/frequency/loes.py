@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from .statespace import gates
+
 MIN_COHERENCE = 0.6
 W_GAIN, W_PHASE = 1.0, 0.01745
 DB = 20 / np.log(10)
@@ -74,15 +76,7 @@ class TransferFunctionFit:
 
     def accuracy(self) -> dict[str, dict]:
         """Cramér-Rao % and insensitivity % per parameter with the gates each exceeds."""
-        out = {}
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cr = 100 * self.std / np.abs(self.theta)
-            ins = 100 * self.insensitivity / np.abs(self.theta)
-        for n, c, i in zip(self.names, cr, ins):
-            over = ([f"CR > {CR_GATE:g} %"] if not c <= CR_GATE else []) + \
-                   ([f"insensitivity > {INSENSITIVITY_GATE:g} %"] if not i <= INSENSITIVITY_GATE else [])
-            out[n] = {"cramer_rao_pct": float(c), "insensitivity_pct": float(i), "over_gates": over}
-        return out
+        return gates(self.names, self.theta, self.std, self.insensitivity)
 
     def summary(self) -> str:
         lines = [f"transfer function: ({_poly(self.num)}) / ({_poly(self.den)})"
@@ -102,8 +96,6 @@ class TransferFunctionFit:
                 lines.append(f"pole: {p.real:.4g} 1/s")
         return "\n".join(lines + self.notes)
 
-
-CR_GATE, INSENSITIVITY_GATE = 20.0, 10.0
 
 
 def _poly(c: np.ndarray) -> str:

@@ -54,6 +54,10 @@ class FR(Estimator):
         if not 0 < self.min_coherence < 1:
             raise EstimationError(f"min_coherence must lie in (0, 1), got {self.min_coherence!r}")
 
+    def nested(self, profile, **_):
+        """Refine's nested fits compare likelihoods of one structure: no pruning inside them."""
+        return self.clone(profile, prune=False)
+
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         p = self.profile_
         fr = frequency_response(runs, p.input_names, list(p.outputs), f_range=self.f_range, n_freq=self.n_freq)

@@ -37,13 +37,14 @@ from scipy.optimize import least_squares
 
 from ...model.linear import LinearModel
 from ...model.profile import Profile
+from ..result import CR_GUIDELINE, INSENSITIVITY_GUIDELINE
 
 MIN_COHERENCE = 0.6
 MAX_RANDOM_ERROR = 0.2  # as J's judgement (response.MAX_RANDOM_ERROR)
 MIN_POINTS = 5  # as J's judgement (response.MIN_POINTS): fewer points say nothing about a pair
 W_GAIN, W_PHASE = 1.0, 0.01745
 DB = 20 / np.log(10)
-CR_GATE, INSENSITIVITY_GATE = 20.0, 10.0
+CR_GATE, INSENSITIVITY_GATE = CR_GUIDELINE, INSENSITIVITY_GUIDELINE  # %: CIFER's gates
 
 
 @dataclass
@@ -140,15 +141,7 @@ class FrequencyFit:
 
     def accuracy(self) -> dict[str, dict]:
         """CR % and insensitivity % per free parameter and the gates each fails."""
-        out = {}
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cr = 100 * self.std / np.abs(self.theta)
-            ins = 100 * self.insensitivity / np.abs(self.theta)
-        for n, c, i in zip(self.names, cr, ins):
-            over = ([f"CR > {CR_GATE:g} %"] if not c <= CR_GATE else []) + \
-                   ([f"insensitivity > {INSENSITIVITY_GATE:g} %"] if not i <= INSENSITIVITY_GATE else [])
-            out[n] = {"cramer_rao_pct": float(c), "insensitivity_pct": float(i), "over_gates": over}
-        return out
+        return gates(self.names, self.theta, self.std, self.insensitivity)
 
     def cost_lines(self) -> list[str]:
         lines = [f"frequency-response fit: J per pair over {sum(self.n_points.values())} resolved coherent points "
@@ -164,6 +157,19 @@ class FrequencyFit:
             if np.isfinite(J):
                 lines.append(f"  fixed at a priori: {name} ({reason}); mean J then {J:.1f}")
         return lines
+
+
+def gates(names: list[str], theta: np.ndarray, std: np.ndarray, insensitivity: np.ndarray) -> dict[str, dict]:
+    """Per parameter the Cramér-Rao % and insensitivity % and CIFER's gates it fails."""
+    out = {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cr = 100 * std / np.abs(theta)
+        ins = 100 * insensitivity / np.abs(theta)
+    for n, c, i in zip(names, cr, ins):
+        over = ([f"CR > {CR_GATE:g} %"] if not c <= CR_GATE else []) + \
+               ([f"insensitivity > {INSENSITIVITY_GATE:g} %"] if not i <= INSENSITIVITY_GATE else [])
+        out[n] = {"cramer_rao_pct": float(c), "insensitivity_pct": float(i), "over_gates": over}
+    return out
 
 
 def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.ndarray | None = None,
