@@ -492,5 +492,6 @@ def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, d
     labels = list(costs)
     text = "\n".join([f"frequency-domain fit cost J (Tischler), {line}"] +
                      [format_cost(costs[k], k, details=k == labels[-1]) for k in labels])
-    costs["resolution"] = line
+    for c in costs.values():  # the data's resolution, with each model's verdict (reports iterate models)
+        c["resolution"] = line
     return text, costs
