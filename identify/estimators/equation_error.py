@@ -424,6 +424,7 @@ class IV(EquationError):
     """
 
     method = "iv"
+    progress_quantity = "max rel. change"
 
     def __init__(self, profile, *, start: str = "ls", max_iter: int = 30, tol: float = 1e-9,
                  progress=None, **options):

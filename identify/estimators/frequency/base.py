@@ -80,11 +80,11 @@ class FourierTransform:
 
     def partial_fit(self, t, x, u) -> "FourierTransform":
         t = np.atleast_1d(np.asarray(t, dtype=float))
+        if t.size == 0:
+            return self
         x, u = np.atleast_2d(np.asarray(x, dtype=float)), np.atleast_2d(np.asarray(u, dtype=float))
         if not (len(t) == len(x) == len(u)):
             raise EstimationError(f"Fourier transform: {len(t)} times, {len(x)} state and {len(u)} input samples")
-        if len(t) == 0:
-            return self
         if self.t0_ is None:
             self.t0_, self.x0_ = t[0], x[0].copy()
             self.X_ = np.zeros((len(self.omega), x.shape[1]), complex)

@@ -335,20 +335,3 @@ class LiveEstimate:
     def relative_insensitivity(self) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             return 100 * self.insensitivity / np.abs(self.theta)
-
-
-class RecursiveFDEE(FDEE):
-    """The cockpit's former name of a streamed :class:`FDEE` (``update`` = ``partial_fit``, ``omega``
-    = ``omega_``), kept until cueing's live room calls FDEE directly. Frequencies fixed at construction."""
-
-    def __init__(self, profile, band: tuple[float, float] = LIVE_BAND, n_freq: int = LIVE_N_FREQ,
-                 bias: bool = True):
-        super().__init__(profile, band=band, n_freq=n_freq, bias=bias)
-        self.partial_fit(np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0)))  # validates, fixes omega_
-
-    def update(self, t: float, x, u) -> None:
-        self.partial_fit(t, x, u)
-
-    @property
-    def omega(self) -> np.ndarray:
-        return self.omega_
