@@ -115,6 +115,9 @@ def bandwidth(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = N
             below = float(w[0])
             notes.append(f"phase already past -135 deg at the lowest usable frequency {w[0]:.3g} rad/s: "
                          f"the phase bandwidth lies below it (not determined further)")
+        elif phase[0] <= -180:
+            notes.append(f"phase already past -180 deg at the lowest usable frequency {w[0]:.3g} rad/s: "
+                         "the crossovers lie below the data (or a slow mode's phase hides them): not determined")
         else:
             notes.append(f"phase does not fall through -135 deg within {w[0]:.3g}..{w[-1]:.3g} rad/s: "
                          "phase bandwidth not determined")

@@ -41,9 +41,10 @@ correlated, so the composite error is the weighted mean of the windows' errors, 
 (``var(sum w_k H_k) <= (sum w_k sigma_k)^2``), not the smaller independent-average value.
 
 Fit cost (:func:`fit_cost`): Tischler's ``J = 20 / n_w * sum W_g (dB error)^2 + W_p (deg error)^2``
-weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies where the coherence is at
-least 0.6 and random error at most MAX_RANDOM_ERROR at frequencies with a valid estimate (nothing is judged where nothing is resolved), and
-only for pairs with MIN_POINTS such points and an input some run moves; a mean ``J <= 100`` with no
+weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies with a valid estimate, a
+coherence of at least 0.6 and a random error of at most MAX_RANDOM_ERROR (nothing is judged where
+nothing is resolved), and only for pairs with MIN_POINTS such points and an input some run moves
+(``g^2`` is the coherence as stored here, the squared coherence function); a mean ``J <= 100`` with no
 pair above 200 is the usual mark of a model that fits (Tischler & Remple). The report states the
 lowest resolved frequency against the slowest mode the inputs excite: below it no model is judged.
 """
@@ -420,8 +421,8 @@ def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = M
     """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
 
     Only points that are resolved (a valid window), coherent (>= ``min_coherence``) and accurate
-    (random error <= MAX_RANDOM_ERROR) count; a pair
-    with fewer than MIN_POINTS of them is not judged, and pairs of inputs no run moves are left out.
+    (random error <= MAX_RANDOM_ERROR) count; a pair with fewer than MIN_POINTS of them is not
+    judged, and pairs of inputs no run moves are left out.
     Returns ``{"pairs": {"y/u": J}, "mean": J or None, "n_frequencies": {"y/u": n}, "not_judged":
     {"y/u": n}, "left_out": [inputs], "worst": "y/u" or None, "fits": bool or None}``.
     """
