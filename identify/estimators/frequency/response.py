@@ -459,12 +459,12 @@ def format_cost(cost: dict, label: str = "model", details: bool = True) -> str:
     """One verdict line per model, then J per judged pair on one line; with ``details`` the pairs
     not judged and the inputs left out on one line each (the data's, the same for every model)."""
     if cost.get("mean") is None:
-        lines = [f"J of the {label}: not judged (no pair has {MIN_POINTS} resolved points of coherence "
+        lines = [f"fit cost J of the {label}: not judged (no pair has {MIN_POINTS} resolved points of coherence "
                  f">= {MIN_COHERENCE} and random error <= {MAX_RANDOM_ERROR:g})"]
     else:
         w = cost["worst"]
         verdict = "fits" if cost["fits"] else "does NOT fit"
-        lines = [f"J of the {label}: mean {cost['mean']:.1f} over {len(cost['pairs'])} pair(s), worst {w} "
+        lines = [f"fit cost J of the {label}: mean {cost['mean']:.1f} over {len(cost['pairs'])} pair(s), worst {w} "
                  f"{cost['pairs'][w]:.1f}: {verdict} (Tischler: mean <= {J_MEAN_FITS:g}, no pair > {J_PAIR_MAX:g})",
                  "  " + ", ".join(f"{k} {v:.1f}" for k, v in cost["pairs"].items())]
     if not details:

@@ -162,7 +162,7 @@ def test_cli_writes_plots_and_csv(truth, tmp_path):
     wrong.write_text(STABLE.replace("M_q = -1.2", "M_q = -2.4"))
     proc = run_cli("identify", "freq", "--profile", wrong, "--identified", profile, *paths, "--out", out)
     assert proc.returncode == 0, proc.stderr
-    verdicts = [l for l in proc.stdout.splitlines() if l.startswith("J of the")]
+    verdicts = [l for l in proc.stdout.splitlines() if l.startswith("fit cost J of the")]
     assert len(verdicts) == 2  # one verdict line per model
     j = {label: float(line.split(" mean ")[1].split()[0]) for label, line in zip(("a priori", "identified"), verdicts)}
     assert j["identified"] < j["a priori"]
