@@ -136,7 +136,7 @@ def _fit(estimator, runs):
 
 
 def _add_estimate_parser(sub) -> None:
-    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
+    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE or FR)")
     _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",

@@ -86,7 +86,7 @@ class TransferFunctionFit:
                  f"{'parameter':<10}{'estimate':>12}{'std':>11}{'CR %':>8}{'insens. %':>10}  flag"]
         for n, v, s in zip(self.names, self.theta, self.std):
             a = self.accuracy()[n]
-            lines.append(f"{n:<10}{v:12.5g}{s:11.3g}{a['cramer_rao_pct']:8.1f}{a['insensitivity_pct']:10.1f}  "
+            lines.append(f"{n:<10}{v:12.5g}{s:11.3g}{a['cramer_rao_pct']:8.3g}{a['insensitivity_pct']:10.3g}  "
                          + ", ".join(a["over_gates"] + (["at its bound"] if n in self.at_bound else [])))
         for p in _unique_poles(self.poles):
             if abs(p.imag) > 0:
