@@ -62,7 +62,8 @@ def signals(model: LinearModel) -> dict[str, np.ndarray]:
                            n_iter=300, restarts=2, seed=SEED, jobs=1).fit(model)
         s = d.signals_[0]
         s.delay = 1.0
-        for label, u in (("designed", s(t)), ("sweep", AMP * chirp(t, 0.1, RECORD, 2.0, method="logarithmic", phi=-90))):
+        sweep = AMP * chirp(t, 0.1, RECORD, 2.0, method="logarithmic", phi=-90)
+        for label, u in (("designed", s(t)), ("sweep", sweep)):
             U = np.zeros((len(t), 2))
             U[:, j] = u
             out[f"{label} {axis}"] = U
@@ -156,7 +157,8 @@ def main(argv=None) -> int:
             f.write(json.dumps(row) + "\n")
             f.flush()
             print(f"realisation {k + 1}/{args.realisations}: " + ", ".join(
-                f"{m} {row[m]['seconds']:.2f} s" + (" FAILED" if "error" in row[m] else "") for m in ("FR", "ML", "FDEE")),
+                f"{m} {row[m]['seconds']:.2f} s" + (" FAILED" if "error" in row[m] else "")
+                for m in ("FR", "ML", "FDEE")),
                 flush=True)
     names = list(profile.free)
     true = np.array([truth.parameters()[n] for n in names])

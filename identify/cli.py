@@ -114,7 +114,8 @@ def _estimator(args, profile, show_progress: bool = True):
                       names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays",
                              "prune": "--prune"},
                       max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
-                      delays=_names(getattr(args, "fr_delays", None)) or None, prune=getattr(args, "prune", None) or None)
+                      delays=_names(getattr(args, "fr_delays", None)) or None,
+                      prune=getattr(args, "prune", None) or None)
     return estimator
 
 

@@ -7,7 +7,8 @@ rate is the body rate to first order), the rate being measured with less drift t
 a rate output the attitude output itself is used. From it :func:`.handling.bandwidth` gives the
 ADS-33 bandwidth and phase delay, plotted on the chart of the chosen task category. The pitch-rate
 response is also fitted by a short-period LOES ``K (s + 1/T_theta2) e^{-tau s} / (s^2 + 2 zeta omega s +
-omega^2)`` over 1-10 rad/s (MIL-STD-1797A's 0.1-10 rad/s above the phugoid, which this form has not) with its level; a LOES that does not fit
+omega^2)`` over 1-10 rad/s (MIL-STD-1797A's 0.1-10 rad/s above the phugoid, which this form has
+not) with its level; a LOES that does not fit
 (J > 100: no short-period-like response, as in hover) is reported as such.
 
 From runs the responses are the composite estimates (points with coherence >= 0.6 only); from a
@@ -168,7 +169,8 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
                 ax.loes = short_period(fit, category)
                 if fit.J > 100:
                     ax.loes_note = (f"LOES J {fit.J:.0f} > 100: the pitch-rate response is not short-period-like "
-                                    "here (hover; or a mode inside the band the form lacks); its omega, zeta and level do not describe it")
+                                    "here (hover; or a mode inside the band the form lacks); its omega, zeta "
+                                    "and level do not describe it")
             except ValueError as exc:
                 ax.loes_note = str(exc)
         report.axes.append(ax)

@@ -265,7 +265,8 @@ def short_period(fit: TransferFunctionFit, category: str = "A") -> ShortPeriod:
     i1, i0 = fit.names.index("a1"), fit.names.index("a0")
     s1, s0 = fit.std[i1], fit.std[i0]
     std = {"omega": float(s0 / (2 * omega)) if np.isfinite(omega) else float("nan"),
-           "zeta": float(np.hypot(s1 / (2 * omega), a1 * s0 / (4 * omega ** 3))) if np.isfinite(omega) else float("nan"),
+           "zeta": float(np.hypot(s1 / (2 * omega), a1 * s0 / (4 * omega ** 3)))
+           if np.isfinite(omega) else float("nan"),
            "tau_e": float(fit.std[fit.names.index("tau")]) if "tau" in fit.names else float("nan")}
     level, reasons = mil1797_short_period_level(zeta, fit.tau if "tau" in fit.names else float("nan"), category)
     return ShortPeriod(omega, zeta, fit.tau, std, level, reasons, fit)

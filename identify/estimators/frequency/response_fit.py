@@ -81,7 +81,8 @@ class FR(Estimator):
         if fr.unmoved:
             lines.append(f"inputs no run moves (their pairs and delays left out): {', '.join(fr.unmoved)}")
         if fit.tau:
-            lines.append("fitted delays: " + ", ".join(f"{u} {t:.4g} ± {fit.tau_std[u]:.2g} s" for u, t in fit.tau.items()))
+            lines.append("fitted delays: " + ", ".join(f"{u} {t:.4g} ± {fit.tau_std[u]:.2g} s"
+                                                       for u, t in fit.tau.items()))
         info = {"frequency_domain": True, "converged": fit.converged, "iterations": fit.iterations,
                 "stop": "least-squares tolerance" if fit.converged else "evaluation limit",
                 "J": fit.J, "J_mean": fit.J_mean, "n_points": fit.n_points, "left_out": fit.left_out,

@@ -9,7 +9,8 @@ theta (and the delays) that minimise the mean over input/output pairs of Tischle
     W_gamma = (1.58 (1 - exp(-gamma^2)))^2,
 
 over the points each pair has that are **resolved** (a valid window), **coherent** (coherence
->= 0.6) and accurate (random error <= 0.2, when known); a pair with fewer than ``MIN_POINTS`` such points is not fitted and is listed once, as are
+>= 0.6) and accurate (random error <= 0.2, when known); a pair with fewer than ``MIN_POINTS``
+such points is not fitted and is listed once, as are
 pairs the model has no path for. Gauss-Newton with the exact Jacobian (``dH = dC R B + C R dA R B
 + C R dB + dD``, ``R = (jwI - A)^-1``) inside ``scipy.optimize.least_squares``; delays bounded to
 ``[0, tau_max]``.
@@ -204,10 +205,21 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
                 pairs.append((a, b, key))
     if not pairs:
         raise ValueError("frequency-response fit: no input/output pair has resolved coherent points")
+    cells = data.points_per_cell()
+    # adjacent points of a composite response share errors: the information of n points is that of
+    # about n / (points per resolution cell) independent ones, so the bounds grow by that factor
+    inflation = 1.0 if cells is None else float(np.mean(
+        np.concatenate([cells[:, dj][:, :, di][usable[:, a, b], a, b] for a, b, _ in pairs])))
+
+    def solve(m, active, nfev, tau0=None, inflation=inflation):
+        return _solve(m, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, nfev, tau0=tau0,
+                      inflation=inflation)
+
     active = np.ones(len(profile.free), bool)
     pruned = []
     if prune:  # screen at the start values: what the data cannot move at all is not fitted
-        screen = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, 0)  # noqa
+        # with the start's residual variance alone (its misfit already makes it conservative)
+        screen = solve(model, active, 0, inflation=1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             ins_pct = np.nan_to_num(100 * screen["ins"] / np.abs(model.theta), nan=np.inf)
         for k in np.flatnonzero(ins_pct > INSENSITIVITY_GATE):
@@ -216,12 +228,7 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
                 pruned.append((profile.free_names[k], f"insensitivity {ins_pct[k]:.3g} % > "
                                f"{INSENSITIVITY_GATE:g} % at the start values (screened before fitting)",
                                float("nan")))
-    cells = data.points_per_cell()
-    # adjacent points of a composite response share errors: the information of n points is that of
-    # about n / (points per resolution cell) independent ones, so the bounds grow by that factor
-    inflation = 1.0 if cells is None else float(np.mean(
-        np.concatenate([cells[:, dj][:, :, di][usable[:, a, b], a, b] for a, b, _ in pairs])))
-    fit = _solve(model, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev, inflation=inflation)
+    fit = solve(model, active, max_nfev)
     while prune:
         acc = _gates(fit["theta"], fit["std"], fit["ins"], active)
         if not acc:
@@ -230,8 +237,7 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
         active[name_i] = False
         theta = fit["theta"].copy()
         theta[name_i] = model.theta[name_i]
-        fit = _solve(model.with_theta(theta), data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max,
-                     active, max_nfev, tau0=fit["tau"], inflation=inflation)
+        fit = solve(model.with_theta(theta), active, max_nfev, tau0=fit["tau"])
         pruned.append((profile.free_names[name_i], reason, fit["J_mean"]))
     p = profile
     if pruned:  # the pruned parameters become fixed in the identified structure
