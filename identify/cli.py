@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
-
 from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
                       output_dir, output_file, positive_float, positive_int, run)
 from .errors import EstimationError
@@ -161,10 +159,9 @@ def _names(text: str | None) -> tuple[str, ...]:
 def _read_runs(paths, channel_map, profile):
     """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
     as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
-    from .data.io import load_channel_map, read_run_files
     from .model.pseudo_inputs import prepare
 
-    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
+    return prepare(profile, _recorded_runs(paths, channel_map, profile))
 
 
 def _recorded_runs(paths, channel_map, profile):
@@ -311,6 +308,7 @@ def cmd_loes(args) -> int:
     """A transfer function (chosen orders, equivalent delay, bounds) fitted to one measured response."""
     from pathlib import Path
 
+    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     from .estimators.frequency.loes import fit_transfer_function, plot_fit, short_period
