@@ -85,3 +85,17 @@ def test_pairs_of_an_unmoved_input_are_left_out_in_one_line(s61_runs):
     text, _ = cost_report(lon_only, {"a priori": truth})
     assert sum("theta_c" in l for l in text.splitlines()) == 1
     assert "fewer than 3 coherent" not in text
+
+
+def test_bode_one_grid_per_flown_input_with_units(s61_runs, tmp_path):
+    from identify.estimators.frequency.bode import plot_bode
+
+    p, truth, runs = s61_runs
+    lon_only = [r for r in runs if np.ptp(r["theta_c"]) == 0]
+    (tmp_path / "bode_theta_c.png").write_bytes(b"stale")  # a figure from an earlier run
+    paths = plot_bode(frequency_response(lon_only, p.input_names, list(p.outputs)), {"a priori": truth}, tmp_path)
+    assert [q.name for q in paths] == ["bode_theta_s.png"] and not (tmp_path / "bode_theta_c.png").exists()
+    from PIL import Image
+
+    width, height = Image.open(paths[0]).size
+    assert height > width / 2  # a grid (a row per output), not a strip of panels
