@@ -18,6 +18,9 @@ process (``python -m campaign identify``), the machine's load average printed be
    point's own model (target: within 10 %).
 
     nice -n 10 .venv/bin/python benchmarks/campaign.py [POINTS] > campaign-bench.txt 2>&1
+
+Writes about 130 MB (the synthetic runs, kept for a re-run, and every executor's records) under
+benchmarks/output/campaign/.
 """
 import json
 import os
