@@ -13,6 +13,8 @@ from .model.profile import load_profile
 def cmd_model(args) -> int:
     """Print a profile's parameters and modes; optionally its residualised reduction."""
     profile = load_profile(args.profile)
+    if args.at:
+        profile = _at_condition(profile, args.at)
     model = LinearModel(profile)
     _print_model(model)
     if args.reduce:
@@ -24,16 +26,35 @@ def cmd_model(args) -> int:
     return 0
 
 
+def _at_condition(profile, text: str):
+    """A scheduled profile (``[meta.schedule]``, e.g. from ``campaign stitch``) at ``NAME=VALUE``."""
+    from .errors import ProfileError
+    from .model.schedule import at_condition, parse_condition, schedule_of
+
+    name, value = parse_condition(text)
+    schedule = schedule_of(profile)
+    if schedule is None:
+        raise ProfileError(f"{profile.source}: --at needs a scheduled profile ([meta.schedule]); this one has none")
+    if name != schedule["condition"]:
+        raise ProfileError(f"{profile.source}: scheduled over '{schedule['condition']}', not '{name}'")
+    return at_condition(profile, value)
+
+
 def _print_model(model: LinearModel) -> None:
     p = model.profile
     print(f"{p.name}\n  states:  {', '.join(f'{s} [{u}]' for s, u in p.states.items())}"
           f"\n  inputs:  {', '.join(f'{s} [{u}]' for s, u in p.inputs.items())}"
           f"\n  outputs: {', '.join(p.outputs)}"
           f"\n  {len(p.free)} free, {len(p.fixed)} fixed parameters")
+    std = p.meta.get("std", {}) if isinstance(p.meta.get("std"), dict) else {}
     for kind, values in (("free", p.free), ("fixed", p.fixed)):
         if values:
-            print(f"\n{kind} parameters:")
-            print("\n".join(f"  {name:<16}{value:13.6g}" for name, value in values.items()))
+            print(f"\n{kind} parameters:" + ("  (value, std)" if std and kind == "free" else ""))
+            print("\n".join(f"  {name:<16}{value:13.6g}" + (f"{std[name]:12.4g}" if name in std else "")
+                             for name, value in values.items()))
+    trim = p.meta.get("trim")
+    if isinstance(trim, dict) and trim:
+        print("\ntrim:\n" + "\n".join(f"  {name:<16}{value:13.6g}" for name, value in trim.items()))
     print("\nmodes:")
     print(format_modes(model.modes()))
 
@@ -45,6 +66,7 @@ def build_parser() -> Parser:
     p.add_argument("profile", help="profile TOML path or bundled profile name")
     p.add_argument("--reduce", metavar="STATES", help="comma-separated states to make instantaneous")
     p.add_argument("--save-reduced", metavar="TOML", type=output_file, help="write the reduced profile here")
+    p.add_argument("--at", metavar="NAME=VALUE", help="a scheduled profile (campaign stitch) at this condition")
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
