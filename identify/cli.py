@@ -57,7 +57,6 @@ def build_parser() -> Parser:
 def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     from .data.preprocess import slice_run, smooth
-    from .estimators.plots import save_plots
 
     if args.max_iter is not None and args.method not in ("iv", "ml"):
         raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
@@ -89,8 +88,11 @@ def cmd_estimate(args) -> int:
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
     out = result.save(args.out)
-    plots = save_plots(result, out)
-    print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
+    written = ["result.json", "identified_profile.toml"]
+    if args.plots:  # on request: drawing them costs three times the fit itself (benchmarks/ml_speed.py)
+        from .estimators.plots import save_plots
+        written += [p.name for p in save_plots(result, out)]
+    print(f"\nwritten to {out}: {', '.join(written)}" + ("" if args.plots else " (plots: add --plots)"))
     return 0
 
 
@@ -98,13 +100,14 @@ def _fit(method: str, options: dict, profile, runs):
     """The estimator's result; a refined profile's state-built nonlinear terms (ML only) from the
     model's simulated states, as refine fitted them, so that its estimates are reproduced."""
     from .estimators.registry import estimator_class
-    from .refine.evaluation import state_terms
 
-    cls, terms = estimator_class(method), state_terms(profile)
-    if not (terms and method == "ml"):
+    cls = estimator_class(method)
+    if method != "ml" or not _has_state_terms(profile):
         return cls(profile, **options).fit(runs).result_
     from .estimators.output_error import auto_segment
-    from .refine.evaluation import fit_state_terms
+    from .refine.evaluation import fit_state_terms, state_terms
+
+    terms = state_terms(profile)
 
     # ML's own automatic choice, fixed so that the terms are predicted over the same segments
     segment = auto_segment(LinearModel(profile), max(r.duration for r in runs))
@@ -112,6 +115,14 @@ def _fit(method: str, options: dict, profile, runs):
           f"the estimates settle)", file=sys.stderr)
     return fit_state_terms(lambda p: cls(p, segment=segment, **options), profile, runs,
                            segment=segment)[1]
+
+
+def _has_state_terms(profile) -> bool:
+    """Whether a profile has pseudo-inputs built from its states, without importing refine (half
+    a second of scipy.stats and scipy.signal a plain fit does not need)."""
+    from .model.pseudo_inputs import specs
+
+    return any(set(spec.get("product", ())) & set(profile.states) for spec in specs(profile).values())
 
 
 def _add_estimate_parser(sub) -> None:
@@ -124,6 +135,8 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
                    help="iterations at most for iv (default 30) and ml (default 100)")
+    p.add_argument("--plots", action="store_true",
+                   help="also draw time_history_run<k>.png and residuals.png (slower than the fit)")
     p.set_defaults(func=cmd_estimate)
 
 

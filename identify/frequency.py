@@ -50,7 +50,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import detrend
 
 from .data.runs import Run
 from .errors import EstimationError
@@ -211,6 +210,8 @@ def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndar
     if len(seg) == 0:
         return None
     valid = (omega * L * dt >= 2 * np.pi * MIN_CYCLES) & (omega < np.pi / dt)
+    from scipy.signal import detrend  # here: scipy.signal takes 0.4 s to import, a plain estimate needs none
+
     tr = _Transforms(detrend(seg, axis=1), dt, omega, nu)
     F, G = tr.F, tr.G
     # averages that count: segments whose input power at a frequency is small add nothing, so a
