@@ -62,15 +62,15 @@ def cmd_estimate(args) -> int:
         raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
     profile = load_profile(args.profile)
     runs = []
-    for r in _read_runs(args.runs, args.channel_map, profile):
+    for r in _read_runs(args.runs, args.channel_map, profile, args):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
-            if "segment" in r.meta and not _overlaps(r, args.t_start, args.t_end):
+            if ("segment" in r.meta or "dropped_samples" in r.meta) and not _overlaps(r, args.t_start, args.t_end):
                 print(f"note: {r.source} lies outside --t-start/--t-end: not used", file=sys.stderr)
                 continue
             r = slice_run(r, args.t_start, args.t_end)
-        runs.append(r)
+        runs.append(_trimmed(r, args.trim, profile))
     if not runs:
         raise EstimationError("no run has samples between --t-start and --t-end")
 
@@ -140,13 +140,34 @@ def _add_estimate_parser(sub) -> None:
     p.set_defaults(func=cmd_estimate)
 
 
-def _read_runs(paths, channel_map, profile):
+def _read_runs(paths, channel_map, profile, args=None):
     """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
-    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
+    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt.
+    ``args`` brings the NaN policy (``--nan``) and the window (``--t-start``/``--t-end``)."""
+    from .data.ingest import ReadOptions
     from .data.io import load_channel_map, read_run_files
     from .model.pseudo_inputs import prepare
 
-    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
+    options = ReadOptions(getattr(args, "nan", "refuse"), getattr(args, "t_start", None), getattr(args, "t_end", None))
+    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile,
+                                           options))
+
+
+def _trimmed(run, trim: str, profile):
+    """``run`` minus its trim values (``--trim``), the profile's pseudo-inputs (a constant, the
+    time, ...) left as they are; said once per run."""
+    from .data.preprocess import remove_trim
+    from .model.pseudo_inputs import specs
+
+    if trim is None:
+        return run
+    if trim == "none":
+        return remove_trim(run, "none")  # recorded: the data were taken as perturbations already
+    pseudo = set(specs(profile))
+    out = remove_trim(run, trim, [n for n in run.channels if n not in pseudo])
+    print(f"note: {run.source}: trim removed ({trim}) from {len(run.channels) - len(pseudo & set(run.channels))} "
+          f"channel(s)", file=sys.stderr)
+    return out
 
 
 def _overlaps(run, t_start, t_end) -> bool:
@@ -165,10 +186,30 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--method", choices=METHOD_NAMES, default=default_method,
                    help=f"estimator (default {default_method})")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--nan", choices=("refuse", "drop", "interpolate"), default="refuse",
+                   help="missing values inside the analysed window: refuse the file (default), drop their samples "
+                        "(the hole splits the run) or interpolate them; outside the window the run is cut to it")
+    p.add_argument("--trim", default=None, type=_trim_option, metavar="first:1s|mean|none",
+                   help="remove each channel's trim value: its mean over the first seconds, over the whole run, "
+                        "or none (default; recorded in result.json)")
     p.add_argument("--channel-map", metavar="JSON",
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
                         'as a file or inline JSON (required for .mat data matrices)')
+
+
+def _trim_option(text: str) -> str:
+    """argparse type of --trim (checked without loading numpy-heavy modules)."""
+    import argparse
+
+    from .data.preprocess import parse_trim
+    from .errors import RunError
+
+    try:
+        parse_trim(text)
+    except RunError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text.strip().lower()
 
 
 def cmd_refine(args) -> int:
@@ -184,8 +225,9 @@ def cmd_refine(args) -> int:
     refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max, progress=True)
-    refiner.fit(_read_runs(args.runs, args.channel_map, profile),
-                validate=_read_runs(args.validate or [], args.channel_map, profile))
+    refiner.fit([_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)],
+                validate=[_trimmed(r, args.trim, profile)
+                          for r in _read_runs(args.validate or [], args.channel_map, profile, args)])
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
