@@ -49,6 +49,7 @@ def build_parser() -> Parser:
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
     _add_freq_parser(sub)
+    _add_compat_parser(sub)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser
@@ -297,6 +298,43 @@ def _add_freq_parser(sub) -> None:
     p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)
+
+
+def cmd_compat(args) -> int:
+    """Flight-path reconstruction: sensor biases, scale factors and time skews; corrected runs."""
+    from .compat import Compat
+    from .compat.report import write
+    from .data.ingest import ReadOptions
+    from .data.io import load_channel_map, read_run_files
+
+    runs = read_run_files(args.runs, load_channel_map(args.channel_map) if args.channel_map else None, None,
+                          ReadOptions(args.nan))
+    errors = None if args.errors is None else [e.strip() for e in args.errors.split(",") if e.strip()]
+    compat = Compat(errors, alpha=args.alpha, max_steps=args.max_steps, segment=args.segment,
+                    progress=lambda text: print(text, file=sys.stderr, flush=True)).fit(runs)
+    print(compat.result_.summary(), flush=True)
+    written = write(compat.result_, runs, args.out, plots=args.plots)
+    print(f"written to {args.out}: {', '.join(written)}")
+    return 0
+
+
+def _add_compat_parser(sub) -> None:
+    p = sub.add_parser("compat", help="flight-path reconstruction: sensor biases, scale factors, time skews; "
+                                      "corrected runs")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat) with a_x, a_y, a_z, p, q, r and any of "
+                                           "V, alpha, beta, phi, theta, psi, h")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map (file or inline JSON), as for estimate")
+    p.add_argument("--nan", choices=("refuse", "drop", "interpolate"), default="refuse",
+                   help="missing values: refuse the file (default), drop their samples or interpolate them")
+    p.add_argument("--errors", metavar="LIST", help="estimate exactly these sensor errors (e.g. b_q,b_alpha,"
+                   "K_alpha,tau_alpha) instead of selecting them by score tests")
+    p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    p.add_argument("--max-steps", type=nonnegative_int, default=12, help="sensor errors added at most (default 12)")
+    p.add_argument("--segment", type=positive_float, default=5.0, metavar="S",
+                   help="integration segment length, each from its own initial state (default 5 s)")
+    p.add_argument("--plots", action="store_true", help="also draw residuals_before_after.png")
+    p.set_defaults(func=cmd_compat)
 
 
 def main(argv=None) -> int:
