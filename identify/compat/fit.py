@@ -39,7 +39,7 @@ _STEP = {"a_x": 1e-3, "a_y": 1e-3, "a_z": 1e-3, "p": 1e-5, "q": 1e-5, "r": 1e-5}
 _X0_STEP = np.array([1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-3])
 SEGMENT = 5.0  # s: each run is integrated in segments this long, each from its own estimated initial state
 MAX_LAG_SHARE = 0.25  # the residual autocovariance is used up to this share of the run (Bartlett taper)
-STEP_TOL_SE = 1e-3  # converged: the next Gauss-Newton step moves no unknown by 1/1000 of its std error
+STEP_TOL_SE = 1e-2  # converged: the next Gauss-Newton step moves no unknown by 1/100 of its std error
 R_CHANGE_TOL = 1e-4
 MIN_SAMPLES = 50
 
@@ -404,13 +404,14 @@ class Compat:
             # the residuals' colour comes from the richest model the white-noise scores select (its
             # residuals are the noise, not unmodelled sensor errors); the selection is then made
             # again with the scores that colour gives
-            prob, fit, _ = self._select(data, outputs, pool, before, None)
+            fits = {}  # by the errors in the model, in order: the second pass refits none the first made
+            prob, fit, _ = self._select(data, outputs, pool, before, None, fits)
             kernels = [_coloured_kernel(e, int(MAX_LAG_SHARE * len(e))) for e in fit.ev.e]
-            prob, fit, steps = self._select(data, outputs, pool, before, kernels)
+            prob, fit, steps = self._select(data, outputs, pool, before, kernels, fits)
         self.result_ = self._result(runs, prob, before, fit, steps)
         return self
 
-    def _select(self, data, outputs, pool, before: _Fit, kernels):
+    def _select(self, data, outputs, pool, before: _Fit, kernels, fits: dict):
         """Forward selection from no sensor error: ``(problem, fit, steps)``; ``kernels`` the
         residual covariance per run (None: white)."""
         from scipy import stats
@@ -428,9 +429,12 @@ class Compat:
                 break
             steps.append({"step": len(steps) + 1, "error": best.name, "statistic": stat, "threshold": threshold,
                           "p_value": float(stats.chi2.sf(stat, 1)), "candidates": len(left)})
-            theta, xs = prob.split(fit.beta)
-            prob = _Problem(data, outputs, [*prob.errors, best])
-            fit = _solve(prob, np.r_[theta, 0.0, xs.ravel()], self.max_iter)
+            key = tuple(e.name for e in (*prob.errors, best))
+            if key not in fits:
+                theta, xs = prob.split(fit.beta)
+                new = _Problem(data, outputs, [*prob.errors, best])
+                fits[key] = new, _solve(new, np.r_[theta, 0.0, xs.ravel()], self.max_iter)
+            prob, fit = fits[key]
         return prob, fit, steps
 
     def _score(self, prob: _Problem, fit: _Fit, left: list[SensorError], kernels):

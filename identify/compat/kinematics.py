@@ -31,39 +31,42 @@ STATE_UNITS = ("m/s", "m/s", "m/s", "rad", "rad", "rad", "m")
 
 
 def derivatives(x: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """``x'`` (B, 7) for states ``x`` (B, 7) and inputs ``a`` (B, 6)."""
-    u, v, w, phi, th, psi, h = x.T
-    ax, ay, az, p, q, r = a.T
+    """``x'`` (7, B) for states ``x`` (7, B) and inputs ``a`` (6, B) (state-major: each row a
+    contiguous vector over the batch, the fast layout for the time loop)."""
+    u, v, w, phi, th, _, _ = x
+    ax, ay, az, p, q, r = a
     sphi, cphi, sth, cth = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
     qr = q * sphi + r * cphi
-    return np.column_stack([
-        ax - G0 * sth + r * v - q * w,
-        ay + G0 * cth * sphi + p * w - r * u,
-        az + G0 * cth * cphi + q * u - p * v,
-        p + sth / cth * qr,
-        q * cphi - r * sphi,
-        qr / cth,
-        u * sth - v * sphi * cth - w * cphi * cth,
-    ])
+    out = np.empty_like(x)
+    out[0] = ax - G0 * sth + r * v - q * w
+    out[1] = ay + G0 * cth * sphi + p * w - r * u
+    out[2] = az + G0 * cth * cphi + q * u - p * v
+    out[3] = p + sth / cth * qr
+    out[4] = q * cphi - r * sphi
+    out[5] = qr / cth
+    out[6] = u * sth - (v * sphi + w * cphi) * cth
+    return out
 
 
 def integrate(x0: np.ndarray, inputs: np.ndarray, dt: float) -> np.ndarray:
     """States (B, N, 7) from initial states ``x0`` (B, 7) and inputs (B, N, 6) sampled every
     ``dt`` s (RK4, inputs linear between samples)."""
     B, N, _ = inputs.shape
-    out = np.empty((B, N, 7))
-    x = np.array(x0, dtype=float)
-    out[:, 0] = x
+    a = np.ascontiguousarray(inputs.transpose(1, 2, 0))  # (N, 6, B)
+    out = np.empty((N, 7, B))
+    x = np.array(x0, dtype=float).T.copy()
+    out[0] = x
+    half, sixth = 0.5 * dt, dt / 6
     for k in range(N - 1):
-        a0, a1 = inputs[:, k], inputs[:, k + 1]
+        a0, a1 = a[k], a[k + 1]
         am = 0.5 * (a0 + a1)
         k1 = derivatives(x, a0)
-        k2 = derivatives(x + 0.5 * dt * k1, am)
-        k3 = derivatives(x + 0.5 * dt * k2, am)
+        k2 = derivatives(x + half * k1, am)
+        k3 = derivatives(x + half * k2, am)
         k4 = derivatives(x + dt * k3, a1)
-        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out[:, k + 1] = x
-    return out
+        x = x + sixth * (k1 + 2 * (k2 + k3) + k4)
+        out[k + 1] = x
+    return out.transpose(2, 0, 1)
 
 
 def outputs(states: np.ndarray) -> np.ndarray:
