@@ -226,9 +226,9 @@ def cmd_refine(args) -> int:
     refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
                      zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
                      tau_max=args.tau_max, progress=True)
-    refiner.fit([_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)],
-                validate=[_trimmed(r, args.trim, profile)
-                          for r in _read_runs(args.validate or [], args.channel_map, profile, args)])
+    fit_runs = [_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)]
+    held_out = [_trimmed(r, args.trim, profile) for r in _read_runs(args.validate or [], args.channel_map, profile, args)]
+    refiner.fit(fit_runs, validate=held_out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
@@ -243,8 +243,27 @@ def cmd_refine(args) -> int:
         print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
               f"{refiner.error_after_[where]['overall']:.4g}", flush=True)
     out = write(refiner, args.out)  # after the screen output: a failing write loses nothing shown
+    _add_provenance(out, fit_runs + held_out)
     print(f"written to {out}: refine.json, report.md, final_profile.toml")
     return 0
+
+
+def _add_provenance(out, runs) -> None:
+    """The runs' provenance into refine.json and report.md (refine's writer knows the fits, the
+    readers know the files)."""
+    import json
+    from pathlib import Path
+
+    from .data.provenance import provenance, provenance_lines
+    from .estimators.result import dumps
+
+    prov = provenance(runs)
+    path = Path(out) / "refine.json"
+    data = json.loads(path.read_text())
+    data["provenance"] = prov
+    path.write_text(dumps(data))
+    with open(Path(out) / "report.md", "a") as f:
+        f.write("\n## Data provenance\n\n```\n" + "\n".join(provenance_lines(prov)) + "\n```\n")
 
 
 def _add_refine_parser(sub) -> None:

@@ -85,7 +85,9 @@ def _ingest(path, channel_map, profile, options=None):
                        index_base=cmap.get("index_base"), options=options)
     digest = file_sha256(path)
     for run in got.runs:  # provenance: which bytes these numbers came from
-        run.meta.setdefault("sha256", digest)
+        if run.meta.get("sha256", digest) != digest:  # a file written from another (compat's corrected runs)
+            run.meta["upstream_sha256"] = run.meta["sha256"]
+        run.meta["sha256"] = digest
         if channel_map and "channel_map" not in run.meta:
             run.meta["channel_map"] = json.dumps(channel_map, separators=(",", ":"))
     return got
