@@ -1,11 +1,12 @@
 """identify compat: flight-path reconstruction recovers known sensor errors, and the corrected runs
 give the derivatives error-free data give (issue #21)."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from identify import ML, RunError, parse_profile, read_run
+from identify import ML, RunError, load_profile, read_run
 from identify.data.runs import Run
 from identify.compat import Compat
 from identify.compat.kinematics import integrate, outputs
@@ -13,20 +14,8 @@ from identify.compat.synthetic import ERRORS, NOISE, flight
 from tests.identify.data.test_ingest import identify_cli
 
 GUST = 0.1  # deg
-SHORT_PERIOD = """
-name = "short period (alpha, q)"
-states = { alpha = "rad", q = "rad/s" }
-inputs = { de = "rad" }
-outputs = ["alpha", "q"]
-[free]
-alpha_alpha = -2.0
-alpha_de = -0.2
-M_alpha = -10.0
-M_q = -3.0
-M_de = -10.0
-[fixed]
-alpha_q = 1.0
-"""
+# the short-period model of docs/real_data.md (alpha, q; elevator), rough a priori values
+SHORT_PERIOD = Path(__file__).resolve().parents[3] / "examples" / "real_data" / "short_period.toml"
 
 
 def test_kinematics_reproduce_an_error_free_flight():
@@ -36,7 +25,7 @@ def test_kinematics_reproduce_an_error_free_flight():
     x0 = np.array([true["V"][0] * np.cos(true["alpha"][0]), 0.0, true["V"][0] * np.sin(true["alpha"][0]),
                    0.0, true["theta"][0], 0.0, true["h"][0]])
     y = outputs(integrate(x0[None], true.matrix(["a_x", "a_y", "a_z", "p", "q", "r"])[None], true.dt))[0]
-    for j, (name, tol) in enumerate([("V", 0.01), ("alpha", 1e-4), ("beta", 1e-4), ("theta", 1e-4), ("h", 0.05)]):
+    for name, tol in [("V", 0.01), ("alpha", 1e-4), ("beta", 1e-4), ("theta", 1e-4), ("h", 0.05)]:
         col = ["V", "alpha", "beta", "phi", "theta", "psi", "h"].index(name)
         assert np.max(np.abs(y[:, col] - true[name])) < tol, name
 
@@ -76,7 +65,7 @@ def test_corrected_runs_give_the_error_free_derivatives(compat_run):
     corrected = read_run(tmp / "out" / "corrected_flight.csv")
     error_free, _ = flight(seed=0, gust_deg=GUST, errors={})  # the same flight and noise, no sensor errors
     raw, _ = flight(seed=0, gust_deg=GUST)
-    p = parse_profile(SHORT_PERIOD)
+    p = load_profile(SHORT_PERIOD)
     window = (corrected.time[0], corrected.time[-1])
     fits = {name: ML(p, max_iter=60).fit(run.slice(*window)).result_
             for name, run in (("error-free", error_free), ("corrected", corrected), ("uncorrected", raw))}
