@@ -286,10 +286,18 @@ def cmd_freq(args) -> int:
     from .estimators.frequency.bode import plot_bode
     from .estimators.frequency.response import cost_report, frequency_response
 
+    import numpy as np
+
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]
+    inputs, skipped = _moved_inputs(runs, profile.input_names)
+    runs = [r.with_channels({u: np.zeros(len(r)) for u in profile.input_names if u not in r.channels})
+            for r in runs]  # an input a run lacks was held at trim
     f_range = None if args.f_min is None and args.f_max is None else (args.f_min or 0.05, args.f_max or 5.0)
-    fr = frequency_response(runs, profile.input_names, list(profile.outputs), f_range=f_range)
+    fr = frequency_response(runs, inputs, list(profile.outputs), f_range=f_range)
+    if skipped:  # said once the responses exist (a missing output is the one error line otherwise)
+        print(f"note: skipped input(s) {', '.join(skipped)}: no run moves them (absent or constant); "
+              f"responses to {', '.join(inputs)} only", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models = {"a priori": LinearModel(profile)}
@@ -302,6 +310,22 @@ def cmd_freq(args) -> int:
     print(cost_report(runs, models)[0])
     print(f"written to {out}: frequency_response.csv, {', '.join(p.name for p in plots)}")
     return 0
+
+
+def _moved_inputs(runs, inputs) -> tuple[list[str], list[str]]:
+    """The profile inputs some run moves (present and not constant), and those none does: a
+    response to an input never moved is not estimable (its cross-spectra are empty), and keeping
+    it would make every other input's response singular. A moved input absent from some run is
+    taken at trim (zero) there."""
+    import numpy as np
+
+    def moved(u):
+        return any(u in r.channels and np.ptp(r[u]) > 0 for r in runs)
+
+    used = [u for u in inputs if moved(u)]
+    if not used:
+        raise EstimationError(f"no run moves any input of the profile ({', '.join(inputs)})")
+    return used, [u for u in inputs if u not in used]
 
 
 def _add_freq_parser(sub) -> None:
