@@ -30,7 +30,7 @@ from __future__ import annotations
 import ast
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -72,7 +72,8 @@ class Raw:
     specs: dict | None = None  # the channel map's channels, column numbers made 0-based
 
 
-def _is_index(v) -> bool:
+def is_index(v) -> bool:
+    """Whether a channel map entry is a column number (an int, not a bool)."""
     return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
@@ -84,8 +85,8 @@ def zero_based(channels: dict, time, base, n_columns: int, source: str):
     past the last 0-based), reads like MATLAB's 1-based numbering and is refused: read 0-based,
     every channel would be the column next to the one meant, without a word."""
     where = f"{source}: channel map"
-    numbers = {k: v for k, v in channels.items() if _is_index(v)}
-    if _is_index(time):
+    numbers = {k: v for k, v in channels.items() if is_index(v)}
+    if is_index(time):
         numbers[TIME] = time
     if base not in (None, 0, 1):
         raise RunError(f"{where}: \"index_base\" must be 0 (Python) or 1 (MATLAB), got {base!r}")
@@ -144,8 +145,10 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
             continue
         values[name], described[name] = v, how
     meta = _meta(raw, described, resolver.derived)
-    t, values, lines = _missing(t, values, raw, options, meta)
+    t, values, lines, rows = _missing(t, values, raw, options, meta)
     notes += lines
+    if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
+        raw = replace(raw, row=lambda i, rows=rows, row=raw.row: row(int(rows[i])))
     warnings += _unit_checks(raw, t, values, described, profile)
     segments = _split_gaps(t, raw, meta, notes)
     runs = []
@@ -167,16 +170,16 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
 
 
 def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
-    """Time and channels after the NaN policy; the notes said. Rows are kept as file rows in the
-    messages (``raw.row``)."""
+    """Time, channels, the notes and the file rows (indices) kept, after the NaN policy."""
+    rows = np.arange(len(t))
     if not values:
-        return t, values, []
+        return t, values, [], rows
     bad = np.zeros(t.shape, bool)
     for v in values.values():
         bad |= ~np.isfinite(v)
     if not bad.any():
-        return t, values, []
-    notes, rows = [], np.arange(len(t))
+        return t, values, [], rows
+    notes = []
     inside = options.inside(t)
     if (bad & ~inside).any():
         n_out = int((bad & ~inside).sum())
@@ -189,7 +192,7 @@ def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
         t, rows, bad = t[inside], rows[inside], bad[inside]
         values = {n: v[inside] for n, v in values.items()}
     if not bad.any():
-        return t, values, notes
+        return t, values, notes, rows
     if options.nan == "refuse":
         name = next(n for n, v in values.items() if not np.all(np.isfinite(v)))
         v = values[name]
@@ -217,7 +220,7 @@ def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
     notes.append(f"{raw.source}: {text}")
     if good.sum() < 2:
         raise RunError(f"{raw.source}: fewer than two samples without missing values")
-    return t[good], {n: v[good] for n, v in values.items()}, notes
+    return t[good], {n: v[good] for n, v in values.items()}, notes, rows[good]
 
 
 def _meta(raw: Raw, described: dict, derived: dict) -> dict[str, str]:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RunError
-from .ingest import Ingested, Raw, build_runs, zero_based
+from .ingest import Ingested, Raw, build_runs, is_index, zero_based
 from .runs import Run
 
 MATRIX_NAMES = ("data", "Z", "fdata")
@@ -81,7 +81,7 @@ def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None
 def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, meta, profile, index_base,
                    options, source):
     channels = dict(channels) if channels is not None else None
-    uses_columns = any(_is_index(v) for v in (channels or {}).values()) or _is_index(time)
+    uses_columns = any(is_index(v) for v in (channels or {}).values()) or is_index(time)
     data_name = [None]
     data = _matrix(variables, matrix.replace("{stem}", path.stem) if matrix else None, source, data_name) \
         if uses_columns or matrix else None
@@ -111,10 +111,6 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
               time_name=time_name, file_format="mat")
     return build_runs(raw, channels, profile, options)
-
-
-def _is_index(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
 _ELEMENT = re.compile(r"^(?P<struct>[A-Za-z]\w*)\((?P<k>\d+)\)\.")

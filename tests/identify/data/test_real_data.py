@@ -116,6 +116,8 @@ def test_nan_outside_the_window_cut_inside_refused_dropped_or_interpolated(truth
         read_run_file(path, options=ReadOptions(t_start=1.0))
     dropped = read_file_runs(path, options=ReadOptions("drop", t_start=1.0))
     assert len(dropped) == 2 and "1 sample(s) with missing values dropped (line" in dropped[0].meta["dropped_samples"]
+    # the gap the hole leaves is named by the file's lines, not by the positions after the cut
+    assert "line 403 (7.98 -> 8.02 s)" in dropped[0].meta["time_gaps"], dropped[0].meta["time_gaps"]
     (filled,) = read_file_runs(path, options=ReadOptions("interpolate", t_start=1.0))
     assert len(filled) == len(truth_run) - 50 and "interpolated" in filled.meta["interpolated_samples"]
     assert filled["q"][350] == pytest.approx(0.5 * (truth_run["q"][399] + truth_run["q"][401]))
