@@ -38,7 +38,7 @@ from .sensors import ANGULAR, SensorError, by_name, catalogue
 _STEP = {"a_x": 1e-3, "a_y": 1e-3, "a_z": 1e-3, "p": 1e-5, "q": 1e-5, "r": 1e-5}
 _X0_STEP = np.array([1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-3])
 SEGMENT = 5.0  # s: each run is integrated in segments this long, each from its own estimated initial state
-MAX_LAG_SHARE = 0.25  # the residual autocovariance is used up to this share of the run (Bartlett taper)
+MAX_LAG_SHARE = 0.25  # the residual autocovariance is used up to this share of a segment (Bartlett taper)
 STEP_TOL_SE = 1e-2  # converged: the next Gauss-Newton step moves no unknown by 1/100 of its std error
 R_CHANGE_TOL = 1e-4
 MIN_SAMPLES = 50
@@ -55,10 +55,10 @@ class _RunData:
 
 @dataclass
 class _Response:
-    y: list[np.ndarray]  # per run (N, ny)
+    y: list[np.ndarray]  # per segment (N, ny)
     e: list[np.ndarray]
-    J: list[np.ndarray] | None = None  # per run (N, ny, p + 7)
-    extra: list[np.ndarray] | None = None  # per run (N, ny, q): candidates not in the model
+    J: list[np.ndarray] | None = None  # per segment (N, ny, p + 7)
+    extra: list[np.ndarray] | None = None  # per segment (N, ny, q): candidates not in the model
 
 
 class _Problem:
@@ -207,9 +207,9 @@ class _Fit:
     stop: str
 
 
-def _solve(prob: _Problem, beta: np.ndarray, max_iter: int, extra=()) -> _Fit:
+def _solve(prob: _Problem, beta: np.ndarray, max_iter: int) -> _Fit:
     """Levenberg-Marquardt with noise-covariance relaxation, from ``beta``."""
-    ev = prob.evaluate(beta, extra=extra)
+    ev = prob.evaluate(beta)
     R = _relaxed(ev)
     M, g = prob.information(ev, R)
     lam, it, stop, converged = 1e-3, 0, "max_iter", False
@@ -237,7 +237,7 @@ def _solve(prob: _Problem, beta: np.ndarray, max_iter: int, extra=()) -> _Fit:
             break
         it += 1
         beta, lam = trial, max(lam / 10, 1e-9)
-        ev = prob.evaluate(beta, extra=extra)
+        ev = prob.evaluate(beta)
         R_new = _relaxed(ev)
         r_change = float(np.max(np.abs(R_new / R - 1)))
         R = R_new
