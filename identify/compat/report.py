@@ -84,7 +84,7 @@ def _plot(result: CompatResult, path: Path) -> str:
             ax.plot(offset + t, after[:, j], color="C0", linewidth=0.7)
         offset += t[-1] + (t[1] - t[0] if len(t) > 1 else 0.0)
     for ax, y in zip(axes, result.outputs):
-        ax.set_ylabel(y, fontsize=8)
+        ax.set_ylabel(f"{y} [{'m/s' if y == 'V' else 'm' if y == 'h' else 'rad'}]", fontsize=8)
         ax.grid(alpha=0.3)
     axes[0].set_title("residuals before (grey) and after (blue) the sensor errors, segments in turn", fontsize=9)
     axes[-1].set_xlabel("time [s]")
