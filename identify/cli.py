@@ -370,8 +370,8 @@ def _add_compat_parser(sub) -> None:
                    "K_alpha,tau_alpha) instead of selecting them by score tests")
     p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
     p.add_argument("--max-steps", type=nonnegative_int, default=12, help="sensor errors added at most (default 12)")
-    p.add_argument("--segment", type=positive_float, default=5.0, metavar="S",
-                   help="integration segment length, each from its own initial state (default 5 s)")
+    p.add_argument("--segment", type=positive_float, default=3.0, metavar="S",
+                   help="integration segment length, each from its own initial state (default 3 s)")
     p.add_argument("--plots", action="store_true", help="also draw residuals_before_after.png")
     p.set_defaults(func=cmd_compat)
 

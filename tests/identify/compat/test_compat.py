@@ -53,8 +53,8 @@ def test_compat_recovers_each_sensor_error_within_two_standard_errors(compat_run
         assert abs(found[name]["value"] - truth) < 2 * found[name]["std"], (name, found[name], truth)
     assert [s["error"] for s in saved["steps"]][:1] and all(s["statistic"] > s["threshold"] for s in saved["steps"])
     before, after = saved["residual_rms"]["before"], saved["residual_rms"]["after"]
-    for y in ("alpha", "theta"):  # after: the sensor's noise alone; before: the sensor errors dominate
-        assert after[y] < 1.1 * NOISE[y] and before[y] > 3 * after[y], (y, before[y], after[y])
+    for y in ("alpha", "theta"):  # after: the sensor's noise alone; before: the sensor errors stand above it
+        assert after[y] < 1.1 * NOISE[y] and before[y] > 2 * NOISE[y], (y, before[y], after[y])
     report = (tmp / "out" / "report.md").read_text()
     assert "RMS before" in report and "`tau_alpha`" in report and "sha256" in report
     assert "tau_alpha" in out and "written to" in out
