@@ -187,7 +187,7 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
                         "(the hole splits the run) or interpolate them; outside the window the run is cut to it")
     p.add_argument("--trim", default=None, type=_trim_option, metavar="first:1s|mean|none",
                    help="remove each channel's trim value: its mean over the first seconds, over the whole run, "
-                        "or none (default; recorded in result.json)")
+                        "or none; recorded in result.json (not given: the data are used as they are)")
     p.add_argument("--channel-map", metavar="JSON",
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
@@ -282,11 +282,11 @@ def cmd_freq(args) -> int:
     """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
     from pathlib import Path
 
+    import numpy as np
+
     from .data.csvfile import read_run
     from .estimators.frequency.bode import plot_bode
     from .estimators.frequency.response import cost_report, frequency_response
-
-    import numpy as np
 
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]
