@@ -71,6 +71,7 @@ def build_parser() -> Parser:
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
     _add_freq_parser(sub)
+    _add_compat_parser(sub)
     _add_hq_parsers(sub)
     for p in sub.choices.values():
         add_threads_option(p)
@@ -80,19 +81,18 @@ def build_parser() -> Parser:
 def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     from .data.preprocess import slice_run, smooth
-    from .estimators.plots import save_plots
 
     profile = load_profile(args.profile)
     runs = []
-    for r in _read_runs(args.runs, args.channel_map, profile):
+    for r in _read_runs(args.runs, args.channel_map, profile, args):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
-            if "segment" in r.meta and not _overlaps(r, args.t_start, args.t_end):
+            if ("segment" in r.meta or "dropped_samples" in r.meta) and not _overlaps(r, args.t_start, args.t_end):
                 print(f"note: {r.source} lies outside --t-start/--t-end: not used", file=sys.stderr)
                 continue
             r = slice_run(r, args.t_start, args.t_end)
-        runs.append(r)
+        runs.append(_trimmed(r, args.trim, profile))
     if not runs:
         raise EstimationError("no run has samples between --t-start and --t-end")
 
@@ -112,12 +112,15 @@ def cmd_estimate(args) -> int:
         result.info["verify"] = verification.to_dict()
         print("\n" + "\n".join(verification.lines()), flush=True)
     out = result.save(args.out)
-    plots = save_plots(result, out)
-    if verification is not None:
+    written = ["result.json", "identified_profile.toml"]
+    if args.plots:  # on request: drawing them costs three times the fit itself (benchmarks/ml_speed.py)
+        from .estimators.plots import save_plots
+        written += [p.name for p in save_plots(result, out)]
+    if verification is not None:  # asked for with --verify: its plot comes with it
         from .estimators.frequency.verify import plot_verification
         from .model.profile import output_units
-        plots.append(plot_verification(verification, out / "verify.png", output_units(result.profile)))
-    print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
+        written.append(plot_verification(verification, out / "verify.png", output_units(result.profile)).name)
+    print(f"\nwritten to {out}: {', '.join(written)}" + ("" if args.plots else " (plots: add --plots)"))
     return 0
 
 
@@ -166,6 +169,8 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
                    help="iterations at most for iv (default 30) and ml (default 100)")
+    p.add_argument("--plots", action="store_true",
+                   help="also draw time_history_run<k>.png and residuals.png (slower than the fit)")
     p.add_argument("--verify", nargs="+", metavar="RUN", help="held-out runs the identified model must predict "
                    "(VERIFY: initial state and zero shifts fitted; Theil coefficient and J_rms reported)")
     p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")
@@ -178,20 +183,40 @@ def _names(text: str | None) -> tuple[str, ...]:
     return tuple(n.strip() for n in (text or "").split(",") if n.strip())
 
 
-def _read_runs(paths, channel_map, profile):
+def _read_runs(paths, channel_map, profile, args=None):
     """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
-    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
+    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt.
+    ``args`` brings the NaN policy (``--nan``) and the window (``--t-start``/``--t-end``)."""
     from .model.pseudo_inputs import prepare
 
-    return prepare(profile, _recorded_runs(paths, channel_map, profile))
+    return prepare(profile, _recorded_runs(paths, channel_map, profile, args))
 
 
-def _recorded_runs(paths, channel_map, profile):
+def _recorded_runs(paths, channel_map, profile, args=None):
     """The runs as recorded (the pilot's inputs, no declared delay applied): handling qualities
     and LOES judge the aircraft from the stick, its delays included."""
+    from .data.ingest import ReadOptions
     from .data.io import load_channel_map, read_run_files
 
-    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
+    options = ReadOptions(getattr(args, "nan", "refuse"), getattr(args, "t_start", None), getattr(args, "t_end", None))
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile, options)
+
+
+def _trimmed(run, trim: str, profile):
+    """``run`` minus its trim values (``--trim``), the profile's pseudo-inputs (a constant, the
+    time, ...) left as they are; said once per run."""
+    from .data.preprocess import remove_trim
+    from .model.pseudo_inputs import specs
+
+    if trim is None:
+        return run
+    if trim == "none":
+        return remove_trim(run, "none")  # recorded: the data were taken as perturbations already
+    pseudo = set(specs(profile))
+    out = remove_trim(run, trim, [n for n in run.channels if n not in pseudo])
+    print(f"note: {run.source}: trim removed ({trim}) from {len(run.channels) - len(pseudo & set(run.channels))} "
+          f"channel(s)", file=sys.stderr)
+    return out
 
 
 def _overlaps(run, t_start, t_end) -> bool:
@@ -210,10 +235,30 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--method", choices=METHOD_NAMES, default=default_method,
                    help=f"estimator (default {default_method})")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--nan", choices=("refuse", "drop", "interpolate"), default="refuse",
+                   help="missing values inside the analysed window: refuse the file (default), drop their samples "
+                        "(the hole splits the run) or interpolate them; outside the window the run is cut to it")
+    p.add_argument("--trim", default=None, type=_trim_option, metavar="first:1s|mean|none",
+                   help="remove each channel's trim value: its mean over the first seconds, over the whole run, "
+                        "or none; recorded in result.json (not given: the data are used as they are)")
     p.add_argument("--channel-map", metavar="JSON",
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
                         'as a file or inline JSON (required for .mat data matrices)')
+
+
+def _trim_option(text: str) -> str:
+    """argparse type of --trim (checked without loading numpy-heavy modules)."""
+    import argparse
+
+    from .data.preprocess import parse_trim
+    from .errors import RunError
+
+    try:
+        parse_trim(text)
+    except RunError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text.strip().lower()
 
 
 def cmd_refine(args) -> int:
@@ -229,8 +274,9 @@ def cmd_refine(args) -> int:
     refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
                      kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
                      frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)
-    refiner.fit(_read_runs(args.runs, args.channel_map, profile),
-                validate=_read_runs(args.validate or [], args.channel_map, profile))
+    fit_runs = [_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)]
+    held_out = [_trimmed(r, args.trim, profile) for r in _read_runs(args.validate or [], args.channel_map, profile, args)]
+    refiner.fit(fit_runs, validate=held_out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
@@ -245,8 +291,27 @@ def cmd_refine(args) -> int:
         print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
               f"{refiner.error_after_[where]['overall']:.4g}", flush=True)
     out = write(refiner, args.out)  # after the screen output: a failing write loses nothing shown
+    _add_provenance(out, fit_runs + held_out)
     print(f"written to {out}: refine.json, report.md, final_profile.toml")
     return 0
+
+
+def _add_provenance(out, runs) -> None:
+    """The runs' provenance into refine.json and report.md (refine's writer knows the fits, the
+    readers know the files)."""
+    import json
+    from pathlib import Path
+
+    from .data.provenance import provenance, provenance_lines
+    from .estimators.result import dumps
+
+    prov = provenance(runs)
+    path = Path(out) / "refine.json"
+    data = json.loads(path.read_text())
+    data["provenance"] = prov
+    path.write_text(dumps(data))
+    with open(Path(out) / "report.md", "a") as f:
+        f.write("\n## Data provenance\n\n```\n" + "\n".join(provenance_lines(prov)) + "\n```\n")
 
 
 def _add_refine_parser(sub) -> None:
@@ -270,14 +335,22 @@ def cmd_freq(args) -> int:
     """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
     from pathlib import Path
 
+    import numpy as np
+
     from .data.csvfile import read_run
     from .estimators.frequency.bode import plot_bode
     from .estimators.frequency.response import cost_report, frequency_response
 
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]
+    inputs, skipped = _moved_inputs(runs, profile.input_names)
+    runs = [r.with_channels({u: np.zeros(len(r)) for u in profile.input_names if u not in r.channels})
+            for r in runs]  # an input a run lacks was held at trim
     f_range = None if args.f_min is None and args.f_max is None else (args.f_min or 0.05, args.f_max or 5.0)
-    fr = frequency_response(runs, profile.input_names, list(profile.outputs), f_range=f_range)
+    fr = frequency_response(runs, inputs, list(profile.outputs), f_range=f_range)
+    if skipped:  # said once the responses exist (a missing output is the one error line otherwise)
+        print(f"note: skipped input(s) {', '.join(skipped)}: no run moves them (absent or constant); "
+              f"responses to {', '.join(inputs)} only", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models = {"a priori": LinearModel(profile)}
@@ -293,6 +366,22 @@ def cmd_freq(args) -> int:
     return 0
 
 
+def _moved_inputs(runs, inputs) -> tuple[list[str], list[str]]:
+    """The profile inputs some run moves (present and not constant), and those none does: a
+    response to an input never moved is not estimable (its cross-spectra are empty), and keeping
+    it would make every other input's response singular. A moved input absent from some run is
+    taken at trim (zero) there."""
+    import numpy as np
+
+    def moved(u):
+        return any(u in r.channels and np.ptp(r[u]) > 0 for r in runs)
+
+    used = [u for u in inputs if moved(u)]
+    if not used:
+        raise EstimationError(f"no run moves any input of the profile ({', '.join(inputs)})")
+    return used, [u for u in inputs if u not in used]
+
+
 def _add_freq_parser(sub) -> None:
     p = sub.add_parser("freq", help="frequency responses with coherence (Bode plots, CSV, fit cost J)")
     p.add_argument("runs", nargs="+", help="run files (.csv)")
@@ -303,6 +392,43 @@ def _add_freq_parser(sub) -> None:
     p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)
+
+
+def cmd_compat(args) -> int:
+    """Flight-path reconstruction: sensor biases, scale factors and time skews; corrected runs."""
+    from .compat import Compat
+    from .compat.report import write
+    from .data.ingest import ReadOptions
+    from .data.io import load_channel_map, read_run_files
+
+    runs = read_run_files(args.runs, load_channel_map(args.channel_map) if args.channel_map else None, None,
+                          ReadOptions(args.nan))
+    errors = None if args.errors is None else [e.strip() for e in args.errors.split(",") if e.strip()]
+    compat = Compat(errors, alpha=args.alpha, max_steps=args.max_steps, segment=args.segment,
+                    progress=lambda text: print(text, file=sys.stderr, flush=True)).fit(runs)
+    print(compat.result_.summary(), flush=True)
+    written = write(compat.result_, runs, args.out, plots=args.plots)
+    print(f"written to {args.out}: {', '.join(written)}")
+    return 0
+
+
+def _add_compat_parser(sub) -> None:
+    p = sub.add_parser("compat", help="flight-path reconstruction: sensor biases, scale factors, time skews; "
+                                      "corrected runs")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat) with a_x, a_y, a_z, p, q, r and any of "
+                                           "V, alpha, beta, phi, theta, psi, h")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map (file or inline JSON), as for estimate")
+    p.add_argument("--nan", choices=("refuse", "drop", "interpolate"), default="refuse",
+                   help="missing values: refuse the file (default), drop their samples or interpolate them")
+    p.add_argument("--errors", metavar="LIST", help="estimate exactly these sensor errors (e.g. b_q,b_alpha,"
+                   "K_alpha,tau_alpha) instead of selecting them by score tests")
+    p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    p.add_argument("--max-steps", type=nonnegative_int, default=12, help="sensor errors added at most (default 12)")
+    p.add_argument("--segment", type=positive_float, default=3.0, metavar="S",
+                   help="integration segment length, each from its own initial state (default 3 s)")
+    p.add_argument("--plots", action="store_true", help="also draw residuals_before_after.png")
+    p.set_defaults(func=cmd_compat)
 
 
 def cmd_hq(args) -> int:

@@ -73,6 +73,9 @@ class Estimator:
         self._validate()
         runs = self.check_runs(runs)
         self.result_ = self._fit(runs)
+        from ..data.provenance import provenance
+
+        self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
         return self
 
     def _validate(self) -> None:

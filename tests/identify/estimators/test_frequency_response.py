@@ -191,3 +191,20 @@ def test_estimate_report_shows_J(truth, tmp_path):
     assert "lowest resolved frequency" in proc.stdout
     cost = json.loads((tmp_path / "est" / "result.json").read_text())["info"]["frequency_cost_J"]
     assert cost["identified"]["mean"] < 50  # LS from these runs fits the truth's responses
+
+
+def test_cli_computes_the_inputs_the_runs_move_and_says_which_it_skipped(truth, tmp_path):
+    """Runs flown on the longitudinal cyclic only (the lateral one held, or not even logged): the
+    responses to theta_s, theta_c skipped and said (issue #21)."""
+    runs = runs_3211(truth)[:3]  # theta_s moved, theta_c zero
+    paths = [runs[0].to_csv(tmp_path / "held.csv"),
+             runs[1].to_csv(tmp_path / "unlogged.csv", channels=[c for c in runs[1].channels if c != "theta_c"])]
+    profile = tmp_path / "model.toml"
+    profile.write_text(STABLE)
+    out = tmp_path / "freq"
+    proc = run_cli("identify", "freq", "--profile", profile, *paths, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert "skipped input(s) theta_c: no run moves them" in proc.stderr
+    rows = (out / "frequency_response.csv").read_text().splitlines()
+    assert len(rows) == 1 + 80 * 3 and all("theta_c" not in r for r in rows[1:])
+    assert (out / "bode_theta_s.png").exists() and not (out / "bode_theta_c.png").exists()
