@@ -90,3 +90,16 @@ def test_a_declared_output_bias_duplicating_the_zero_shift_is_said():
     i = p.free_names.index("b_q")
     assert np.isnan(res.std[i])
     assert "b_q: a declared output bias on 'q' duplicating the zero shift" in res.summary()
+
+
+def test_ml_initial_state_and_zero_shift_stds_are_nan_where_the_variance_is_not_positive():
+    """Every standard error ML reports (parameters, initial states, zero shifts) is NaN, never 0,
+    where its variance is not positive; held entries stay inf."""
+    from identify.estimators import ml
+
+    class Cov:
+        def diag(self):
+            return np.array([4.0, 0.0, -1e-9, 1.0])
+
+    std = ml._std(Cov(), np.array([True, True, True, False]))
+    assert std[0] == 2.0 and np.isnan(std[1]) and np.isnan(std[2]) and std[3] == np.inf
