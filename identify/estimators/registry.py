@@ -11,7 +11,7 @@ from ..errors import EstimationError
 
 # method name -> (module under identify.estimators, class)
 _CLASSES = {"ml": ("ml", "ML"), "ls": ("equation_error", "LS"), "iv": ("equation_error", "IV"),
-            "fdee": ("frequency_ee", "FDEE")}
+            "fdee": ("frequency_ee", "FDEE"), "fem": ("filter_error", "FEM")}
 METHOD_NAMES = tuple(_CLASSES)
 
 
