@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
-                      output_dir, output_file, positive_float, positive_int, run)
+                      output_dir, output_file, positive_float, positive_int, run, state_values)
 from .errors import EstimationError
 from .model.linear import LinearModel, format_modes, residualize
 from .model.profile import load_profile
@@ -59,8 +59,10 @@ def cmd_estimate(args) -> int:
     from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
 
-    if args.max_iter is not None and args.method not in ("iv", "ml"):
-        raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
+    if args.max_iter is not None and args.method not in ("iv", "ml", "fem"):
+        raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml, fem), not {args.method}")
+    if args.x0 is not None and args.method not in ("ml", "fem"):
+        raise EstimationError(f"--x0 applies to ml and fem, not {args.method}")
     profile = load_profile(args.profile)
     runs = []
     for r in _read_runs(args.runs, args.channel_map, profile):
@@ -81,7 +83,10 @@ def cmd_estimate(args) -> int:
     iterations = {} if args.max_iter is None else {"max_iter": args.max_iter}
     options = {"ml": dict(progress=show, **iterations),
                "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
-               "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
+               "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {},
+               "fem": dict(progress=show, **iterations)}[args.method]
+    if args.x0 is not None:
+        options["x0"] = args.x0
     result = _fit(args.method, options, profile, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
     from .frequency import cost_report
@@ -115,7 +120,7 @@ def _fit(method: str, options: dict, profile, runs):
 
 
 def _add_estimate_parser(sub) -> None:
-    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
+    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE or FEM)")
     _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
@@ -123,7 +128,9 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-start", type=finite_float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
-                   help="iterations at most for iv (default 30) and ml (default 100)")
+                   help="iterations at most for iv (default 30), ml and fem (default 100)")
+    p.add_argument("--x0", type=state_values, metavar="STATE=VALUE,...",
+                   help="known initial states, held in every run (ml, fem; adds to the profile's [initial_state])")
     p.set_defaults(func=cmd_estimate)
 
 

@@ -79,6 +79,7 @@ PROCESS_NOISE_CONVENTION = ("F in dx/dt = A x + B u + F w, w unit white noise (p
                             "F diagonal on the listed states, in the state-derivative unit times sqrt(s)")
 R_FLOOR = 1e-6  # smallest measurement variance, relative to the output's mean square innovation
 F_START = 0.3  # default start of F_i: this share of the state's measured rms times sqrt(2 / 1 s)
+F_ZERO = 1e-3  # an F below this share of its start value is at the boundary F = 0: held there
 GAIN_STEP = 1e-5  # relative perturbation of the Riccati solution's arguments (central differences)
 
 
@@ -162,7 +163,11 @@ class FEM(Estimator):
         M, _ = prob.information(ev)
         cov, ill = _covariance(M, bounded)
         std = np.sqrt(np.clip(np.diag(cov), 0, None))
-        std[~bounded] = np.inf
+        std[~bounded] = np.inf  # a derivative no input excites, a held x0 or zero shift
+        boundary = np.zeros_like(bounded)
+        boundary[ix["f"]] = ~bounded[ix["f"]]
+        boundary[ix["r"]] = ~bounded[ix["r"]]
+        std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
         self.covariance_ = cov[:P, :P].copy()
         theta, f, x0, b, r = prob.unpack(beta)
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
@@ -195,6 +200,10 @@ class FEM(Estimator):
             "zero_shifts": [dict(zip(p.outputs, map(float, b[:, k]))) for k in range(prob.n_runs)],
             "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, k]))) for k in range(prob.n_runs)],
             "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
+            "not_determined": [f"F of {s}: at the boundary F = 0 (no process noise found on it), bound not determined"
+                               for s in sv.at_zero] +
+                              [f"R of {y}: on its floor (no measurement noise found), bound not determined"
+                               for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_],
             "ill_conditioned": ill,
             "standard_errors": "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)",
             "wall_time": wall,
@@ -417,17 +426,24 @@ class _Solver:
         self.ev = self._evaluate(self.beta, jacobian=False)
         if self.ev is None:
             raise EstimationError("FEM: the a priori model's Kalman filter has no steady state (the Riccati "
-                                  "equation has no stabilising solution): check the outputs observe every "
-                                  "unstable mode")
+                                  "equation has no stabilising solution): the outputs must observe every "
+                                  "unstable mode, and a mode on the stability boundary (an integrator) needs "
+                                  "process noise on one of its states")
         self._relax()
         self.ev = self._evaluate(self.beta, jacobian=True)
         M, _ = prob.information(self.ev)
+        # a derivative no input excites (zero sensitivity) is held, std = inf, as in ML; the
+        # threshold is relative to the derivatives' own information (the variances' is of
+        # another scale altogether)
         d = np.diag(M)
-        self.active = active & (d > 1e-300 + 1e-26 * d[active].max())
+        th = prob.index["theta"]
+        self.active = active & (d > 1e-300)
+        self.active[th] &= d[th] > 1e-26 * d[th].max()
         if not self.active[:prob.p].any():
             raise EstimationError("FEM: no free parameter influences the outputs of these runs (are the inputs all zero?)")
         ix = prob.index
         self.scale0 = np.abs(beta)
+        self.at_zero = []  # states whose process noise went to the boundary F = 0
         self.moving = np.zeros(prob.n_beta, bool)  # step-bounded: theta and F
         self.moving[ix["theta"]] = self.moving[ix["f"]] = self.moving[ix["r"]] = True
 
@@ -498,6 +514,7 @@ class _Solver:
                 else:
                     self.stop = f"stalled: no step lowers the cost although {in_se:.2g} standard errors remain"
                 break
+            self._boundary()
             self.ev = self._evaluate(self.beta, jacobian=True)
             self.history.append(self.ev.cost)
             M, g = prob.information(self.ev)
@@ -507,6 +524,14 @@ class _Solver:
                 print(f"FEM iteration {self.iterations:3d}: -log likelihood {self.history[-1]:.10g}  "
                       f"damping {self.lam:.1e}  next step {in_se:.2e} std errors")
         self.M = M
+
+    def _boundary(self) -> None:
+        """An F that falls to a negligible share of its start is at the boundary F = 0 (calm air
+        on that state): its information vanishes as F^2 there, so it is held at 0, not stepped."""
+        for i, j in enumerate(self.prob.index["f"]):
+            if self.active[j] and abs(self.beta[j]) < F_ZERO * self.scale0[j]:
+                self.beta[j], self.active[j] = 0.0, False
+                self.at_zero.append(self.prob.noise_states[i])
 
     def _trial(self, M, g):
         """The damped, step-bounded step that lowers the cost by MIN_GAIN_RATIO of its predicted

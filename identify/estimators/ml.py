@@ -75,7 +75,9 @@ class ML(Estimator):
     ``info["converged"]`` False with the reason in ``info["stop"]``); convergence when the next
     Gauss-Newton step is under 1e-3 standard errors, or under ``tol`` relative to the parameters.
     ``estimate_x0``/``estimate_bias``: estimate initial states (of every segment) and per-run
-    output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the measurement-noise
+    output zero shifts; ``x0`` ``{state: value}`` initial states held at known values in every run
+    (with the profile's ``[initial_state]``; later multiple-shooting segments keep theirs free),
+    and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``: ``"relax"`` (estimate R) or the measurement-noise
     covariance, (ny,) variances or (ny, ny), in output units squared.
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
@@ -102,12 +104,12 @@ class ML(Estimator):
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
-                 verbose: bool = False):
+                 verbose: bool = False, x0: dict | None = None):
         super().__init__(profile)
         self.segment, self.max_iter, self.tol = segment, max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.noise_cov, self.coloured = noise_cov, coloured
-        self.progress, self.verbose = progress, verbose
+        self.progress, self.verbose, self.x0 = progress, verbose, x0
         self.covariance_ = self.problem_ = self.beta_ = None
 
     def _validate(self) -> None:
@@ -133,8 +135,12 @@ class ML(Estimator):
         if not self.estimate_x0 and math.isfinite(segment) and any(r.duration > segment for r in runs):
             raise EstimationError("ML: multiple shooting needs the segment initial states: "
                                   "use estimate_x0=True or segment='plain'")
+        if p.input_hold != "held" or any(r.meta.get("input_hold", "held") != "held" for r in runs):
+            raise EstimationError("ML: inputs interpolated linearly between samples (input_hold = 'linear') "
+                                  "are supported by --method fem only; ML holds them")
         prob = OutputError(p, u, z, dt, segment, bool(self.estimate_x0), bool(self.estimate_bias))
         beta = prob.initial_beta(model0.theta)
+        held = _held(prob, beta, {**p.initial_state, **(self.x0 or {})})
         form = "plain" if prob.layout.n_segments == len(runs) else "multiple shooting"
         try:
             ev = prob.evaluate(beta)
@@ -144,6 +150,7 @@ class ML(Estimator):
             raise EstimationError(f"ML ({form}): the a priori model diverges: {exc}; "
                                   f"use {hint} or better a priori values") from None
         solver = _Solver(self, prob, ev, z)
+        solver.active &= ~held
         solver.run()
         if not solver.converged:
             warnings.warn(f"ML ({form}) did not converge: {solver.stop}; the estimates are not final "
@@ -426,6 +433,29 @@ class _Solver:
 
 
 # -- helpers ---------------------------------------------------------------------------------------
+def _held(prob: OutputError, beta: np.ndarray, x0_fixed: dict) -> np.ndarray:
+    """Unknowns the profile fixes, set in ``beta``: each run's initial state (``[initial_state]``,
+    the ``x0`` option; the first segment of the run) and the zero shifts ``[zero_shifts]`` holds."""
+    p, held = prob.profile, np.zeros(prob.n_beta, bool)
+    bad = [s for s in x0_fixed if s not in p.states]
+    if bad:
+        raise EstimationError(f"ML: x0: {', '.join(bad)} not a state of the profile (states: {', '.join(p.states)})")
+    index = np.array(prob.local_index)
+    first = [int(np.flatnonzero(prob.layout.run == r)[0]) for r in range(prob.n_runs)]
+    for s, value in x0_fixed.items():
+        col = index[first, prob.p + p.state_names.index(s)]
+        if prob.estimate_x0:
+            beta[col], held[col] = value, True
+        prob.x0_held[p.state_names.index(s), first] = value
+    for j, y in enumerate(p.outputs):
+        value, estimated = p.zero_shift(y)
+        col = index[first, prob.p + prob.n + j]
+        if prob.estimate_bias:
+            beta[col], held[col] = value, not estimated
+        prob.b_held[j] = value
+    return held
+
+
 def _std(cov, active: np.ndarray) -> np.ndarray:
     """Standard errors from a :class:`~identify.estimators.information.BlockCovariance`; inf where held."""
     std = np.sqrt(np.clip(cov.diag(), 0, None))
