@@ -40,11 +40,13 @@ Kp (z[k] - b)`` with ``Abar = Phi - Kp C``, so the derivatives of the innovation
 to all unknowns come from one recursion with Abar, all parameters and runs propagated together as
 trailing columns (as the output-error engine does): ``dx[k+1] = Abar dx[k] + dAbar x[k] + ...``.
 ``dPhi`` and ``dGamma`` are exact (Van Loan, :func:`~identify.model.sensitivity.discretize_with_derivatives`);
-only the gain's and S's derivatives come from perturbing the Riccati solution (central
-differences of n x n DARE solutions, no re-filtering).
+the gain's and S's derivatives come from the derivative of the Riccati solution, one discrete
+Lyapunov equation for all unknowns at once (:meth:`FilterProblem._gain_derivatives`), with only
+Qd's derivatives by central differences of a batched matrix exponential: no re-filtering and no
+extra Riccati solve.
 
 Bounds: the Cramér-Rao bounds from the same information at the estimate, the measurement-noise
-variances included as unknowns (their sensitivities by perturbing the Riccati solution too), so
+variances included as unknowns (their sensitivities through the gain as above), so
 F and R are reported with their bounds. For F = 0 (no process noise) and a stable model the
 filter's gain is zero and FEM is output-error ML (plain form).
 
@@ -80,7 +82,7 @@ PROCESS_NOISE_CONVENTION = ("F in dx/dt = A x + B u + F w, w unit white noise (p
 R_FLOOR = 1e-6  # smallest measurement variance, relative to the output's mean square innovation
 F_START = 0.3  # default start of F_i: this share of the state's measured rms times sqrt(2 / 1 s)
 F_ZERO = 1e-3  # an F below this share of its start value is at the boundary F = 0: held there
-GAIN_STEP = 1e-5  # relative perturbation of the Riccati solution's arguments (central differences)
+GAIN_STEP = 1e-5  # relative step of the central differences of Qd
 
 
 class FEM(Estimator):
@@ -289,10 +291,9 @@ class FilterProblem:
         return beta, active
 
     # -- the filter ------------------------------------------------------------------------------
-    def _gains(self, A, C, f, r, Phi=None):
-        """Predictor gains Kp (q, n, ny), innovation covariances S (q, ny, ny) and a priori
-        covariances P (q, n, n) of a stack of q models (A (q, n, n), C (q, ny, n), F (q, nf),
-        R diag (q, ny)); Qd by Van Loan's exponential, all q at once."""
+    def _noise_cov(self, A, f):
+        """``Phi`` (q, n, n) and ``Qd`` (q, n, n) of a stack of q state matrices A (q, n, n) and
+        process-noise values F (q, nf), by Van Loan's exponential, all q at once."""
         q, n = A.shape[0], self.n
         FF = np.zeros((q, n, n))
         FF[:, self.w_idx, self.w_idx] = f ** 2
@@ -301,13 +302,15 @@ class FilterProblem:
         E = expm(M * self.dt)
         Phis = E[:, n:, n:].transpose(0, 2, 1)
         Qd = Phis @ E[:, :n, n:]
-        Qd = 0.5 * (Qd + Qd.transpose(0, 2, 1))
-        Kp, S, P = np.empty((q, n, self.ny)), np.empty((q, self.ny, self.ny)), np.empty((q, n, n))
-        for i in range(q):
-            P[i] = solve_discrete_are(Phis[i].T, C[i].T, Qd[i], np.diag(r[i]))
-            S[i] = C[i] @ P[i] @ C[i].T + np.diag(r[i])
-            Kp[i] = Phis[i] @ np.linalg.solve(S[i], C[i] @ P[i]).T
-        return Kp, S, P
+        return Phis, 0.5 * (Qd + Qd.transpose(0, 2, 1))
+
+    def _gain(self, A, C, f, r):
+        """Predictor gain Kp (n, ny), innovation covariance S (ny, ny), a priori covariance P
+        (n, n) and Phi, Qd of one model."""
+        Phi, Qd = (a[0] for a in self._noise_cov(A[None], f[None]))
+        P = solve_discrete_are(Phi.T, C.T, Qd, np.diag(r))
+        S = C @ P @ C.T + np.diag(r)
+        return Phi @ np.linalg.solve(S, C @ P).T, S, P
 
     def evaluate(self, beta, jacobian: bool = False, noise: bool = False) -> Filtered:
         """Innovations at ``beta``; with ``jacobian`` their derivatives with respect to theta, F,
@@ -319,7 +322,7 @@ class FilterProblem:
             Phi, Gamma, dPhi, dGamma = discretize_with_derivatives(model, self.dt, self.hold)
         else:
             Phi, Gamma = discretize(model.A, model.B, self.dt, self.hold)
-        Kp, S, P = (a[0] for a in self._gains(model.A[None], model.C[None], f[None], r[None]))
+        Kp, S, P = self._gain(model.A, model.C, f, r)
         C, D = model.C, model.D
         Dh = np.hstack([D, np.zeros_like(D)]) if self.hold == "linear" else D  # D acts on u[k] only
         Abar = Phi - Kp @ C
@@ -341,7 +344,7 @@ class FilterProblem:
         """``ev.dnu`` (L, ny, k, R) and ``ev.dS`` (G, ny, ny): one recursion with Abar for all columns."""
         theta, f, x0, b, r = self.unpack(ev.beta)
         model, n, ny, p, nf, G = ev.model, self.n, self.ny, self.p, self.nf, self.G
-        dKp, dS = self._gain_derivatives(theta, f, r, noise)
+        dKp, dS = self._gain_derivatives(ev, Phi, Kp, dPhi, noise)
         mu = self.U.shape[1]
         dPhi_g, dGamma_g = np.zeros((G, n, n)), np.zeros((G, n, mu))
         dC_g, dD_g = np.zeros((G, ny, n)), np.zeros((G, ny, mu))
@@ -352,41 +355,48 @@ class FilterProblem:
         zb = self.Z - b[None]
         x, L, R = ev.x, self.Z.shape[0], self.n_runs
         forcing = np.zeros((L, n, self.k, R))
-        forcing[:, :, :G] = (np.einsum("gij,kjr->kigr", dAbar, x) + np.einsum("gij,kjr->kigr", dGu, self.U)
-                             + np.einsum("gij,kjr->kigr", dKp, zb))
+        forcing[:, :, :G] = (_stacked(dAbar, x) + _stacked(dGu, self.U) + _stacked(dKp, zb)).transpose(0, 2, 1, 3)
         forcing[:, :, G + n:] = -Kp[None, :, :, None]
         start = np.zeros((n, self.k, R))
         start[:, G:G + n] = np.eye(n)[:, :, None]
         sens = propagate(Phi - Kp @ C, forcing.reshape(L, n, -1), start.reshape(n, -1))
         dnu = -(C @ sens).reshape(L, ny, self.k, R)
-        dnu[:, :, :G] -= np.einsum("gyi,kir->kygr", dC_g, x) + np.einsum("gyj,kjr->kygr", dD_g, self.U)
+        dnu[:, :, :G] -= (_stacked(dC_g, x) + _stacked(dD_g, self.U)).transpose(0, 2, 1, 3)
         dnu[:, :, G + n:] -= np.eye(ny)[None, :, :, None]
         dnu *= self.mask[:, None, None, :]
         ev.dnu, ev.dS = dnu, dS
 
-    def _gain_derivatives(self, theta, f, r, noise: bool):
-        """``dKp`` (G, n, ny) and ``dS`` (G, ny, ny) by central differences of the Riccati solution
-        (zero for R unless ``noise``): 2 G small DARE solves, no re-filtering."""
-        m0, p, nf, ny, G = self.model0, self.p, self.nf, self.ny, self.G
-        cols = p + nf + (ny if noise else 0)
-        base = np.concatenate([theta, f, r])
-        h = GAIN_STEP * np.maximum(np.abs(base), 1e-3 * np.maximum(np.abs(base).max(), 1e-12))
-        h[p + nf:] = GAIN_STEP * np.abs(r)
-        A0, C0 = m0.with_theta(theta).A, m0.with_theta(theta).C
-        As, Cs, fs, rs = [], [], [], []
-        for sign in (1.0, -1.0):
-            for j in range(cols):
-                d = np.zeros(G)
-                d[j] = sign * h[j]
-                if j < p:
-                    As.append(A0 + d[j] * m0.dA[j]), Cs.append(C0 + d[j] * m0.dC[j])
-                else:
-                    As.append(A0), Cs.append(C0)
-                fs.append(f + d[p:p + nf]), rs.append(r + d[p + nf:])
-        Kp, S, _ = self._gains(np.array(As), np.array(Cs), np.array(fs), np.array(rs))
-        dKp, dS = np.zeros((G, self.n, ny)), np.zeros((G, ny, ny))
-        dKp[:cols] = (Kp[:cols] - Kp[cols:]) / (2 * h[:cols, None, None])
-        dS[:cols] = (S[:cols] - S[cols:]) / (2 * h[:cols, None, None])
+    def _gain_derivatives(self, ev: Filtered, Phi, Kp, dPhi, noise: bool):
+        """``dKp`` (G, n, ny) and ``dS`` (G, ny, ny) (zero for R unless ``noise``), analytic: at the
+        steady state ``P = Abar P Abar^T + Kp R Kp^T + Qd`` with Kp optimal, so (Kp held)
+        ``dP = Abar dP Abar^T + Xi``, ``Xi = dAbar P Abar^T + Abar P dAbar^T + Kp dR Kp^T + dQd``,
+        ``dAbar = dPhi - Kp dC``: one discrete Lyapunov equation, all G right-hand sides at once.
+        ``dQd`` by central differences of Van Loan's exponential (exact in F, which enters
+        squared), batched; no Riccati solve and no re-filtering."""
+        theta, f, _, _, r = self.unpack(ev.beta)
+        m0, p, nf, ny, n, G = self.model0, self.p, self.nf, self.ny, self.n, self.G
+        model, P, S = ev.model, ev.P, ev.S
+        C = model.C
+        dPhi_g, dC_g, dR = np.zeros((G, n, n)), np.zeros((G, ny, n)), np.zeros((G, ny, ny))
+        dPhi_g[:p], dC_g[:p] = dPhi, model.dC
+        if noise:
+            dR[p + nf + np.arange(ny), np.arange(ny), np.arange(ny)] = 1.0
+        # dQd: theta through A, F through F F^T (central differences; Qd is quadratic in F)
+        h = GAIN_STEP * np.maximum(np.abs(np.concatenate([theta, f])), 1e-3 * max(np.abs(theta).max(), 1e-12))
+        As = np.concatenate([model.A + h[:p, None, None] * m0.dA, np.repeat(model.A[None], nf, 0)])
+        fs = np.concatenate([np.repeat(f[None], p, 0), f + np.diag(h[p:])])
+        Am = np.concatenate([model.A - h[:p, None, None] * m0.dA, np.repeat(model.A[None], nf, 0)])
+        fm = np.concatenate([np.repeat(f[None], p, 0), f - np.diag(h[p:])])
+        dQd = np.zeros((G, n, n))
+        dQd[:p + nf] = (self._noise_cov(As, fs)[1] - self._noise_cov(Am, fm)[1]) / (2 * h[:, None, None])
+        Abar = Phi - Kp @ C
+        dA = dPhi_g - Kp @ dC_g
+        Xi = dA @ P @ Abar.T
+        Xi = Xi + Xi.transpose(0, 2, 1) + Kp @ dR @ Kp.T + dQd
+        lyap = np.eye(n * n) - np.kron(Abar, Abar)  # vec(Abar X Abar^T) = (Abar x Abar) vec(X), row-major
+        dP = np.linalg.solve(lyap, Xi.reshape(G, n * n).T).T.reshape(G, n, n)
+        dS = dC_g @ P @ C.T + C @ dP @ C.T + (dC_g @ P @ C.T).transpose(0, 2, 1) + dR
+        dKp = (dPhi_g @ P @ C.T + Phi @ dP @ C.T + Phi @ (dC_g @ P).transpose(0, 2, 1) - Kp @ dS) @ np.linalg.inv(S)
         return dKp, dS
 
     # -- Fisher information ------------------------------------------------------------------------
@@ -395,8 +405,8 @@ class FilterProblem:
         Sinv = np.linalg.inv(ev.S)
         Wh = np.linalg.cholesky(Sinv).T  # Wh^T Wh = S^-1
         L, ny, k, R = ev.dnu.shape
-        Jw = np.einsum("ij,kjcr->rkic", Wh, ev.dnu).reshape(R, L * ny, k)
-        ew = np.einsum("ij,kjr->rki", Wh, ev.nu).reshape(R, L * ny)
+        Jw = (Wh @ ev.dnu.reshape(L, ny, k * R)).reshape(L, ny, k, R).transpose(3, 0, 1, 2).reshape(R, L * ny, k)
+        ew = (Wh @ ev.nu).transpose(2, 0, 1).reshape(R, L * ny)
         M, g = np.zeros((self.n_beta, self.n_beta)), np.zeros(self.n_beta)
         for rr in range(R):
             idx = self.local_index[rr]
@@ -561,6 +571,12 @@ class _Solver:
                 self.rejected += 1
             self.lam, nu = max(self.lam, INITIAL_DAMPING) * nu, 2 * nu
         return None
+
+
+def _stacked(mats: np.ndarray, series: np.ndarray) -> np.ndarray:
+    """``mats`` (G, a, b) times ``series`` (L, b, R) for every g at once: (L, G, a, R), one matmul."""
+    G, a, b = mats.shape
+    return (mats.reshape(G * a, b) @ series).reshape(series.shape[0], G, a, series.shape[2])
 
 
 def _covariance(M: np.ndarray, active: np.ndarray):
