@@ -537,11 +537,14 @@ class _Solver:
 
     def _boundary(self) -> None:
         """An F that falls to a negligible share of its start is at the boundary F = 0 (calm air
-        on that state): its information vanishes as F^2 there, so it is held at 0, not stepped."""
+        on that state): its information vanishes as F^2 there, so it is held at 0, not stepped.
+        Likewise a measurement variance the step pushes onto its floor (R_FLOOR)."""
         for i, j in enumerate(self.prob.index["f"]):
             if self.active[j] and abs(self.beta[j]) < F_ZERO * self.scale0[j]:
                 self.beta[j], self.active[j] = 0.0, False
                 self.at_zero.append(self.prob.noise_states[i])
+        r = self.prob.index["r"]  # a measurement variance pushed onto its floor stays there
+        self.active[r] &= self.beta[r] > (1 + 1e-9) * self.r_floor
 
     def _trial(self, M, g):
         """The damped, step-bounded step that lowers the cost by MIN_GAIN_RATIO of its predicted
