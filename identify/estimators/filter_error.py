@@ -30,10 +30,14 @@ information (Gauss-Newton on the innovations, plus the information of S, which m
 and F: ``M_ij = sum dnu_i^T S^-1 dnu_j + N/2 tr(S^-1 dS_i S^-1 dS_j)``); trust region and
 convergence test are ML's (step under 1e-3 standard errors, the noise covariance settled).
 
-R is estimated by *relaxation*, as ML does, but from the innovations with the process noise's
-share removed ("F compensation"): ``R_jj = mean(nu_j^2) - (C P C^T)_jj`` (floored at a tiny
-positive share of mean(nu_j^2)). R >= 0 keeps the filter physically admissible:
+R starts by *relaxation* from the first innovations, with the process noise's share removed
+("F compensation"): ``R_jj = mean(nu_j^2) - (C P C^T)_jj`` (floored at a tiny positive share of
+mean(nu_j^2)); from then on its variances are unknowns of the same scoring steps (relaxation
+alone stalled on a wrong fixed point in the tests: with R held, the likelihood's dependence on
+it through the gain is lost). R >= 0 keeps the filter physically admissible:
 ``C K = I - R S^-1`` has ``diag(C K) = 1 - R_jj (S^-1)_jj <= 1`` (reported as ``info["diag_CK"]``).
+An F that falls to ~0 (calm air on that state) or a variance pushed onto its floor is held
+there: a boundary estimate, its bound "not determined" (NaN, listed in ``info["not_determined"]``).
 
 Sensitivities: the filter is linear in its state, ``x[k+1] = Abar x[k] + (Gamma - Kp D) u[k] +
 Kp (z[k] - b)`` with ``Abar = Phi - Kp C``, so the derivatives of the innovations with respect
@@ -425,8 +429,9 @@ class FilterProblem:
 
 
 class _Solver:
-    """Levenberg-Marquardt on the Fisher information with R relaxed from the innovations (ML's
-    trust-region rules and convergence test, :class:`identify.estimators.ml._Solver`)."""
+    """Levenberg-Marquardt on the Fisher information (theta, F, R, x0, zero shifts), R started by
+    relaxation from the innovations (ML's trust-region rules and convergence test,
+    :class:`identify.estimators.ml._Solver`)."""
 
     def __init__(self, fem: FEM, prob: FilterProblem, beta, active):
         self.fem, self.prob, self.beta = fem, prob, beta.copy()
