@@ -507,6 +507,7 @@ class _Solver:
         M, g = prob.information(self.ev)
         self.lam = INITIAL_DAMPING
         while True:
+            self._release(g)
             step0 = self._step(M, g, 0.0)
             in_se = math.sqrt(max(float(g @ step0), 0.0))
             self.step_history.append(in_se)
@@ -548,8 +549,14 @@ class _Solver:
             if self.active[j] and abs(self.beta[j]) < F_ZERO * self.scale0[j]:
                 self.beta[j], self.active[j] = 0.0, False
                 self.at_zero.append(self.prob.noise_states[i])
-        r = self.prob.index["r"]  # a measurement variance pushed onto its floor stays there
+        r = self.prob.index["r"]  # a measurement variance pushed onto its floor is held there ...
         self.active[r] &= self.beta[r] > (1 + 1e-9) * self.r_floor
+
+    def _release(self, g) -> None:
+        """... until the gradient points back inside (the likelihood rises with the variance):
+        an active set, so that an early, wild step cannot pin a variance to its floor."""
+        r = self.prob.index["r"]
+        self.active[r] |= g[r] > 0
 
     def _trial(self, M, g):
         """The damped, step-bounded step that lowers the cost by MIN_GAIN_RATIO of its predicted
