@@ -169,7 +169,10 @@ class Case:
                 ties[name] = {name: 1.0, f"{p.equation(p.state_names[entry.row])}_{g[col]}": -1.0}
         states = {**p.states, **{v: p.states[s] for s, v in g.items()}}
         fixed = {**p.fixed, **{f"{v}_{v}": -corner for v in g.values()}}
+        # the gusts' initial values held at 0: with F > 0 the filter estimates the gusts anyway, and
+        # in calm air (F -> 0) they would be a transient output error does not have
         return replace(p, states=states, ties=ties, fixed=fixed, process_noise=dict.fromkeys(g.values(), 0.1),
+                       initial_state={**p.initial_state, **dict.fromkeys(g.values(), 0.0)},
                        name=p.name + " + gust states")
 
 
