@@ -213,6 +213,7 @@ class ML(Estimator):
             "std_coloured": None if std_col is None else std_col[:P],
             "noise_autocorrelation": acf,
             "colour_passes": passes,
+            "estimator_advice": _advice(std_white[:P], None if std_col is None else std_col[:P]),
             "wall_time": wall,
         }
         return IdentificationResult(
@@ -433,6 +434,23 @@ class _Solver:
 
 
 # -- helpers ---------------------------------------------------------------------------------------
+COLOURED_ADVICE = 2.0  # coloured-residual bounds this many times the white ones: say FEM is the estimator
+
+
+def _advice(std_white: np.ndarray, std_col: np.ndarray | None) -> str | None:
+    """When the residuals are strongly coloured (median coloured/white bound >= COLOURED_ADVICE;
+    on the benchmarks' turbulent cases 4.5-7, in calm air 0.94-0.98): the filter-error method."""
+    if std_col is None:
+        return None
+    ok = np.isfinite(std_white) & np.isfinite(std_col) & (std_white > 0)
+    ratio = float(np.median(std_col[ok] / std_white[ok])) if ok.any() else float("nan")
+    if not ratio >= COLOURED_ADVICE:
+        return None
+    return (f"the residuals are strongly coloured (coloured-residual bounds {ratio:.1f}x the white ones): "
+            f"turbulence, or a pilot or SAS in the loop? Output error's estimates may then be biased beyond "
+            f"their bounds; the filter-error method (--method fem) models the process noise")
+
+
 def _held(prob: OutputError, beta: np.ndarray, x0_fixed: dict) -> np.ndarray:
     """Unknowns the profile fixes, set in ``beta``: each run's initial state (``[initial_state]``,
     the ``x0`` option; the first segment of the run) and the zero shifts ``[zero_shifts]`` holds."""

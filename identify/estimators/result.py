@@ -175,6 +175,8 @@ class IdentificationResult:
         lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
         lines.append(self._convergence_line())
         lines += _noise_lines(self.info)
+        if self.info.get("estimator_advice"):
+            lines.append(f"note: {self.info['estimator_advice']}")
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]

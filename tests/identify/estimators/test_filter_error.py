@@ -158,3 +158,11 @@ def test_refusals(navion):
             ).fit([])
     with pytest.raises(EstimationError, match="not a state"):
         FEM(navion, process_noise={"x": 1.0}).fit([])
+
+
+def test_ml_on_turbulent_data_says_fem_is_the_estimator(navion):
+    truth = LinearModel(navion)
+    turbulent = ML(navion).fit(_runs(truth, F_TRUE, (5,), duration=20.0)).result_
+    assert "--method fem" in turbulent.info["estimator_advice"] and "--method fem" in turbulent.summary()
+    calm = ML(navion).fit(_runs(truth, {}, (5,), duration=20.0)).result_
+    assert calm.info["estimator_advice"] is None
