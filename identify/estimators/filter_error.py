@@ -86,6 +86,7 @@ PROCESS_NOISE_CONVENTION = ("F in dx/dt = A x + B u + F w, w unit white noise (p
 R_FLOOR = 1e-6  # smallest measurement variance, relative to the output's mean square innovation
 F_START = 0.3  # default start of F_i: this share of the state's measured rms times sqrt(2 / 1 s)
 F_ZERO = 1e-3  # an F below this share of its start value is at the boundary F = 0: held there
+INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
 GAIN_STEP = 1e-5  # relative step of the central differences of Qd
 
 
@@ -140,8 +141,8 @@ class FEM(Estimator):
         self.process_noise_, self.x0_ = noise, {s: float(v) for s, v in x0.items()}
 
     # -- fitting ---------------------------------------------------------------------------------
-    def _fit(self, runs: list[Run]) -> IdentificationResult:
-        started = _time.perf_counter()
+    def _problem(self, runs: list[Run]):
+        """The filter-error problem of the validated profile on ``runs``, its start and its unknowns."""
         p = self.profile_
         holds = {r.meta.get("input_hold", p.input_hold) for r in runs}
         if len(holds) > 1 or not holds <= {"held", "linear"}:
@@ -150,6 +151,11 @@ class FEM(Estimator):
         prob = FilterProblem(p, [_finite(r, p.input_names) for r in runs], [_finite(r, list(p.outputs)) for r in runs],
                              _common_dt(runs), list(self.process_noise_), holds.pop())
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
+        return prob, beta, active
+
+    def _fit(self, runs: list[Run]) -> IdentificationResult:
+        started = _time.perf_counter()
+        prob, beta, active = self._problem(runs)
         solver = _Solver(self, prob, beta, active)
         solver.run()
         if not solver.converged:
@@ -157,6 +163,82 @@ class FEM(Estimator):
                           f"(raise max_iter, or start from better a priori values)", ConvergenceWarning, stacklevel=3)
         self.problem_, self.beta_ = prob, solver.beta
         return self._result(runs, prob, solver, _time.perf_counter() - started)
+
+    # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
+    simulates_state_terms = False  # state-built terms are refused
+    progress_quantity = "cost"
+
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
+        """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
+        return self.clone(profile, estimate_bias=zero_shifts)
+
+    def prediction_segment(self, model, duration: float) -> float:
+        """Whole runs: the filter stabilises the prediction of an unstable model."""
+        return math.inf
+
+    def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
+                   start=None):
+        """The profile's one-step-ahead prediction of ``runs``: residuals are the innovations, with
+        the nuisance (F, R, each run's initial state and zero shifts) fitted, the derivatives held."""
+        return self._innovations(profile, runs, zero_shifts, jacobian=False)[0]
+
+    def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
+        """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
+        (N_r, ny, k) = -d(innovations)/d(F, R, the run's initial state and zero shifts) per run
+        (F and R are shared by the runs; as per-run columns the score test is a little conservative)."""
+        return self._innovations(profile, runs, zero_shifts, jacobian=True)[0]
+
+    def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform):
+        """Per run (N_r, ny): the filter's one-step prediction's response to ``transform(u, dt)`` of
+        one input (the others zero, from rest), with the gain of the profile's fitted noise: how
+        the innovations would change (with the opposite sign) were that input added."""
+        fit, prob, ev = self._innovations(profile, runs, True, jacobian=False)
+        j = prob.profile.input_names.index(input_name)
+        u = [np.zeros((len(r), prob.m)) for r in runs]
+        for ur, run in zip(u, runs):
+            ur[:, j] = transform(run[input_name], run.dt)
+        U = pad(prob.layout, [held_inputs(ur, prob.hold) for ur in u])
+        model, Kp = ev.model, ev.Kp
+        Dh = np.hstack([model.D, np.zeros_like(model.D)]) if prob.hold == "linear" else model.D
+        Phi, Gamma = discretize(model.A, model.B, prob.dt, prob.hold)
+        x = propagate(Phi - Kp @ model.C, (Gamma - Kp @ Dh) @ U, np.zeros((prob.n, prob.n_runs)))
+        return prob.per_run(model.C @ x + Dh @ U)
+
+    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool):
+        """``(ModelFit, problem, filtered)`` of the profile's derivatives on ``runs``, the nuisance
+        fitted (cached per profile and runs: refine asks for the same prediction several ways)."""
+        from .prediction import ModelFit  # the protocol's result type
+
+        key = (profile.to_toml(), zero_shifts, jacobian,
+               tuple((r.source, len(r), hash(r.matrix(profile.channels).tobytes())) for r in runs))
+        cache = self.__dict__.setdefault("_innovation_cache", {})
+        if key in cache:
+            return cache[key]
+        while len(cache) >= INNOVATION_CACHE:
+            cache.pop(next(iter(cache)))
+        est = self.clone(profile, estimate_bias=zero_shifts)
+        est._validate()
+        runs = est.check_runs(runs)
+        prob, beta, active = est._problem(runs)
+        active[prob.index["theta"]] = False
+        solver = _Solver(est, prob, beta, active, nuisance_only=True)
+        solver.run()
+        ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
+        _, _, x0, b, _ = prob.unpack(solver.beta)
+        fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
+                       x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
+                       runs=runs)
+        if jacobian:
+            G, n, ny = prob.G, prob.n, prob.ny
+            L, _, k, R = ev.dnu.shape
+            cols = np.r_[prob.p:G, G:G + n + ny]
+            keep = solver.active[prob.local_index[0][cols]]  # held x0, zero shifts, F = 0: no column
+            fit.dy = prob.per_run(-ev.dnu[:, :, :prob.p].reshape(L, ny * prob.p, R))
+            fit.dy = [d.reshape(len(d), ny, prob.p) for d in fit.dy]
+            nuis = -ev.dnu[:, :, cols[keep]]
+            fit.nuisance = [d.reshape(len(d), ny, -1) for d in prob.per_run(nuis.reshape(L, ny * keep.sum(), R))]
+        cache[key] = (fit, prob, ev)
+        return cache[key]
 
     def _result(self, runs, prob: "FilterProblem", sv: "_Solver", wall: float) -> IdentificationResult:
         p, P = self.profile_, prob.p
@@ -340,6 +422,7 @@ class FilterProblem:
         cost = 0.5 * float(np.einsum("kir,ij,kjr->", nu, Sinv, nu)) + 0.5 * self.N * np.linalg.slogdet(S)[1]
         K = np.linalg.solve(Phi, Kp) if np.linalg.cond(Phi) < 1e12 else P @ np.linalg.solve(S, C).T
         ev = Filtered(beta, model, nu, x, S, P, K, cost)
+        ev.Kp = Kp
         if jacobian:
             self._jacobian(ev, Phi, Gamma, dPhi, dGamma, Kp, Dh, noise)
         return ev
@@ -433,7 +516,7 @@ class _Solver:
     relaxation from the innovations (ML's trust-region rules and convergence test,
     :class:`identify.estimators.ml._Solver`)."""
 
-    def __init__(self, fem: FEM, prob: FilterProblem, beta, active):
+    def __init__(self, fem: FEM, prob: FilterProblem, beta, active, nuisance_only: bool = False):
         self.fem, self.prob, self.beta = fem, prob, beta.copy()
         self.history, self.step_history = [], []
         self.iterations, self.converged, self.stop, self.lam, self.rejected = 0, False, "max_iter", 0.0, 0
@@ -454,7 +537,7 @@ class _Solver:
         th = prob.index["theta"]
         self.active = active & (d > 1e-300)
         self.active[th] &= d[th] > 1e-26 * d[th].max()
-        if not self.active[:prob.p].any():
+        if not nuisance_only and not self.active[:prob.p].any():
             raise EstimationError("FEM: no free parameter influences the outputs of these runs (are the inputs all zero?)")
         ix = prob.index
         self.scale0 = np.abs(beta)
