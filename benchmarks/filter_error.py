@@ -73,8 +73,9 @@ CASES = {
 class Case:
     """The truth of a case augmented with its gust states, discretised exactly (inputs held)."""
 
-    def __init__(self, name: str, corner: float, share: float):
+    def __init__(self, name: str, corner: float, share: float, length: float = 1.0):
         spec = CASES[name]
+        self.length = length
         self.name, self.spec = name, spec
         self.truth = LinearModel(load_profile(spec["profile"]))
         tr, n = self.truth, self.truth.n_states
@@ -115,8 +116,10 @@ class Case:
         case has a pilot), the stabilising feedback, gusts of ``sigma_g``, measurement noise."""
         duration, axes = run_spec
         tr, n = self.truth, self.n
-        t = np.arange(int(round(duration / DT)) + 1) * DT
-        design = np.column_stack([steps_3211(t, *a) if (a and inputs) else np.zeros_like(t) for a in axes])
+        t = np.arange(int(round(self.length * duration / DT)) + 1) * DT
+        # the manoeuvre repeated every `duration` s over a record `length` times as long
+        design = np.column_stack([steps_3211(np.mod(t, duration), *a) if (a and inputs) else np.zeros_like(t)
+                                  for a in axes])
         if self.K is not None and inputs:  # cueing's pilot flies the designed signal (delay, lag, remnant)
             pilot = PilotModel(skill=0.7, seed=int(rng.integers(2 ** 31)))
             pilot.reset(np.maximum(np.abs(design).max(axis=0), 1e-9))
@@ -193,7 +196,10 @@ def realisation(case: Case, seed: int, calm: bool, model: str) -> dict:
     prof = case.apriori()
     fem = fit(FEM, case.gust_profile(prof, case.corner), runs) if model == "dryden" else \
         fit(FEM, prof, runs, process_noise=dict.fromkeys(case.noise_states))
-    return {"case": case.name, "seed": seed, "calm": calm, "ml": fit(ML, prof, runs), "fem": fem}
+    rec = {"case": case.name, "seed": seed, "calm": calm, "ml": fit(ML, prof, runs), "fem": fem}
+    if calm:  # FEM with F -> 0 is output error over whole runs: ML's plain form (no multiple shooting)
+        rec["ml_plain"] = fit(ML, prof, runs, segment="plain")
+    return rec
 
 
 def report(case: Case, recs: list[dict], calm: list[dict]) -> None:
@@ -229,6 +235,15 @@ def report(case: Case, recs: list[dict], calm: list[dict]) -> None:
                  for r in calm if "theta" in r["fem"] and "theta" in r["ml"]]
         print(f"calm air ({len(calm)} realisations): max |FEM - ML| / ML std per realisation: "
               + ", ".join(f"{d:.3f}" for d in diffs))
+        plain = [np.max(np.abs(np.array(r["fem"]["theta"]) - r["ml_plain"]["theta"]) / np.array(r["ml_plain"]["std"]))
+                 for r in calm if "theta" in r["fem"] and "theta" in r.get("ml_plain", {})]
+        if plain:
+            print("  against ML's plain form (one segment per run, as the filter): "
+                  + ", ".join(f"{d:.3f}" for d in plain))
+        for m in ("ml", "fem"):
+            th = np.array([r[m]["theta"] for r in calm if "theta" in r[m]])
+            if len(th):
+                print(f"  calm air {m.upper()} median relative error {100 * np.median(np.abs(th / tr.theta - 1)):.2f} %")
 
 
 def main():
@@ -238,6 +253,8 @@ def main():
     ap.add_argument("--cases", default="navion,s61,s61_pilot")
     ap.add_argument("--gust-corner", type=float, default=2.0, help="gust corner frequency, rad/s")
     ap.add_argument("--gust-share", type=float, default=0.2, help="gust response / input response (RMS)")
+    ap.add_argument("--length", type=float, default=1.0,
+                    help="record length factor: each run this many times as long, its manoeuvre repeated")
     ap.add_argument("--fem-model", choices=("dryden", "white"), default="dryden",
                     help="FEM's process-noise model: the gust states (corner known) or independent white "
                          "noise on every equation the gusts drive")
@@ -246,9 +263,10 @@ def main():
     path = Path(args.save)
     done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     print(f"filter error vs output error, Monte Carlo: {args.n} turbulent + {args.calm} calm realisations per "
-          f"case, gust corner {args.gust_corner} rad/s, {DT * 1000:.0f} ms samples, 2 % measurement noise")
+          f"case, gust corner {args.gust_corner} rad/s, {DT * 1000:.0f} ms samples, 2 % measurement noise, "
+          f"records x {args.length:g}")
     for name in args.cases.split(","):
-        case = Case(name, args.gust_corner, args.gust_share)
+        case = Case(name, args.gust_corner, args.gust_share, args.length)
         case.share = args.gust_share
         case.fem_model = ("gust states " + ", ".join(f"{v}g" for v in case.spec["gusts"]) + f" (corner "
                           f"{args.gust_corner} rad/s known)") if args.fem_model == "dryden" else \
