@@ -86,6 +86,7 @@ PROCESS_NOISE_CONVENTION = ("F in dx/dt = A x + B u + F w, w unit white noise (p
 R_FLOOR = 1e-6  # smallest measurement variance, relative to the output's mean square innovation
 F_START = 0.3  # default start of F_i: this share of the state's measured rms times sqrt(2 / 1 s)
 F_ZERO = 1e-3  # an F below this share of its start value is at the boundary F = 0: held there
+FLAT_STEPS, FLAT_COST = 3, 1e-3  # converged when this many steps each lower the cost by less (log-likelihood units)
 INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
 GAIN_STEP = 1e-5  # relative step of the central differences of Qd
 
@@ -599,6 +600,16 @@ class _Solver:
                 self.converged = True
                 self.stop = (f"gradient: the next step is {in_se:.1e} standard errors" if in_se < STEP_TOL_SE
                              else f"step: the next step is {rel:.1e} of the parameters")
+                break
+            drops = -np.diff(self.history[-FLAT_STEPS - 1:])
+            if len(drops) == FLAT_STEPS and np.all(drops < FLAT_COST):
+                # a flat valley (e.g. a zero shift, an initial state and a gust's F nearly
+                # collinear): the undamped step is long along an almost undetermined direction, yet
+                # no step changes the likelihood by anything a test could see
+                self.converged = True
+                self.stop = (f"cost: the last {FLAT_STEPS} steps lowered the negative log-likelihood by less "
+                             f"than {FLAT_COST:g} each (a flat valley; the next Gauss-Newton step would be "
+                             f"{in_se:.2g} standard errors along a nearly undetermined direction)")
                 break
             if self.iterations >= fem.max_iter:
                 self.stop = f"max_iter: {fem.max_iter} iterations without convergence"
