@@ -76,7 +76,7 @@ from ..model.profile import Profile
 from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import discretize, held_inputs, propagate
 from .base import Estimator
-from .ml import (INITIAL_DAMPING, MAX_DAMPING, MAX_REL_STEP, MIN_GAIN_RATIO, R_CHANGE_TOL, STALL_TOL_SE,
+from .ml import (INITIAL_DAMPING, MAX_DAMPING, MAX_REL_STEP, MIN_GAIN_RATIO, STALL_TOL_SE,
                  STEP_TOL_SE, _common_dt, _finite)
 from .output_error import cut, pad
 from .result import IdentificationResult, fit_metrics
@@ -552,22 +552,16 @@ class _Solver:
         except (np.linalg.LinAlgError, ValueError):
             return None
 
-    def _relax(self) -> float:
-        """R from the innovations minus the process noise's share; returns the largest relative change."""
+    def _relax(self) -> None:
+        """R's start: the innovations' mean squares minus the process noise's share (C P C^T)."""
         prob, ev = self.prob, self.ev
         ms = np.einsum("kir,kir->i", ev.nu, ev.nu) / prob.N
-        self.ms_innov = ms
         C = ev.model.C
         self.r_floor = R_FLOOR * np.maximum(ms, 1e-300)
-        r_new = np.maximum(ms - np.diag(C @ ev.P @ C.T), self.r_floor)
-        ix = prob.index["r"]
-        change = float(np.max(np.abs(r_new / self.beta[ix] - 1)))
-        self.beta[ix] = r_new
-        ev2 = self._evaluate(self.beta, jacobian=False)
-        if ev2 is None:
+        self.beta[prob.index["r"]] = np.maximum(ms - np.diag(C @ ev.P @ C.T), self.r_floor)
+        self.ev = self._evaluate(self.beta, jacobian=False)
+        if self.ev is None:
             raise EstimationError("FEM: the filter has no steady state after the noise covariance was relaxed")
-        self.ev = ev2
-        return change
 
     def _step(self, M, g, lam) -> np.ndarray:
         a = self.active
