@@ -205,7 +205,8 @@ def realisation(case: Case, seed: int, calm: bool, model: str) -> dict:
 def report(case: Case, recs: list[dict], calm: list[dict]) -> None:
     tr = case.truth
     print(f"\n== {case.name}: {tr.profile.name}; {len(recs)} turbulent realisations; gust sigma "
-          f"{case.sigma_g:.3g} (velocity units), gust/input response {100 * case.share:.0f} % (RMS over outputs); FEM process noise: {case.fem_model}")
+          f"{case.sigma_g:.3g} (velocity units), gust/input response {100 * case.share:.0f} % (RMS over outputs); "
+          f"FEM process noise: {case.fem_model}")
     stats = {}
     for m in ("ml", "fem"):
         ok = [r[m] for r in recs if "theta" in r[m]]
@@ -216,7 +217,8 @@ def report(case: Case, recs: list[dict], calm: list[dict]) -> None:
                         medrel=float(np.median(np.abs(err / tr.theta))), n=len(ok),
                         conv=sum(o["converged"] for o in ok), wall=sum(r[m]["wall"] for r in recs),
                         failed=len(recs) - len(ok))
-    print(f"{'derivative':<18}{'truth':>10} | {'ML bias/std':>11}{'std/bound':>10} | {'FEM bias/std':>12}{'std/bound':>10}")
+    print(f"{'derivative':<18}{'truth':>10} | {'ML bias/std':>11}{'std/bound':>10} | "
+          f"{'FEM bias/std':>12}{'std/bound':>10}")
     for i, name in enumerate(tr.names):
         print(f"{name:<18}{tr.theta[i]:10.4g} | {stats['ml']['bias'][i]:11.2f}{stats['ml']['ratio'][i]:10.2f} | "
               f"{stats['fem']['bias'][i]:12.2f}{stats['fem']['ratio'][i]:10.2f}")
@@ -243,7 +245,8 @@ def report(case: Case, recs: list[dict], calm: list[dict]) -> None:
         for m in ("ml", "fem"):
             th = np.array([r[m]["theta"] for r in calm if "theta" in r[m]])
             if len(th):
-                print(f"  calm air {m.upper()} median relative error {100 * np.median(np.abs(th / tr.theta - 1)):.2f} %")
+                rel = 100 * np.median(np.abs(th / tr.theta - 1))
+                print(f"  calm air {m.upper()} median relative error {rel:.2f} %")
 
 
 def main():

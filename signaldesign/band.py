@@ -139,12 +139,12 @@ def required_band(model: LinearModel, input: str, level: float = 0.5, noise_std=
 
 def plot_band(band: RequiredBand, path, title: str = "") -> None:
     """Normalised sensitivity magnitude per parameter over frequency, with the band shaded (PNG)."""
-    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9, 5.5))
+    fig = Figure(figsize=(9, 5.5))
+    FigureCanvasAgg(fig)  # drawn off-screen, no pyplot state
+    ax = fig.subplots()
     for col, b in enumerate(band.parameters):
         ax.semilogx(band.omega, band.curves[:, col], lw=1, label=b.name)
     ax.axvspan(band.low, band.high, color="0.88", zorder=0, label="required band")
@@ -156,4 +156,3 @@ def plot_band(band: RequiredBand, path, title: str = "") -> None:
     ax.legend(fontsize=6, ncol=3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

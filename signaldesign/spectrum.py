@@ -83,13 +83,13 @@ def in_band_fraction(signal: Signal, band: tuple[float, float], points: int = 40
 def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str = "") -> None:
     """Time histories (top) and normalised power spectra with half-power points (bottom), as the
     paper's Figs 2 and 6; the required band, if given, is shaded. Writes a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     labels = labels or [f"{s.kind} on {s.input}" for s in signals]
-    fig, (ax_t, ax_f) = plt.subplots(2, 1, figsize=(8, 7))
+    fig = Figure(figsize=(8, 7))
+    FigureCanvasAgg(fig)  # drawn off-screen, no pyplot state
+    ax_t, ax_f = fig.subplots(2, 1)
     top = max(frequency_grid(s)[-1] for s in signals) / 4
     w = np.linspace(0, top, 1500)
     for s, label in zip(signals, labels):
@@ -110,4 +110,3 @@ def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str
     ax_f.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -77,7 +77,7 @@ from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import discretize, held_inputs, propagate
 from .base import Estimator
 from .ml import (INITIAL_DAMPING, MAX_DAMPING, MAX_REL_STEP, MIN_GAIN_RATIO, STALL_TOL_SE,
-                 STEP_TOL_SE, _common_dt, _finite)
+                 STEP_TOL_SE, common_dt, finite_channels)
 from .output_error import cut, pad
 from .result import IdentificationResult, fit_metrics
 
@@ -149,8 +149,9 @@ class FEM(Estimator):
         if len(holds) > 1 or not holds <= {"held", "linear"}:
             raise EstimationError(f"FEM: the runs' input_hold differ or are unknown ({', '.join(sorted(holds))}); "
                                   f"use one of held, linear for all runs")
-        prob = FilterProblem(p, [_finite(r, p.input_names) for r in runs], [_finite(r, list(p.outputs)) for r in runs],
-                             _common_dt(runs), list(self.process_noise_), holds.pop())
+        u = [finite_channels(r, p.input_names) for r in runs]
+        z = [finite_channels(r, list(p.outputs)) for r in runs]
+        prob = FilterProblem(p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
         return prob, beta, active
 
@@ -539,7 +540,8 @@ class _Solver:
         self.active = active & (d > 1e-300)
         self.active[th] &= d[th] > 1e-26 * d[th].max()
         if not nuisance_only and not self.active[:prob.p].any():
-            raise EstimationError("FEM: no free parameter influences the outputs of these runs (are the inputs all zero?)")
+            raise EstimationError("FEM: no free parameter influences the outputs of these runs "
+                                  "(are the inputs all zero?)")
         ix = prob.index
         self.scale0 = np.abs(beta)
         self.at_zero = []  # states whose process noise went to the boundary F = 0

@@ -77,7 +77,8 @@ class ML(Estimator):
     ``estimate_x0``/``estimate_bias``: estimate initial states (of every segment) and per-run
     output zero shifts; ``x0`` ``{state: value}`` initial states held at known values in every run
     (with the profile's ``[initial_state]``; later multiple-shooting segments keep theirs free),
-    and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``: ``"relax"`` (estimate R) or the measurement-noise
+    and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``:
+    ``"relax"`` (estimate R) or the measurement-noise
     covariance, (ny,) variances or (ny, ny), in output units squared.
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
@@ -100,6 +101,8 @@ class ML(Estimator):
     """
 
     method = "ml"
+    simulates_state_terms = True  # output error: a term built from states comes from the simulated ones
+    progress_quantity = "cost"
 
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
@@ -111,6 +114,18 @@ class ML(Estimator):
         self.noise_cov, self.coloured = noise_cov, coloured
         self.progress, self.verbose, self.x0 = progress, verbose, x0
         self.covariance_ = self.problem_ = self.beta_ = None
+
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
+               bounds: bool = True) -> "ML":
+        """Refine's nested fit: the loop's zero shifts and segments (so that likelihoods before and
+        after an added effect compare); without ``bounds`` the coloured-residual correction is skipped."""
+        return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds)
+
+    def prediction_segment(self, model: LinearModel, duration: float) -> float:
+        """Its own ``segment`` if given, else the automatic choice for ``model`` (multiple shooting
+        for an unstable one)."""
+        seg = self.segment if self.segment is not None else auto_segment(model, duration)
+        return math.inf if seg == "plain" else float(seg)
 
     def _validate(self) -> None:
         super()._validate()
@@ -125,9 +140,9 @@ class ML(Estimator):
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         started = _time.perf_counter()
         p = self.profile_
-        dt = _common_dt(runs)
-        u = [_finite(run, p.input_names) for run in runs]
-        z = [_finite(run, list(p.outputs)) for run in runs]
+        dt = common_dt(runs)
+        u = [finite_channels(run, p.input_names) for run in runs]
+        z = [finite_channels(run, list(p.outputs)) for run in runs]
         model0 = LinearModel(p)
         segment = self.segment_
         if segment is None:
@@ -515,7 +530,8 @@ def _check_noise_cov(noise_cov, ny: int):
     return R
 
 
-def _common_dt(runs: list[Run]) -> float:
+def common_dt(runs: list[Run]) -> float:
+    """The runs' common sample interval (s); one clear error when they differ."""
     dts = [run.dt for run in runs]
     if max(dts) - min(dts) > 1e-6 * max(dts):
         listing = ", ".join(f"{d:g} s in {r.source}" for d, r in zip(dts, runs))
@@ -523,7 +539,8 @@ def _common_dt(runs: list[Run]) -> float:
     return float(np.mean(dts))
 
 
-def _finite(run: Run, names: list[str]) -> np.ndarray:
+def finite_channels(run: Run, names: list[str]) -> np.ndarray:
+    """(N, len(names)) of the run's channels; one clear error naming the first non-finite sample."""
     data = run.matrix(names)
     bad = ~np.isfinite(data)
     if bad.any():

@@ -178,8 +178,9 @@ class Profile:
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_inline(v)}" for k, v in rows.items()]
         if self.zero_shifts:
-            lines += ["", "[zero_shifts]"] + [f"{_key(k)} = {_inline({'value': v['value'], 'fixed': not v['estimate']})}"
-                                              for k, v in self.zero_shifts.items()]
+            lines += ["", "[zero_shifts]"] + [
+                f"{_key(k)} = {_inline({'value': v['value'], 'fixed': not v['estimate']})}"
+                for k, v in self.zero_shifts.items()]
         for table in ("free", "fixed", "limits", "process_noise", "initial_state", "meta"):
             rows = getattr(self, table)
             if rows:
