@@ -63,6 +63,7 @@ from __future__ import annotations
 import math
 import time as _time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -133,6 +134,8 @@ class FEM(Estimator):
         if not (np.isfinite(self.tol) and self.tol > 0):
             raise EstimationError(f"FEM: tol must be positive, got {self.tol!r}")
         noise = p.process_noise_states() if self.process_noise is None else dict(self.process_noise)
+        # a state named without a start value starts from the profile's (a fitted profile's F)
+        noise = {s: p.process_noise.get(s) if v is None else v for s, v in noise.items()}
         x0 = {**p.initial_state, **(self.x0 or {})}
         for what, names in (("process_noise", noise), ("x0", x0)):
             bad = [s for s in names if s not in p.states]
@@ -225,7 +228,10 @@ class FEM(Estimator):
         active[prob.index["theta"]] = False
         solver = _Solver(est, prob, beta, active, nuisance_only=True)
         solver.run()
-        ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
+        try:
+            ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
+        except (np.linalg.LinAlgError, ValueError):
+            raise EstimationError(f"FEM: the prediction's noise fit failed ({solver.stop})") from None
         _, _, x0, b, _ = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
@@ -247,7 +253,10 @@ class FEM(Estimator):
         beta = sv.beta.copy()
         ix = prob.index
         beta[ix["f"]] = np.abs(beta[ix["f"]])  # F enters as F F^T: its sign is not determined
-        ev = prob.evaluate(beta, jacobian=True, noise=True)
+        try:
+            ev = prob.evaluate(beta, jacobian=True, noise=True)
+        except (np.linalg.LinAlgError, ValueError):
+            raise EstimationError(f"FEM: the fit failed ({sv.stop}): no bounds at its last point") from None
         bounded = sv.active.copy()
         bounded[ix["r"]] &= beta[ix["r"]] > sv.r_floor  # a variance on its floor has no bound
         M, _ = prob.information(ev)
@@ -299,7 +308,10 @@ class FEM(Estimator):
             "wall_time": wall,
         }
         return IdentificationResult(
-            method=self.method, profile=p, theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
+            # the profile keeps its a priori derivatives; its [process_noise] holds the fitted F, so
+            # that identified_profile() starts the next fit (refine's nested fits) from it
+            method=self.method, profile=replace(p, process_noise={s: float(v) for s, v in zip(prob.noise_states, f)}),
+            theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
             covariance=self.covariance_.copy(), fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
             time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
 
@@ -395,7 +407,10 @@ class FilterProblem:
     def _gain(self, A, C, f, r):
         """Predictor gain Kp (n, ny), innovation covariance S (ny, ny), a priori covariance P
         (n, n) and Phi, Qd of one model."""
-        Phi, Qd = (a[0] for a in self._noise_cov(A[None], f[None]))
+        with np.errstate(over="ignore", invalid="ignore"):
+            Phi, Qd = (a[0] for a in self._noise_cov(A[None], f[None]))
+        if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(Qd))):
+            raise np.linalg.LinAlgError("the model's exponential overflows")
         P = solve_discrete_are(Phi.T, C.T, Qd, np.diag(r))
         S = C @ P @ C.T + np.diag(r)
         return Phi @ np.linalg.solve(S, C @ P).T, S, P
@@ -453,6 +468,8 @@ class FilterProblem:
         dnu[:, :, :G] -= (_stacked(dC_g, x) + _stacked(dD_g, self.U)).transpose(0, 2, 1, 3)
         dnu[:, :, G + n:] -= np.eye(ny)[None, :, :, None]
         dnu *= self.mask[:, None, None, :]
+        if not (np.all(np.isfinite(dnu)) and np.all(np.isfinite(dS))):
+            raise np.linalg.LinAlgError("the filter's sensitivities are not finite")
         ev.dnu, ev.dS = dnu, dS
 
     def _gain_derivatives(self, ev: Filtered, Phi, Kp, dPhi, noise: bool):
@@ -477,7 +494,8 @@ class FilterProblem:
         Am = np.concatenate([model.A - h[:p, None, None] * m0.dA, np.repeat(model.A[None], nf, 0)])
         fm = np.concatenate([np.repeat(f[None], p, 0), f - np.diag(h[p:])])
         dQd = np.zeros((G, n, n))
-        dQd[:p + nf] = (self._noise_cov(As, fs)[1] - self._noise_cov(Am, fm)[1]) / (2 * h[:, None, None])
+        with np.errstate(over="ignore", invalid="ignore"):  # not finite: reported by the caller
+            dQd[:p + nf] = (self._noise_cov(As, fs)[1] - self._noise_cov(Am, fm)[1]) / (2 * h[:, None, None])
         Abar = Phi - Kp @ C
         dA = dPhi_g - Kp @ dC_g
         Xi = dA @ P @ Abar.T
@@ -531,6 +549,8 @@ class _Solver:
                                   "process noise on one of its states")
         self._relax()
         self.ev = self._evaluate(self.beta, jacobian=True)
+        if self.ev is None:
+            raise EstimationError("FEM: the a priori model's filter sensitivities are not finite")
         M, _ = prob.information(self.ev)
         # a derivative no input excites (zero sensitivity) is held, std = inf, as in ML; the
         # threshold is relative to the derivatives' own information (the variances' is of
@@ -543,6 +563,7 @@ class _Solver:
             raise EstimationError("FEM: no free parameter influences the outputs of these runs "
                                   "(are the inputs all zero?)")
         ix = prob.index
+        self._nuisance_step(M, prob)
         self.scale0 = np.abs(beta)
         self.at_zero = []  # states whose process noise went to the boundary F = 0
         self.moving = np.zeros(prob.n_beta, bool)  # step-bounded: theta and F
@@ -591,7 +612,9 @@ class _Solver:
             step0 = self._step(M, g, 0.0)
             in_se = math.sqrt(max(float(g @ step0), 0.0))
             self.step_history.append(in_se)
-            rel = float(np.max(np.abs(step0[:prob.p]) / (np.abs(self.beta[:prob.p]) + 1e-6)))
+            th = self.active[:prob.p]  # none in a prediction's noise fit: then the step in std errors only
+            rel = float(np.max(np.abs(step0[:prob.p][th]) / (np.abs(self.beta[:prob.p][th]) + 1e-6))) if th.any() \
+                else np.inf
             if in_se < STEP_TOL_SE or rel < fem.tol:
                 self.converged = True
                 self.stop = (f"gradient: the next step is {in_se:.1e} standard errors" if in_se < STEP_TOL_SE
@@ -622,6 +645,10 @@ class _Solver:
                 break
             self._boundary()
             self.ev = self._evaluate(self.beta, jacobian=True)
+            if self.ev is None:  # the step's model has no finite sensitivities: a failed fit
+                self.ev = found
+                self.stop = "diverged: the filter's sensitivities are not finite at the last step"
+                break
             self.history.append(self.ev.cost)
             M, g = prob.information(self.ev)
             if fem.progress is not None:
@@ -641,6 +668,23 @@ class _Solver:
                 self.at_zero.append(self.prob.noise_states[i])
         r = self.prob.index["r"]  # a measurement variance pushed onto its floor is held there ...
         self.active[r] &= self.beta[r] > (1 + 1e-9) * self.r_floor
+
+    def _nuisance_step(self, M, prob) -> None:
+        """Initial states and zero shifts enter the innovations linearly: one exact step fits them
+        to the start model (as ML does), then R is relaxed again from the new innovations."""
+        nuisance = self.active.copy()
+        nuisance[:prob.G] = False
+        if not nuisance.any():
+            return
+        _, g = prob.information(self.ev)
+        saved, self.active = self.active, nuisance
+        step = self._step(M, g, 0.0)
+        self.active = saved
+        ev = self._evaluate(self.beta + step, jacobian=False)
+        if ev is not None and ev.cost < self.ev.cost:
+            self.beta, self.ev = self.beta + step, ev
+            self._relax()
+            self.ev = self._evaluate(self.beta, jacobian=True)
 
     def _release(self, g) -> None:
         """... until the gradient points back inside (the likelihood rises with the variance):

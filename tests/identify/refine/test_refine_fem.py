@@ -52,7 +52,7 @@ def _axis_runs(profile, seeds, delay=0.0, turbulence=None):
 
 def test_split_gives_both_parts_every_validation_run():
     runs = _axis_runs(parse_profile(FOUR_AXES), (11, 12, 13, 14))
-    choose, judge = split_validation(runs)
+    choose, judge = split_validation(runs, ["d_lat", "d_lon", "d_ped", "d_col"])
     assert len(choose) == len(judge) == 4  # every run (every axis) in both parts
     for c, j, run in zip(choose, judge, runs):
         axis = int(np.argmax([np.abs(run[u]).max() for u in ("d_lat", "d_lon", "d_ped", "d_col")]))
@@ -82,3 +82,17 @@ def test_refine_with_fem_finds_a_delay_in_turbulence():
     r = Refine(profile, estimator=fem, kinds=("delay",), max_steps=2).fit(fit, validate=val)
     assert r.steps_ and r.steps_[0].accepted and r.steps_[0].target == "d_lon", r.summary()
     assert math.isfinite(r.steps_[0].lr_statistic) and r.steps_[0].lr_statistic > 0
+
+
+def test_a_failed_refit_is_no_likelihood_ratio():
+    from types import SimpleNamespace
+
+    from identify.refine.loop import _failed_refit
+
+    ok = SimpleNamespace(converged=True, info={"stop": "gradient"})
+    assert _failed_refit(ok, 30.0, 1e4, 10.0) == ""
+    assert _failed_refit(ok, -0.5, 1e4, 10.0) == ""  # numerical noise around the null
+    assert "below the nested null" in _failed_refit(ok, -5.9e6, 1e4, 10.0)
+    assert "not finite" in _failed_refit(ok, float("nan"), 1e4, 10.0)
+    diverged = SimpleNamespace(converged=False, info={"stop": "diverged: the filter's sensitivities are not finite"})
+    assert "re-fit failed (diverged" in _failed_refit(diverged, 50.0, 1e4, 10.0)
