@@ -125,8 +125,8 @@ class FEM(Estimator):
     def _validate(self) -> None:
         super()._validate()
         p = self.profile_
-        built = [n for n, s in pi.specs(p).items() if set(s.get("product", ())) & set(p.states)]
-        if built:
+        built = _state_terms(p)
+        if built and not getattr(self, "_scoring", False):
             raise EstimationError(f"FEM: the profile's nonlinear terms {', '.join(built)} are built from the "
                                   f"model's states, which the linear filter cannot carry: use --method ml")
         if not (isinstance(self.max_iter, (int, np.integer)) and self.max_iter >= 1):
@@ -190,8 +190,23 @@ class FEM(Estimator):
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
         (N_r, ny, k) = -d(innovations)/d(F, R, the run's initial state and zero shifts) per run
-        (F and R are shared by the runs; as per-run columns the score test is a little conservative)."""
-        return self._innovations(profile, runs, zero_shifts, jacobian=True)[0]
+        (F and R are shared by the runs; as per-run columns the score test is a little conservative).
+
+        A candidate term built from states (q|q|) is scored, not fitted (fitting it needs an extended
+        Kalman filter, which FEM does not have): its column is the term computed from the filter's
+        one-step *predicted* states of the null model (at null values the term does not change the
+        innovations), never from the measured states, which carry the measurement noise."""
+        terms = _state_terms(profile)
+        if not terms:
+            return self._innovations(profile, runs, zero_shifts, jacobian=True)[0]
+        zeroed = [r.with_channels({n: np.zeros(len(r)) for n in terms}) for r in runs]
+        _, prob, ev = self._innovations(profile, zeroed, zero_shifts, jacobian=False, scoring=True)
+        states = prob.per_run(ev.x)
+        built = []
+        for r, x in zip(runs, states):
+            pred = r.with_channels({s: x[:, i] for i, s in enumerate(profile.state_names)})
+            built.append(r.with_channels({n: pi.channel(n, pi.specs(profile)[n], pred) for n in terms}))
+        return self._innovations(profile, built, zero_shifts, jacobian=True, scoring=True)[0]
 
     def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform):
         """Per run (N_r, ny): the filter's one-step prediction's response to ``transform(u, dt)`` of
@@ -209,7 +224,7 @@ class FEM(Estimator):
         x = propagate(Phi - Kp @ model.C, (Gamma - Kp @ Dh) @ U, np.zeros((prob.n, prob.n_runs)))
         return prob.per_run(model.C @ x + Dh @ U)
 
-    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool):
+    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool, scoring: bool = False):
         """``(ModelFit, problem, filtered)`` of the profile's derivatives on ``runs``, the nuisance
         fitted (cached per profile and runs: refine asks for the same prediction several ways)."""
         from .prediction import ModelFit  # the protocol's result type
@@ -222,6 +237,7 @@ class FEM(Estimator):
         while len(cache) >= INNOVATION_CACHE:
             cache.pop(next(iter(cache)))
         est = self.clone(profile, estimate_bias=zero_shifts)
+        est._scoring = scoring  # state-built terms given as channels (sensitivities), not refused
         est._validate()
         runs = est.check_runs(runs)
         prob, beta, active = est._problem(runs)
@@ -720,6 +736,11 @@ class _Solver:
                 self.rejected += 1
             self.lam, nu = max(self.lam, INITIAL_DAMPING) * nu, 2 * nu
         return None
+
+
+def _state_terms(p: Profile) -> list[str]:
+    """A profile's pseudo-inputs built from its states (products with a state factor)."""
+    return [n for n, s in pi.specs(p).items() if set(s.get("product", ())) & set(p.states)]
 
 
 def _stacked(mats: np.ndarray, series: np.ndarray) -> np.ndarray:
