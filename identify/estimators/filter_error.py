@@ -107,7 +107,8 @@ class FEM(Estimator):
     ``result_.info``: ``process_noise`` {state: {F, std}}, ``measurement_noise`` {output:
     {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, per-run initial states
     and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
-    :class:`ConvergenceWarning` when not converged).
+    :class:`ConvergenceWarning` when not converged). ``result_.profile`` is the a priori profile
+    with the fitted F as its ``[process_noise]``: ``identified_profile()`` starts the next fit there.
     """
 
     method = "fem"
