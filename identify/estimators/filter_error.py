@@ -643,9 +643,10 @@ class _Solver:
                 # collinear): the undamped step is long along an almost undetermined direction, yet
                 # no step changes the likelihood by anything a test could see
                 self.converged = True
+                valley = "; a flat valley along a nearly undetermined direction" if in_se >= 0.1 else ""
                 self.stop = (f"cost: the last {FLAT_STEPS} steps lowered the negative log-likelihood by less "
-                             f"than {FLAT_COST:g} each (a flat valley; the next Gauss-Newton step would be "
-                             f"{in_se:.2g} standard errors along a nearly undetermined direction)")
+                             f"than {FLAT_COST:g} each (the next Gauss-Newton step: {in_se:.2g} standard "
+                             f"errors{valley})")
                 break
             if self.iterations >= fem.max_iter:
                 self.stop = f"max_iter: {fem.max_iter} iterations without convergence"
