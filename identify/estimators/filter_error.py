@@ -587,8 +587,9 @@ class _Solver:
         self.moving[ix["theta"]] = self.moving[ix["f"]] = self.moving[ix["r"]] = True
 
     def _evaluate(self, beta, jacobian: bool):
-        try:
-            return self.prob.evaluate(beta, jacobian=jacobian, noise=jacobian)
+        try:  # a trial point may overflow the exponential or the Riccati solver: rejected, not reported
+            with np.errstate(all="ignore"):
+                return self.prob.evaluate(beta, jacobian=jacobian, noise=jacobian)
         except (np.linalg.LinAlgError, ValueError):
             return None
 
