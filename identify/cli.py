@@ -13,6 +13,8 @@ from .model.profile import load_profile
 def cmd_model(args) -> int:
     """Print a profile's parameters and modes; optionally its residualised reduction."""
     profile = load_profile(args.profile)
+    if args.at:
+        profile = _at_condition(profile, args.at)
     model = LinearModel(profile)
     _print_model(model)
     if args.reduce:
@@ -24,16 +26,35 @@ def cmd_model(args) -> int:
     return 0
 
 
+def _at_condition(profile, text: str):
+    """A scheduled profile (``[meta.schedule]``, e.g. from ``campaign stitch``) at ``NAME=VALUE``."""
+    from .errors import ProfileError
+    from .model.schedule import at_condition, parse_condition, schedule_of
+
+    name, value = parse_condition(text)
+    schedule = schedule_of(profile)
+    if schedule is None:
+        raise ProfileError(f"{profile.source}: --at needs a scheduled profile ([meta.schedule]); this one has none")
+    if name != schedule["condition"]:
+        raise ProfileError(f"{profile.source}: scheduled over '{schedule['condition']}', not '{name}'")
+    return at_condition(profile, value)
+
+
 def _print_model(model: LinearModel) -> None:
     p = model.profile
     print(f"{p.name}\n  states:  {', '.join(f'{s} [{u}]' for s, u in p.states.items())}"
           f"\n  inputs:  {', '.join(f'{s} [{u}]' for s, u in p.inputs.items())}"
           f"\n  outputs: {', '.join(p.outputs)}"
           f"\n  {len(p.free)} free, {len(p.fixed)} fixed parameters")
+    std = p.meta.get("std", {}) if isinstance(p.meta.get("std"), dict) else {}
     for kind, values in (("free", p.free), ("fixed", p.fixed)):
         if values:
-            print(f"\n{kind} parameters:")
-            print("\n".join(f"  {name:<16}{value:13.6g}" for name, value in values.items()))
+            print(f"\n{kind} parameters:" + ("  (value, std)" if std and kind == "free" else ""))
+            print("\n".join(f"  {name:<16}{value:13.6g}" + (f"{std[name]:12.4g}" if name in std else "")
+                             for name, value in values.items()))
+    trim = p.meta.get("trim")
+    if isinstance(trim, dict) and trim:
+        print("\ntrim:\n" + "\n".join(f"  {name:<16}{value:13.6g}" for name, value in trim.items()))
     print("\nmodes:")
     print(format_modes(model.modes()))
 
@@ -45,10 +66,12 @@ def build_parser() -> Parser:
     p.add_argument("profile", help="profile TOML path or bundled profile name")
     p.add_argument("--reduce", metavar="STATES", help="comma-separated states to make instantaneous")
     p.add_argument("--save-reduced", metavar="TOML", type=output_file, help="write the reduced profile here")
+    p.add_argument("--at", metavar="NAME=VALUE", help="a scheduled profile (campaign stitch) at this condition")
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
     _add_freq_parser(sub)
+    _add_hq_parsers(sub)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser
@@ -76,12 +99,24 @@ def cmd_estimate(args) -> int:
     estimator = _estimator(args, profile)
     result = _fit(estimator, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
+    if "report_lines" in result.info:  # the frequency-response fit's J, pruning and delays
+        print("\n" + "\n".join(result.info["report_lines"]), flush=True)
     from .estimators.frequency.response import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
+    verification = None
+    if args.verify:  # VERIFY: the identified model predicts runs that took no part
+        from .estimators.frequency.verify import verify
+        verification = verify(result.model, _read_runs(args.verify, args.channel_map, result.profile))
+        result.info["verify"] = verification.to_dict()
+        print("\n" + "\n".join(verification.lines()), flush=True)
     out = result.save(args.out)
     plots = save_plots(result, out)
+    if verification is not None:
+        from .estimators.frequency.verify import plot_verification
+        from .model.profile import output_units
+        plots.append(plot_verification(verification, out / "verify.png", output_units(result.profile)))
     print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
     return 0
 
@@ -96,9 +131,11 @@ def _estimator(args, profile, show_progress: bool = True):
               file=sys.stderr, flush=True)
 
     estimator = build(args.method, profile, progress=show if show_progress else None,
-                      names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "x0": "--x0"},
+                      names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays",
+                             "prune": "--prune", "x0": "--x0"},
                       max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
-                      x0=getattr(args, "x0", None))
+                      delays=_names(getattr(args, "fr_delays", None)) or None,
+                      prune=getattr(args, "prune", None) or None, x0=getattr(args, "x0", None))
     return estimator
 
 
@@ -120,7 +157,7 @@ def _fit(estimator, runs):
 
 
 def _add_estimate_parser(sub) -> None:
-    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE or FEM)")
+    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE, FR or FEM)")
     _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
@@ -131,16 +168,32 @@ def _add_estimate_parser(sub) -> None:
                    help="iterations at most for iv (default 30), ml and fem (default 100)")
     p.add_argument("--x0", type=state_values, metavar="STATE=VALUE,...",
                    help="known initial states, held in every run (ml, fem; adds to the profile's [initial_state])")
+    p.add_argument("--verify", nargs="+", metavar="RUN", help="held-out runs the identified model must predict "
+                   "(VERIFY: initial state and zero shifts fitted; Theil coefficient and J_rms reported)")
+    p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")
+    p.add_argument("--prune", action="store_true", help="fr: fix parameters that fail CIFER's gates "
+                   "(insensitivity <= 10 %%, Cramér-Rao <= 20 %%) at their a priori values, one at a time")
     p.set_defaults(func=cmd_estimate)
+
+
+def _names(text: str | None) -> tuple[str, ...]:
+    return tuple(n.strip() for n in (text or "").split(",") if n.strip())
 
 
 def _read_runs(paths, channel_map, profile):
     """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
     as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
-    from .data.io import load_channel_map, read_run_files
     from .model.pseudo_inputs import prepare
 
-    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
+    return prepare(profile, _recorded_runs(paths, channel_map, profile))
+
+
+def _recorded_runs(paths, channel_map, profile):
+    """The runs as recorded (the pilot's inputs, no declared delay applied): handling qualities
+    and LOES judge the aircraft from the stick, its delays included."""
+    from .data.io import load_channel_map, read_run_files
+
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile)
 
 
 def _overlaps(run, t_start, t_end) -> bool:
@@ -230,8 +283,9 @@ def cmd_freq(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models = {"a priori": LinearModel(profile)}
-    if args.identified:  # e.g. identified_profile.toml from identify estimate
-        models["identified"] = LinearModel(load_profile(args.identified))
+    for k, path in enumerate(args.identified or []):  # e.g. identified_profile.toml from identify estimate
+        label = "identified" if len(args.identified) == 1 else f"identified {k + 1} ({Path(path).parent.name})"
+        models[label] = LinearModel(load_profile(path))
     plots = plot_bode(fr, models, out)
     fr.to_csv(out / "frequency_response.csv")
     print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
@@ -246,10 +300,106 @@ def _add_freq_parser(sub) -> None:
     p.add_argument("runs", nargs="+", help="run files (.csv)")
     p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
-    p.add_argument("--identified", metavar="TOML", help="an identified profile to overlay and judge (J) too")
+    p.add_argument("--identified", metavar="TOML", action="append",
+                   help="an identified profile to overlay and judge (J) too; repeat for several (e.g. ML and FR)")
     p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)
+
+
+def cmd_hq(args) -> int:
+    """ADS-33 bandwidth and phase delay, the chart, short-period LOES: of runs or of a model."""
+    from .estimators.frequency.hq import hq_of_model, hq_of_response
+
+    profile = load_profile(args.profile)
+    options = dict(task=args.task, pitch=args.pitch, roll=args.roll, category=args.category)
+    if args.runs:
+        from .estimators.frequency.response import frequency_response
+
+        runs = _recorded_runs(args.runs, args.channel_map, profile)
+        fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
+        report = hq_of_response(fr, **options)
+        model = hq_of_model(LinearModel(profile), **options) if args.with_model else None
+    else:
+        report, model = hq_of_model(LinearModel(profile), **options), None
+    print("\n".join(report.lines() + (["model:"] + model.lines() if model else [])), flush=True)
+    paths = report.save(args.out, model)
+    print(f"written to {args.out}: {', '.join(p.name for p in paths)}")
+    return 0
+
+
+def cmd_loes(args) -> int:
+    """A transfer function (chosen orders, equivalent delay, bounds) fitted to one measured response."""
+    from pathlib import Path
+
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from .estimators.frequency.loes import fit_transfer_function, plot_fit, short_period
+    from .estimators.frequency.response import frequency_response
+
+    profile = load_profile(args.profile)
+    output, _, input_ = args.pair.partition("/")
+    if output not in profile.outputs or input_ not in profile.input_names:
+        raise EstimationError(f"--pair {args.pair}: give OUTPUT/INPUT of the profile (outputs "
+                              f"{', '.join(profile.outputs)}; inputs {', '.join(profile.input_names)})")
+    runs = _recorded_runs(args.runs, args.channel_map, profile)
+    fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
+    j, i = fr.pair(output, input_)
+    band = None if args.w_min is None and args.w_max is None else (args.w_min or 0.0, args.w_max or np.inf)
+    coh = np.where(fr.resolved[:, j, i], fr.coherence[:, j, i], 0.0)
+    try:
+        fit = fit_transfer_function(fr.omega, fr.H[:, j, i], coh, n_num=args.num, n_den=args.den,
+                                    delay=not args.no_delay, tau_bounds=(0.0, args.tau_max), omega_range=band)
+    except ValueError as exc:
+        raise EstimationError(f"loes {args.pair}: {exc}") from None
+    text = [f"{args.pair}: numerator order {args.num}, denominator order {args.den}"
+            + ("" if args.no_delay else f", equivalent delay in [0, {args.tau_max:g}] s"), fit.summary()]
+    if args.den == 2 and not args.no_delay:
+        text += short_period(fit, args.category).lines()
+    print("\n".join(text), flush=True)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "loes.md").write_text("```\n" + "\n".join(text) + "\n```\n")
+    fig = plot_fit(fr.omega, fr.H[:, j, i], coh, fit, f"{args.pair}: transfer-function fit")
+    FigureCanvasAgg(fig)
+    fig.savefig(out / "loes.png", dpi=90)
+    print(f"written to {out}: loes.md, loes.png")
+    return 0
+
+
+def _add_hq_parsers(sub) -> None:
+    p = sub.add_parser("hq", help="handling qualities: ADS-33 bandwidth/phase delay chart, short-period LOES")
+    p.add_argument("runs", nargs="*", help="run files (.csv or .mat); none: the profile's model itself")
+    p.add_argument("--profile", required=True, help="profile (or identified profile) TOML path or bundled name")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--task", choices=("tracking", "other"), default="tracking",
+                   help="ADS-33 task category (default tracking: target acquisition and tracking)")
+    p.add_argument("--pitch", metavar="INPUT", help="pitch control (default theta_s or delta_e)")
+    p.add_argument("--roll", metavar="INPUT", help="roll control (default theta_c or delta_a)")
+    _add_response_options(p)
+    p.add_argument("--with-model", action="store_true", help="with runs: also the profile's model, on the same charts")
+    p.set_defaults(func=cmd_hq)
+    p = sub.add_parser("loes", help="transfer function (LOES) with an equivalent delay fitted to one response")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat)")
+    p.add_argument("--profile", required=True, help="profile naming the inputs and outputs")
+    p.add_argument("--pair", required=True, metavar="OUTPUT/INPUT", help="the response fitted, e.g. q/theta_s")
+    p.add_argument("--num", type=nonnegative_int, default=1, help="numerator order (default 1)")
+    p.add_argument("--den", type=positive_int, default=2, help="denominator order (default 2)")
+    p.add_argument("--no-delay", action="store_true", help="no equivalent time delay")
+    p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay (default 0.5)")
+    p.add_argument("--w-min", type=positive_float, metavar="RAD_S", help="lowest frequency fitted")
+    p.add_argument("--w-max", type=positive_float, metavar="RAD_S", help="highest frequency fitted")
+    _add_response_options(p)
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.set_defaults(func=cmd_loes)
+
+
+def _add_response_options(p) -> None:
+    """Options hq and loes share: the LOES level's category, the response grid, the channel map."""
+    p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
+    p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
 
 
 def main(argv=None) -> int:
