@@ -12,7 +12,11 @@ dynamics) and filtered (coloured) measurement noise, as in flight data.
 
 Wall time per case is printed.
 
-    .venv/bin/python benchmarks/refine_coloured.py [n_realisations] [parts, e.g. 123]
+    .venv/bin/python benchmarks/refine_coloured.py [n_realisations] [parts, e.g. 123] [--method fem]
+
+``--method fem``: every fit and test with the filter-error method (process noise on the u and q
+equations, where the turbulence acts), i.e. in the innovations' metric; part 1 then compares the
+FEM tests (coloured-residual noise model on the innovations) with output error's.
 """
 import os
 import sys
@@ -28,7 +32,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import parse_profile  # noqa: E402
 from identify.refine.candidates import Lag  # noqa: E402
 from identify.refine import Refine  # noqa: E402
+from identify.estimators.filter_error import FEM  # noqa: E402
 from tests.identify.refine.test_refine import PROFILE, TOML, TURBULENCE, make_runs, nonlinear_runs  # noqa: E402
+
+
+METHOD = "ml"
+
+
+def estimator():
+    """The refine estimator of this run: None (ML, refine's default) or FEM."""
+    return FEM(PROFILE, process_noise={"u": None, "q": None}) if METHOD == "fem" else None
 
 
 def false_alarms(n: int) -> None:
@@ -40,9 +53,9 @@ def false_alarms(n: int) -> None:
         seeds = (100 + 3 * i, 101 + 3 * i, 102 + 3 * i)
         fit, val = make_runs(seeds=seeds, turbulence=TURBULENCE)
         line = []
-        for coloured in (True, False):
+        for coloured in ((True, False) if METHOD == "ml" else (True,)):  # FEM: its own (coloured) tests
             t0 = time.perf_counter()
-            r = Refine(PROFILE, coloured=coloured).fit(fit, validate=val)
+            r = Refine(PROFILE, coloured=coloured, estimator=estimator()).fit(fit, validate=val)
             found[coloured] += not r.nothing_found
             fired[coloured] += bool(r.steps_ or r.rejected_)  # the first score test found something
             top = max(r.last_scores_, key=lambda d: d.statistic / d.threshold, default=None)
@@ -51,7 +64,7 @@ def false_alarms(n: int) -> None:
             line.append(f"{'coloured' if coloured else 'white'}: added {added or 'nothing'}, "
                         f"{len(r.rejected_)} rejected, top {worst}, {time.perf_counter() - t0:.1f} s")
         print(f"  realisation {i:2d}: " + " | ".join(line), flush=True)
-    for coloured in (True, False):
+    for coloured in ((True, False) if METHOD == "ml" else (True,)):
         print(f"  {'coloured-residual' if coloured else 'white-noise'} tests: false alarms (an effect added) "
               f"{found[coloured]} of {n} = {100 * found[coloured] / n:.1f} %; the score test alone significant "
               f"{fired[coloured]} of {n} = {100 * fired[coloured] / n:.1f} % (family level alpha = 1 %)")
@@ -88,7 +101,7 @@ def effects(turbulence, label: str, variants=(True,)) -> None:
         for coloured in variants:
             t0 = time.perf_counter()
             kw = dict(options, coloured=coloured, **({"kinds": kinds} if kinds else {}))
-            r = Refine(PROFILE, **kw).fit(fit, validate=val)
+            r = Refine(PROFILE, estimator=estimator(), **kw).fit(fit, validate=val)
             wall = time.perf_counter() - t0
             step = next((s for s in r.steps_ if (s.effect, s.target) == expect), None)
             tag = "" if len(variants) == 1 else f" [{'coloured' if coloured else 'white'} tests]"
@@ -117,4 +130,10 @@ def main(n: int = 40, parts: str = "123") -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 40, sys.argv[2] if len(sys.argv) > 2 else "123")
+    args = sys.argv[1:]
+    if "--method" in args:
+        i = args.index("--method")
+        METHOD = args[i + 1]
+        del args[i:i + 2]
+    print(f"estimator: {METHOD}")
+    main(int(args[0]) if args else 40, args[1] if len(args) > 1 else "123")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from .cliutil import (Parser, add_threads_option, finite_float, fraction, nonnegative_float, nonnegative_int,
-                      output_dir, output_file, positive_float, positive_int, run)
+                      output_dir, output_file, positive_float, positive_int, run, state_values)
 from .errors import EstimationError
 from .model.linear import LinearModel, format_modes, residualize
 from .model.profile import load_profile
@@ -135,10 +135,10 @@ def _estimator(args, profile, show_progress: bool = True):
 
     estimator = build(args.method, profile, progress=show if show_progress else None,
                       names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays",
-                             "prune": "--prune"},
+                             "prune": "--prune", "x0": "--x0"},
                       max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
                       delays=_names(getattr(args, "fr_delays", None)) or None,
-                      prune=getattr(args, "prune", None) or None)
+                      prune=getattr(args, "prune", None) or None, x0=getattr(args, "x0", None))
     return estimator
 
 
@@ -160,7 +160,7 @@ def _fit(estimator, runs):
 
 
 def _add_estimate_parser(sub) -> None:
-    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE or FR)")
+    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE, FR or FEM)")
     _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
@@ -168,9 +168,11 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-start", type=finite_float, metavar="S", help="use samples from this time on")
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
-                   help="iterations at most for iv (default 30) and ml (default 100)")
+                   help="iterations at most for iv (default 30), ml and fem (default 100)")
     p.add_argument("--plots", action="store_true",
                    help="also draw time_history_run<k>.png and residuals.png (slower than the fit)")
+    p.add_argument("--x0", type=state_values, metavar="STATE=VALUE,...",
+                   help="known initial states, held in every run (ml, fem; adds to the profile's [initial_state])")
     p.add_argument("--verify", nargs="+", metavar="RUN", help="held-out runs the identified model must predict "
                    "(VERIFY: initial state and zero shifts fitted; Theil coefficient and J_rms reported)")
     p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")

@@ -92,6 +92,17 @@ def nonnegative_float(text: str) -> float:
     return value
 
 
+def state_values(text: str) -> dict[str, float]:
+    """argparse type: ``name=value,name=value`` (known initial states)."""
+    out = {}
+    for item in text.split(","):
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise argparse.ArgumentTypeError(f"expected STATE=VALUE[,STATE=VALUE...], got {text!r}")
+        out[name.strip()] = _number(value)
+    return out
+
+
 def fraction(text: str) -> float:
     """argparse type: a number within 0..1."""
     value = _number(text)

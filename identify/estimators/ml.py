@@ -75,7 +75,10 @@ class ML(Estimator):
     ``info["converged"]`` False with the reason in ``info["stop"]``); convergence when the next
     Gauss-Newton step is under 1e-3 standard errors, or under ``tol`` relative to the parameters.
     ``estimate_x0``/``estimate_bias``: estimate initial states (of every segment) and per-run
-    output zero shifts. ``noise_cov``: ``"relax"`` (estimate R) or the measurement-noise
+    output zero shifts; ``x0`` ``{state: value}`` initial states held at known values in every run
+    (with the profile's ``[initial_state]``; later multiple-shooting segments keep theirs free),
+    and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``:
+    ``"relax"`` (estimate R) or the measurement-noise
     covariance, (ny,) variances or (ny, ny), in output units squared.
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
@@ -104,12 +107,12 @@ class ML(Estimator):
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
-                 verbose: bool = False):
+                 verbose: bool = False, x0: dict | None = None):
         super().__init__(profile)
         self.segment, self.max_iter, self.tol = segment, max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.noise_cov, self.coloured = noise_cov, coloured
-        self.progress, self.verbose = progress, verbose
+        self.progress, self.verbose, self.x0 = progress, verbose, x0
         self.covariance_ = self.problem_ = self.beta_ = None
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
@@ -137,9 +140,9 @@ class ML(Estimator):
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         started = _time.perf_counter()
         p = self.profile_
-        dt = _common_dt(runs)
-        u = [_finite(run, p.input_names) for run in runs]
-        z = [_finite(run, list(p.outputs)) for run in runs]
+        dt = common_dt(runs)
+        u = [finite_channels(run, p.input_names) for run in runs]
+        z = [finite_channels(run, list(p.outputs)) for run in runs]
         model0 = LinearModel(p)
         segment = self.segment_
         if segment is None:
@@ -147,8 +150,12 @@ class ML(Estimator):
         if not self.estimate_x0 and math.isfinite(segment) and any(r.duration > segment for r in runs):
             raise EstimationError("ML: multiple shooting needs the segment initial states: "
                                   "use estimate_x0=True or segment='plain'")
+        if p.input_hold != "held" or any(r.meta.get("input_hold", "held") != "held" for r in runs):
+            raise EstimationError("ML: inputs interpolated linearly between samples (input_hold = 'linear') "
+                                  "are supported by --method fem only; ML holds them")
         prob = OutputError(p, u, z, dt, segment, bool(self.estimate_x0), bool(self.estimate_bias))
         beta = prob.initial_beta(model0.theta)
+        held = _held(prob, beta, {**p.initial_state, **(self.x0 or {})})
         form = "plain" if prob.layout.n_segments == len(runs) else "multiple shooting"
         try:
             ev = prob.evaluate(beta)
@@ -158,6 +165,7 @@ class ML(Estimator):
             raise EstimationError(f"ML ({form}): the a priori model diverges: {exc}; "
                                   f"use {hint} or better a priori values") from None
         solver = _Solver(self, prob, ev, z)
+        solver.active &= ~held
         solver.run()
         if not solver.converged:
             warnings.warn(f"ML ({form}) did not converge: {solver.stop}; the estimates are not final "
@@ -220,6 +228,7 @@ class ML(Estimator):
             "std_coloured": None if std_col is None else std_col[:P],
             "noise_autocorrelation": acf,
             "colour_passes": passes,
+            "estimator_advice": _advice(std_white[:P], None if std_col is None else std_col[:P]),
             "wall_time": wall,
         }
         return IdentificationResult(
@@ -440,6 +449,46 @@ class _Solver:
 
 
 # -- helpers ---------------------------------------------------------------------------------------
+COLOURED_ADVICE = 2.0  # coloured-residual bounds this many times the white ones: say FEM is the estimator
+
+
+def _advice(std_white: np.ndarray, std_col: np.ndarray | None) -> str | None:
+    """When the residuals are strongly coloured (median coloured/white bound >= COLOURED_ADVICE;
+    on the benchmarks' turbulent cases 4.5-7, in calm air 0.94-0.98): the filter-error method."""
+    if std_col is None:
+        return None
+    ok = np.isfinite(std_white) & np.isfinite(std_col) & (std_white > 0)
+    ratio = float(np.median(std_col[ok] / std_white[ok])) if ok.any() else float("nan")
+    if not ratio >= COLOURED_ADVICE:
+        return None
+    return (f"the residuals are strongly coloured (coloured-residual bounds {ratio:.1f}x the white ones): "
+            f"turbulence, or a pilot or SAS in the loop? Output error's estimates may then be biased beyond "
+            f"their bounds; the filter-error method (--method fem) models the process noise")
+
+
+def _held(prob: OutputError, beta: np.ndarray, x0_fixed: dict) -> np.ndarray:
+    """Unknowns the profile fixes, set in ``beta``: each run's initial state (``[initial_state]``,
+    the ``x0`` option; the first segment of the run) and the zero shifts ``[zero_shifts]`` holds."""
+    p, held = prob.profile, np.zeros(prob.n_beta, bool)
+    bad = [s for s in x0_fixed if s not in p.states]
+    if bad:
+        raise EstimationError(f"ML: x0: {', '.join(bad)} not a state of the profile (states: {', '.join(p.states)})")
+    index = np.array(prob.local_index)
+    first = [int(np.flatnonzero(prob.layout.run == r)[0]) for r in range(prob.n_runs)]
+    for s, value in x0_fixed.items():
+        col = index[first, prob.p + p.state_names.index(s)]
+        if prob.estimate_x0:
+            beta[col], held[col] = value, True
+        prob.x0_held[p.state_names.index(s), first] = value
+    for j, y in enumerate(p.outputs):
+        value, estimated = p.zero_shift(y)
+        col = index[first, prob.p + prob.n + j]
+        if prob.estimate_bias:
+            beta[col], held[col] = value, not estimated
+        prob.b_held[j] = value
+    return held
+
+
 def _std(cov, active: np.ndarray) -> np.ndarray:
     """Standard errors from a :class:`~identify.estimators.information.BlockCovariance`; inf where held,
     NaN where the variance is not positive (not determined: never a printed 0)."""
@@ -484,7 +533,8 @@ def _check_noise_cov(noise_cov, ny: int):
     return R
 
 
-def _common_dt(runs: list[Run]) -> float:
+def common_dt(runs: list[Run]) -> float:
+    """The runs' common sample interval (s); one clear error when they differ."""
     dts = [run.dt for run in runs]
     if max(dts) - min(dts) > 1e-6 * max(dts):
         listing = ", ".join(f"{d:g} s in {r.source}" for d, r in zip(dts, runs))
@@ -492,7 +542,8 @@ def _common_dt(runs: list[Run]) -> float:
     return float(np.mean(dts))
 
 
-def _finite(run: Run, names: list[str]) -> np.ndarray:
+def finite_channels(run: Run, names: list[str]) -> np.ndarray:
+    """(N, len(names)) of the run's channels; one clear error naming the first non-finite sample."""
     data = run.matrix(names)
     bad = ~np.isfinite(data)
     if bad.any():

@@ -9,23 +9,24 @@ from __future__ import annotations
 
 from ..errors import EstimationError
 
-METHOD_NAMES = ("ml", "ls", "iv", "fdee", "fr")
+METHOD_NAMES = ("ml", "ls", "iv", "fdee", "fr", "fem")
 
 
 def estimator_classes() -> dict[str, type]:
     """``{method name: class}``; imports every estimator."""
     from .equation_error import IV, LS
     from .frequency.equation_error import FDEE
+    from .filter_error import FEM
     from .frequency.response_fit import FR
     from .ml import ML
 
-    classes = {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE, "fr": FR}
+    classes = {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE, "fr": FR, "fem": FEM}
     assert tuple(classes) == METHOD_NAMES
     return classes
 
 
 def estimator_class(method: str) -> type:
-    """The estimator class of a method name (``ml``, ``ls``, ``iv``, ``fdee``)."""
+    """The estimator class of a method name (``ml``, ``ls``, ``iv``, ``fdee``, ``fr``, ``fem``)."""
     if method not in METHOD_NAMES:
         raise EstimationError(f"unknown method '{method}' (choose from {', '.join(METHOD_NAMES)})")
     return estimator_classes()[method]

@@ -206,6 +206,9 @@ class IdentificationResult:
             lines.append("warning: the information matrix is ill-conditioned (rank deficient to rounding): "
                          "some parameter or combination is not determined by these runs")
         lines.append(self._convergence_line())
+        lines += _noise_lines(self.info)
+        if self.info.get("estimator_advice"):
+            lines.append(f"note: {self.info['estimator_advice']}")
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
@@ -277,6 +280,22 @@ class IdentificationResult:
         (outdir / "result.json").write_text(dumps(self.to_dict()))
         self.identified_profile().save(outdir / "identified_profile.toml")
         return outdir
+
+
+def _noise_lines(info: dict) -> list[str]:
+    """The filter-error method's noise estimates: F and R with their bounds ("not determined" on
+    a boundary, never 0)."""
+    if "process_noise" not in info:
+        return []
+
+    def bound(s):
+        return f"{s:.3g}" if np.isfinite(s) else "not determined"
+
+    lines = ["", f"process noise F ({info['process_noise_convention']}):"]
+    lines += [f"  {k:<16}{v['F']:12.4g}  std {bound(v['std'])}" for k, v in info["process_noise"].items()] or ["  none"]
+    lines.append("measurement noise R (variances, output units squared):")
+    lines += [f"  {k:<16}{v['variance']:12.4g}  std {bound(v['std'])}" for k, v in info["measurement_noise"].items()]
+    return lines + [f"  note: {n}" for n in info.get("not_determined", [])]
 
 
 CR_GUIDELINE, INSENSITIVITY_GUIDELINE = 20.0, 10.0  # %: Tischler & Remple's marks of a parameter worth keeping

@@ -13,6 +13,21 @@ may also act on the output equation: the entry ``"<output>:<state or input>"`` a
 Outputs are states, state derivatives (``q_dot``) or linear combinations declared in
 ``[output_defs]`` as ``name = { term = coefficient, ... }`` whose terms are states, state
 derivatives and inputs (for example a specific force ``a_x = { u_dot = 1.0, theta = 9.81 }``).
+
+What flight-test models need besides the matrices (every table optional)::
+
+    [process_noise]        # F of dx/dt = A x + B u + F w (w unit white noise): start values per state
+    u = 0.05               # (default: the velocity equations u, v, w, the states turbulence drives)
+    [initial_state]        # known initial states, held at these values in every run (x0 fixed)
+    p = 0.0
+    [zero_shifts]          # per output: a number (estimated, its start value), false (none) or
+    a_y = 0.0              # { value = ..., fixed = true } (held at a known value); unlisted outputs
+    p = false              # get an estimated zero shift starting at 0, as before
+    [biases]               # constant state-equation biases, free parameters <equation>_one on the
+    L = 0.0                # constant pseudo-input ``one`` (as refine writes them)
+    input_hold = "linear"  # (top level) inputs between samples: "held" (default) or "linear"
+
+A run's metadata ``input_hold`` overrides the profile's for that run (filter-error method).
 """
 from __future__ import annotations
 
@@ -28,7 +43,11 @@ from ..errors import ProfileError, read_text
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
 _KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_defs", "free",
-               "fixed", "ties", "meta", "limits"}
+               "fixed", "ties", "meta", "limits", "process_noise", "initial_state", "zero_shifts", "biases",
+               "input_hold"}
+VELOCITY_STATES = ("u", "v", "w")  # the equations turbulence drives: the default process noise
+INPUT_HOLDS = ("held", "linear")
+BIAS_INPUT = "one"  # the constant pseudo-input of state-equation biases (refine's name too)
 
 
 @dataclass(frozen=True)
@@ -59,6 +78,12 @@ class Profile:
     # largest |perturbation| each output may reach in a test manoeuvre, in the output's own units
     # (signal design keeps every output's peak response within it)
     limits: dict[str, float] = field(default_factory=dict)
+    # F start values {state: F} (empty: the default, velocity states); x0 held {state: value};
+    # {output: {"value": start or held value, "estimate": bool}}; inputs between samples
+    process_noise: dict[str, float] = field(default_factory=dict)
+    initial_state: dict[str, float] = field(default_factory=dict)
+    zero_shifts: dict[str, dict] = field(default_factory=dict)
+    input_hold: str = "held"
 
     def __post_init__(self):
         _validate(self)
@@ -106,6 +131,18 @@ class Profile:
             return dict(self.output_defs[output])
         return {output: 1.0}
 
+    def process_noise_states(self) -> dict[str, float | None]:
+        """``{state: F start value}`` of the states with process noise: the ``[process_noise]``
+        table, else the velocity states (start value None: chosen from the data)."""
+        if self.process_noise:
+            return dict(self.process_noise)
+        return {s: None for s in VELOCITY_STATES if s in self.states}
+
+    def zero_shift(self, output: str) -> tuple[float, bool]:
+        """``(start or held value, estimated)`` of an output's zero shift."""
+        spec = self.zero_shifts.get(output, {"value": 0.0, "estimate": True})
+        return float(spec["value"]), bool(spec["estimate"])
+
     @property
     def channels(self) -> list[str]:
         """Channels a run must hold for this profile: inputs, then outputs."""
@@ -134,11 +171,17 @@ class Profile:
         lines.append(f"states = {_inline(self.states)}")
         lines.append(f"inputs = {_inline(self.inputs)}")
         lines.append("outputs = [" + ", ".join(_toml_str(y) for y in self.outputs) + "]")
+        if self.input_hold != "held":  # a top-level key: before the first table
+            lines.append(f"input_hold = {_toml_str(self.input_hold)}")
         for table in ("output_defs", "ties"):
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_inline(v)}" for k, v in rows.items()]
-        for table in ("free", "fixed", "limits", "meta"):
+        if self.zero_shifts:
+            lines += ["", "[zero_shifts]"] + [
+                f"{_key(k)} = {_inline({'value': v['value'], 'fixed': not v['estimate']})}"
+                for k, v in self.zero_shifts.items()]
+        for table in ("free", "fixed", "limits", "process_noise", "initial_state", "meta"):
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_toml_value(v)}" for k, v in rows.items()]
@@ -216,6 +259,7 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
     for key in ("name", "states", "inputs", "outputs"):
         if key not in data:
             raise ProfileError(f"{source}: missing '{key}'")
+    data = _with_biases(data, source)
     return Profile(
         name=_require(str, data["name"], "name", source),
         description=_require(str, data.get("description", ""), "description", source),
@@ -230,7 +274,39 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
         meta=_require(dict, data.get("meta", {}), "meta", source),
         source=source,
         limits=_numbers(data.get("limits", {}), "limits", source),
+        process_noise=_numbers(data.get("process_noise", {}), "process_noise", source),
+        initial_state=_numbers(data.get("initial_state", {}), "initial_state", source),
+        zero_shifts={k: _zero_shift(k, v, source)
+                     for k, v in _require(dict, data.get("zero_shifts", {}), "zero_shifts", source).items()},
+        input_hold=_require(str, data.get("input_hold", "held"), "input_hold", source),
     )
+
+
+def _with_biases(data: dict, source: str) -> dict:
+    """``[biases] L = 0.0`` written out as what it is: a free ``L_one`` on the constant
+    pseudo-input ``one`` (so every estimator and refine see an ordinary parameter)."""
+    biases = _numbers(data.get("biases", {}), "biases", source)
+    if not biases:
+        return data
+    data = dict(data)
+    data["inputs"] = {**_require(dict, data.get("inputs", {}), "inputs", source), BIAS_INPUT: "1"}
+    meta = dict(_require(dict, data.get("meta", {}), "meta", source))
+    meta["pseudo_inputs"] = {**meta.get("pseudo_inputs", {}), BIAS_INPUT: {"constant": 1.0}}
+    data["meta"] = meta
+    data["free"] = {**data.get("free", {}), **{f"{eq}_{BIAS_INPUT}": v for eq, v in biases.items()}}
+    return data
+
+
+def _zero_shift(output: str, spec, source: str) -> dict:
+    if spec is False:
+        return {"value": 0.0, "estimate": False}
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        return {"value": float(spec), "estimate": True}
+    if isinstance(spec, dict) and set(spec) <= {"value", "fixed"} and "value" in spec:
+        value = _numbers({"value": spec["value"]}, f"zero_shifts.{output}", source)["value"]
+        return {"value": value, "estimate": not bool(spec.get("fixed", False))}
+    raise ProfileError(f"{source}: [zero_shifts] {output} = {spec!r}: expected a start value, false, "
+                       f"or {{ value = ..., fixed = true }}")
 
 
 def _require(kind, value, where, source):
@@ -317,6 +393,15 @@ def _validate(p: Profile) -> None:
             if term not in terms_ok:
                 what = f"output '{y}'" if y in p.output_defs else "output"
                 raise ProfileError(f"{src}: {what} term '{term}' is not a state, state derivative or input")
+    for table in ("process_noise", "initial_state"):
+        for s in getattr(p, table):
+            if s not in p.states:
+                raise ProfileError(f"{src}: [{table}] {s}: not a state (states: {', '.join(p.states)})")
+    for y in p.zero_shifts:
+        if y not in p.outputs:
+            raise ProfileError(f"{src}: [zero_shifts] {y}: not an output (outputs: {', '.join(p.outputs)})")
+    if p.input_hold not in INPUT_HOLDS:
+        raise ProfileError(f"{src}: input_hold = {p.input_hold!r}: expected one of {', '.join(INPUT_HOLDS)}")
     for y, limit in p.limits.items():
         if y not in p.outputs:
             raise ProfileError(f"{src}: [limits] {y}: not an output (outputs: {', '.join(p.outputs)})")

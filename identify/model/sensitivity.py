@@ -29,18 +29,26 @@ class Sensitivities:
     dy_x0: np.ndarray | None = None
 
 
-def discretize_with_derivatives(model: LinearModel, dt: float):
-    """``Phi`` (n, n), ``Gamma`` (n, m), ``dPhi`` (p, n, n), ``dGamma`` (p, n, m)."""
+def discretize_with_derivatives(model: LinearModel, dt: float, hold: str = "held"):
+    """``Phi`` (n, n), ``Gamma`` (n, m), ``dPhi`` (p, n, n), ``dGamma`` (p, n, m).
+
+    ``hold="linear"`` (inputs interpolated linearly between samples, first-order hold): ``Gamma``
+    (n, 2m) and ``dGamma`` (p, n, 2m) act on ``[u[k]; u[k+1]]`` (:func:`~identify.model.simulate.held_inputs`)."""
     n, m, p = model.n_states, model.n_inputs, len(model.names)
-    size = 2 * n + m
+    linear = hold == "linear"
+    size = 2 * n + m * (2 if linear else 1)
     M = np.zeros((max(p, 1), size, size))
     M[:, :n, :n] = model.A
-    M[:, :n, 2 * n:] = model.B
+    M[:, :n, 2 * n:2 * n + m] = model.B
     M[:, n:2 * n, n:2 * n] = model.A
     if p:
         M[:, n:2 * n, :n] = model.dA
-        M[:, n:2 * n, 2 * n:] = model.dB
+        M[:, n:2 * n, 2 * n:2 * n + m] = model.dB
+    if linear:  # the input's slope (u[k+1] - u[k]) / dt is a state of the augmented exponential
+        M[:, 2 * n:2 * n + m, 2 * n + m:] = np.eye(m) / dt
     E = expm(M * dt)  # batched over parameters
+    if linear:  # x[k+1] = Phi x + Ga u[k] + Gb (u[k+1] - u[k])
+        E = np.concatenate([E[..., :2 * n], E[..., 2 * n:2 * n + m] - E[..., 2 * n + m:], E[..., 2 * n + m:]], axis=-1)
     Phi, Gamma = E[0, :n, :n], E[0, :n, 2 * n:]
     dPhi, dGamma = E[:p, n:2 * n, :n], E[:p, n:2 * n, 2 * n:]
     return Phi, Gamma, dPhi, dGamma

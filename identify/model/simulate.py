@@ -24,13 +24,28 @@ from .profile import DOT
 DIVERGENCE_LIMIT = 1e6
 
 
-def discretize(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """ZOH discretisation: returns ``Phi`` (n, n) and ``Gamma`` (n, m)."""
+def discretize(A: np.ndarray, B: np.ndarray, dt: float, hold: str = "held") -> tuple[np.ndarray, np.ndarray]:
+    """ZOH discretisation: returns ``Phi`` (n, n) and ``Gamma`` (n, m). ``hold="linear"`` (inputs
+    interpolated linearly between samples, first-order hold): ``Gamma`` (n, 2m) acts on
+    ``[u[k]; u[k+1]]`` (:func:`held_inputs`)."""
     n, m = B.shape
+    if hold == "linear":
+        M = np.zeros((n + 2 * m, n + 2 * m))
+        M[:n, :n], M[:n, n:n + m], M[n:n + m, n + m:] = A, B, np.eye(m) / dt
+        E = expm(M * dt)  # x[k+1] = Phi x + Ga u[k] + Gb (u[k+1] - u[k])
+        return E[:n, :n], np.hstack([E[:n, n:n + m] - E[:n, n + m:], E[:n, n + m:]])
     M = np.zeros((n + m, n + m))
     M[:n, :n], M[:n, n:] = A, B
     E = expm(M * dt)
     return E[:n, :n], E[:n, n:]
+
+
+def held_inputs(u: np.ndarray, hold: str = "held") -> np.ndarray:
+    """What ``Gamma`` of :func:`discretize` acts on: ``u`` (N, m) itself (held), or ``[u[k];
+    u[k+1]]`` (N, 2m) (linear; the last sample held)."""
+    if hold != "linear":
+        return u
+    return np.concatenate([u, np.concatenate([u[1:], u[-1:]])], axis=1)
 
 
 def propagate(Phi: np.ndarray, forcing: np.ndarray, z0: np.ndarray) -> np.ndarray:
@@ -94,8 +109,9 @@ class Simulation:
 
 
 def simulate(model: LinearModel, u: np.ndarray, dt: float, x0=None, w: np.ndarray | None = None,
-             limit: float = DIVERGENCE_LIMIT) -> Simulation:
-    """Simulate ``dx/dt = A x + B u + w``, ``y = C x + D u`` with u and w held over each interval.
+             limit: float = DIVERGENCE_LIMIT, hold: str = "held") -> Simulation:
+    """Simulate ``dx/dt = A x + B u + w``, ``y = C x + D u`` with w held over each interval and u
+    held (``hold="held"``) or interpolated linearly between samples (``"linear"``).
 
     ``u``: (N, m) inputs; ``w``: optional (N, n) process disturbance (state-derivative units);
     ``x0``: (n,) initial state (zeros by default).
@@ -104,15 +120,13 @@ def simulate(model: LinearModel, u: np.ndarray, dt: float, x0=None, w: np.ndarra
     n = model.n_states
     x0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
     A, B = model.A, model.B
+    Phi, Gamma = discretize(A, B, dt, hold)
+    forcing = held_inputs(u, hold) @ Gamma.T
     if w is not None:
-        B = np.hstack([B, np.eye(n)])
-        u_all = np.hstack([u, w])
-    else:
-        u_all = u
-    Phi, Gamma = discretize(A, B, dt)
-    x = propagate(Phi, u_all @ Gamma.T, x0)
+        forcing = forcing + w @ discretize(A, np.eye(n), dt)[1].T
+    x = propagate(Phi, forcing, x0)
     check_divergence(x, dt, model.profile.state_names, limit)
-    xdot = x @ A.T + u_all @ B.T
+    xdot = x @ A.T + u @ B.T + (0 if w is None else w)
     y = x @ model.C.T + u @ model.D.T
     return Simulation(x, xdot, y)
 
@@ -121,7 +135,7 @@ def simulate_run(model: LinearModel, time: np.ndarray, u: np.ndarray, x0=None, *
                  noise: dict[str, float] | None = None, noise_fraction: float = 0.0,
                  bias: dict[str, float] | None = None, process_noise: float | np.ndarray = 0.0,
                  seed: int | None = None, meta: dict | None = None, derivatives: bool = True,
-                 input_delay: float | dict[str, float] = 0.0) -> Run:
+                 input_delay: float | dict[str, float] = 0.0, hold: str = "held") -> Run:
     """A run simulated from a known truth, with optional measurement errors.
 
     The run holds the inputs, every state, every state derivative (``<state>_dot``; leave them out
@@ -132,7 +146,8 @@ def simulate_run(model: LinearModel, time: np.ndarray, u: np.ndarray, x0=None, *
     state) of a white disturbance on the state derivatives. Inputs stay exact unless named in
     ``noise`` or ``bias``. ``input_delay`` (s, one for every input or ``{input: s}``) is a
     control-system delay: the run records the inputs as given, the aircraft responds to them that
-    much later (zero, the trim value, before the record).
+    much later (zero, the trim value, before the record). ``hold``: the inputs between samples,
+    ``"held"`` (a stepped command) or ``"linear"`` (a measured surface position).
     """
     p = model.profile
     time = np.asarray(time, dtype=float)
@@ -150,7 +165,7 @@ def simulate_run(model: LinearModel, time: np.ndarray, u: np.ndarray, x0=None, *
         raise SimulationError(f"input_delay must not be negative, got {input_delay}")
     felt = np.column_stack([delay_inputs(time, u[:, j], float(delays.get(name, 0.0)), before=0.0)
                             for j, name in enumerate(p.input_names)]) if any(delays.values()) else u
-    sim = simulate(model, felt, dt, x0, w)
+    sim = simulate(model, felt, dt, x0, w, hold=hold)
     channels = {name: u[:, j] for j, name in enumerate(p.input_names)}
     channels.update({s: sim.x[:, j] for j, s in enumerate(p.state_names)})
     if derivatives:

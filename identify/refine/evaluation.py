@@ -49,19 +49,41 @@ def neg_log_likelihood(residuals: list[np.ndarray]) -> float:
     return 0.5 * E.shape[0] * float(np.sum(np.log(np.maximum(np.mean(E ** 2, axis=0), 1e-300))))
 
 
-def split_validation(runs: list[Run]) -> tuple[list[Run], list[Run]]:
-    """Validation runs into a *choosing* and a *judging* part: alternate runs when there are
-    several; one run is cut in two halves in time (first half chooses) when each half keeps
-    ``MIN_SAMPLES``, else it only judges."""
-    if len(runs) >= 2:
-        return runs[0::2], runs[1::2]
-    if len(runs) == 1 and len(runs[0]) >= 2 * MIN_SAMPLES:
-        r = runs[0]
-        mid = r.time[len(r) // 2]
-        first, second = r.slice(None, mid - 0.5 * r.dt), r.slice(mid, None)
-        return ([replace(first, source=f"{r.source} [first half]")],
-                [replace(second, source=f"{r.source} [second half]")])
-    return [], list(runs)
+def split_validation(runs: list[Run], inputs: list[str] | None = None) -> tuple[list[Run], list[Run]]:
+    """Validation runs into a *choosing* and a *judging* part, each run cut in two in time where
+    its input excitation is shared half and half (:func:`excitation_midpoint`), so that both parts
+    carry every input that was flown: flight tests fly one run per control axis, and a split by
+    whole runs gives each part only some axes (an effect on one input, a delay, could then be
+    judged only on data that cannot show it). The first part chooses in even-numbered runs, the
+    second in odd ones. A run too short for two parts of ``MIN_SAMPLES`` only judges."""
+    choose, judge = [], []
+    for i, r in enumerate(runs):
+        if len(r) < 2 * MIN_SAMPLES:
+            judge.append(r)
+            continue
+        k = excitation_midpoint(r, inputs if inputs is not None else [])
+        first = replace(r.slice(None, r.time[k] - 0.5 * r.dt), source=f"{r.source} [to {r.time[k]:.3g} s]")
+        second = replace(r.slice(r.time[k], None), source=f"{r.source} [from {r.time[k]:.3g} s]")
+        a, b = (first, second) if i % 2 == 0 else (second, first)
+        choose.append(a)
+        judge.append(b)
+    return choose, judge
+
+
+def excitation_midpoint(run: Run, inputs: list[str]) -> int:
+    """The sample that halves the run's input excitation: each input's squared deviation from its
+    median, normalised to a unit sum per input (so that every flown input counts alike), summed
+    and accumulated; the middle sample when no input varies. Kept ``MIN_SAMPLES`` from either end."""
+    N = len(run)
+    energy = np.zeros(N)
+    for name in inputs:
+        if name not in run.channels:
+            continue
+        e = (run[name] - np.median(run[name])) ** 2
+        if e.sum() > 0:
+            energy += e / e.sum()
+    k = int(np.searchsorted(np.cumsum(energy), 0.5 * energy.sum())) if energy.sum() > 0 else N // 2
+    return int(np.clip(k, MIN_SAMPLES, N - MIN_SAMPLES))
 
 
 def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: float) -> None:
@@ -88,4 +110,5 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["errors", "neg_log_likelihood", "unexplained", "split_validation", "check_identifiable", "MIN_SAMPLES"]
+__all__ = ["errors", "neg_log_likelihood", "unexplained", "split_validation", "excitation_midpoint",
+           "check_identifiable", "MIN_SAMPLES"]

@@ -101,7 +101,7 @@ class Refine:
         self._started = time.perf_counter()
         self._validate_options()
         self._check(runs, validate)
-        choose, judge = split_validation(validate)
+        choose, judge = split_validation(validate, self.declared_.input_names)
         self.runs_, self.validation_runs_ = runs, validate
         self.data_ = {"fit": [r.source for r in runs], "choosing": [r.source for r in choose],
                       "validation": [r.source for r in judge]}
@@ -118,6 +118,8 @@ class Refine:
             self._say(f"the fitted model diverges faster: segments cut to {self.segment_:.3g} s, re-fitting")
             current, est = self.fitting_.refit(self.declared_, self.declared_)
         self.initial_result_ = est
+        if est.info.get("estimator_advice"):  # output error on strongly coloured residuals
+            self._say(f"note: {est.info['estimator_advice']}; refine --method fem tests in the innovations' metric")
         self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.declared_.outputs])
         self.steps_, self.rejected_ = [], []
         self.error_before_ = self._errors(current)
@@ -273,13 +275,16 @@ class Refine:
         for new_p, result, params, kind in options:
             # in the metric of the noise model that selected the candidate: likelihood ratio on the
             # fit runs, prediction errors (twice the negative log-likelihood) on the held-out data
-            lr = noise.cost(fitting.residuals(p)) - noise.cost(fitting.residuals(new_p))
+            null_cost = noise.cost(fitting.residuals(p))
+            lr = null_cost - noise.cost(fitting.residuals(new_p))
             held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
                     for data in held_data}
             wald = float(sum((v["value"] / v["std"]) ** 2 if v["std"] > 0 else math.inf for v in params.values()))
-            step = Step(kind, cand.target, params, lr_statistic=float(lr), error_before=before,
-                        error_after=self._errors(new_p), wald=wald, held_out=held, noise_order=noise.order, **common)
-            reason = cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
+            failed = _failed_refit(result, lr, null_cost, best.threshold)
+            step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
+                        error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
+                        noise_order=noise.order, **common)
+            reason = failed or cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
                 reason = _held_out_refusal(held, "validation", "judging", len(params))
@@ -299,6 +304,22 @@ class Refine:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
         return _held_out_refusal(step.held_out, "choosing", "choosing", len(step.parameters))
+
+
+def _failed_refit(result, lr: float, null_cost: float, threshold: float) -> str:
+    """Why a re-fit is a failed fit, not a verdict ('' if it is not): it diverged, or its likelihood
+    is below the nested null's by more than the test's threshold (the extended model contains the
+    null, so a re-fit that found its optimum cannot be worse: it went astray; seen once as a
+    likelihood ratio of -5.9e6), or the ratio is not finite."""
+    stop = str(result.info.get("stop", ""))
+    if not result.converged and stop.startswith(("diverged", "stalled")):
+        return f"re-fit failed ({stop}): no likelihood ratio"
+    if not math.isfinite(lr):
+        return "re-fit failed (its likelihood is not finite): no likelihood ratio"
+    if lr < -max(threshold, 1e-9 * abs(null_cost)):
+        return (f"re-fit failed: its likelihood is below the nested null's (ratio {lr:.3g}), so it did not "
+                f"find its optimum; no likelihood ratio")
+    return ""
 
 
 def _held_out_refusal(held: dict, data: str, label: str, dof: int) -> str:

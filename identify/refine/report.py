@@ -40,6 +40,7 @@ def to_dict(r: Refine) -> dict:
         "evaluations": r.evaluations_,
         "catalogue": list(r.kinds_),
         "unconverged_fits": r.unconverged_,
+        "estimator_advice": r.initial_result_.info.get("estimator_advice"),
         "segment_s": r.segment_ if np.isfinite(r.segment_) else None,
         "nothing_found": r.nothing_found,
         "stopped": r.stopped_,

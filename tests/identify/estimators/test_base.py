@@ -37,7 +37,9 @@ def test_estimators_store_in_init_and_validate_in_fit(s61, run):
 
 
 def test_one_registry_names_the_methods():
-    assert METHODS == {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE, "fr": FR}
+    from identify.estimators.filter_error import FEM
+
+    assert METHODS == {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE, "fr": FR, "fem": FEM}
     assert estimator_class("iv") is IV
     with pytest.raises(EstimationError, match="unknown method 'ekf'.*ml, ls, iv"):
         estimator_class("ekf")
