@@ -316,10 +316,10 @@ class FEM(Estimator):
             "zero_shifts": [dict(zip(p.outputs, map(float, b[:, k]))) for k in range(prob.n_runs)],
             "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, k]))) for k in range(prob.n_runs)],
             "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
-            "not_determined": [f"F of {s}: at the boundary F = 0 (no process noise found on it), bound not determined"
-                               for s in sv.at_zero] +
-                              [f"R of {y}: on its floor (no measurement noise found), bound not determined"
-                               for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_],
+            "not_determined": {**{f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not "
+                                                 "determined" for s in sv.at_zero},
+                               **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
+                                  for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_}},
             "ill_conditioned": ill,
             "standard_errors": "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)",
             "wall_time": wall,
