@@ -48,8 +48,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     model = LinearModel(load_profile(args.profile))
     t0 = time.perf_counter()
-    design = SequenceDesign("theta_s", duration=7.0, record=RECORD, amplitude=AMP, dt=INFO_DT,
-                            min_width=0.5, max_width=1.0, delay=0.5).fit(model)
+    # holds on a 0.5 s grid (the paper's kind of step); the amplitude fixed, like the 3211's
+    design = SequenceDesign("theta_s", duration=7.0, record=RECORD, amplitude=AMP, dt=INFO_DT, grid=0.5,
+                            min_pulse=0.5, criterion="nominal", delay=0.5, jobs=1).fit(model)
     optimised = design.signals_[0]
     signals = {"3211 (1 s steps)": m3211(1.0, AMP, "theta_s", delay=0.5),
                f"optimised ({optimised.levels.size} x {optimised.dt:g} s)": optimised}
