@@ -22,6 +22,25 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_align(args) -> int:
+    from identify.data.io import load_channel_map, read_run_file
+
+    from .align import find_offset, merge
+    display = read_run_file(args.display)
+    recording = read_run_file(args.recording, load_channel_map(args.channel_map) if args.channel_map else None)
+    found = find_offset(display, recording, args.channel, args.max_offset)
+    print(f"clock offset: recording time = display time {found.offset:+.3f} s "
+          f"(cross-correlation of {found.channel}: peak {found.correlation:.3f})")
+    if found.doubtful:
+        print(f"cueing: warning: the correlation peak {found.correlation:.3f} is weak: check that both files "
+              f"hold the same {found.channel} and overlap", file=sys.stderr)
+    merged = merge(display, recording, found)
+    merged.to_csv(args.out)
+    print(f"merged run ({merged.duration:.2f} s, {len(merged)} samples, channels "
+          f"{', '.join(merged.channels)}) written to {args.out}")
+    return 0
+
+
 def _signals(path):
     from signaldesign.signal import load_signals
     signals = load_signals(path)
@@ -236,6 +255,14 @@ def build_parser() -> Parser:
     p.add_argument("--noise", type=nonnegative_float, default=0.02)
     p.add_argument("--seed", type=int, default=None)
     p.set_defaults(func=cmd_recover)
+    p = sub.add_parser("align", help="put the display's run file and a separate recording on one clock")
+    p.add_argument("display", help="the display's run file (cueing fly --out)")
+    p.add_argument("recording", help="the aircraft's recording (.csv or .mat) holding the same control input")
+    p.add_argument("--channel", required=True, help="control input both files hold (the offset is found on it)")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map of the recording (file or inline JSON)")
+    p.add_argument("--max-offset", type=positive_float, metavar="S", help="search offsets up to S seconds only")
+    p.add_argument("--out", required=True, type=output_file, help="merged run file to write")
+    p.set_defaults(func=cmd_align)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser

@@ -10,14 +10,18 @@ not declare. Measurement noise: 3 % of each measured channel's standard deviatio
 
 * ``run_lon.csv``, ``run_lat.csv``: a 3211 on longitudinal cyclic ``theta_s``, one on lateral
   cyclic ``theta_c`` (one run per control axis, as flight tests are flown), 15 s at 50 Hz;
-  ``run_val.csv``: doublets on both cyclics, for validation;
+  ``val_1.csv``, ``val_2.csv``: doublets on both cyclics, for validation (refine chooses on one and
+  judges on the other, so each moves both inputs);
 * ``flight.mat``: the longitudinal run as a data-acquisition system would store it: one matrix
   ``Z`` (column 0 time), angles in degrees, lateral cyclic as two actuator columns ``dar``, ``dal``;
   ``channel_map.json`` reads it;
 * ``cockpit_lon.csv`` and ``daq_lon.csv``: a simulated pilot flying a 3211 on the display (the
   display's run file: ``theta_s_cmd`` designed, ``theta_s`` flown, 60 Hz, time from the display's
   start) and the aircraft's recording of the same flight (50 Hz, stick in degrees, started
-  ``DAQ_LEAD`` s before the display: the two clocks differ by that much).
+  ``DAQ_LEAD`` s before the display: the two clocks differ by that much);
+* ``sig.json`` (``theta_s``) and ``both.json`` (both cyclics, one run): sequences designed on the a
+  priori as ``signaldesign design --criterion nominal --grid 0.5 --min-pulse 0.5`` would (the default
+  robust design takes minutes; these take seconds and serve the documents' quick commands).
 """
 from __future__ import annotations
 
@@ -36,6 +40,8 @@ sys.path.insert(0, str(ROOT))
 from cueing.pilot import PilotModel  # noqa: E402
 from identify import LinearModel, Run, load_profile, perturbed_model, simulate_run  # noqa: E402
 from signaldesign.baselines import doublet, m3211  # noqa: E402
+from signaldesign.design import SequenceDesign  # noqa: E402
+from signaldesign.signal import save_signals  # noqa: E402
 
 HERE = ROOT / "examples"
 DT, RECORD, AMP, DELAY, SPREAD, NOISE = 0.02, 15.0, 0.01, 0.08, 0.15, 0.03
@@ -99,8 +105,10 @@ def main() -> None:
     t = np.arange(int(RECORD / DT)) * DT
     runs = {"run_lon.csv": ([m3211(0.8, AMP, "theta_s", 1.0)], "3211 0.8 s on theta_s"),
             "run_lat.csv": ([m3211(0.6, AMP, "theta_c", 1.0)], "3211 0.6 s on theta_c"),
-            "run_val.csv": ([doublet(1.0, AMP, "theta_s", 1.0), doublet(0.8, AMP, "theta_c", 6.0)],
-                            "doublets on theta_s (1 s) and theta_c (6 s)")}
+            "val_1.csv": ([doublet(1.0, AMP, "theta_s", 1.0), doublet(0.8, AMP, "theta_c", 6.0)],
+                          "doublets on theta_s (1 s) and theta_c (0.8 s)"),
+            "val_2.csv": ([doublet(0.8, AMP, "theta_c", 1.0), doublet(1.2, AMP, "theta_s", 6.0)],
+                          "doublets on theta_c (0.8 s) and theta_s (1.2 s)")}
     made = {}
     for i, (name, (signals, label)) in enumerate(runs.items()):
         made[name] = run_of(truth, signals, t, SEED + 10 + i, label)
@@ -112,6 +120,9 @@ def main() -> None:
                       "theta_c": "(dar - dal)/2"},
          "units": {"theta_s": "deg", "dar": "deg", "dal": "deg", "p": "deg/s", "q": "deg/s", "theta": "deg",
                    "phi": "deg"}}, indent=1) + "\n")
+    for name, axes in (("sig.json", ["theta_s"]), ("both.json", ["theta_s", "theta_c"])):
+        d = SequenceDesign(axes, criterion="nominal", grid=0.5, min_pulse=0.5, jobs=1).fit(apriori)
+        save_signals(d.signals_, HERE / name)
     cockpit, daq = cockpit_and_daq(truth)
     cockpit.to_csv(HERE / "cockpit_lon.csv")
     daq.to_csv(HERE / "daq_lon.csv")
