@@ -26,7 +26,8 @@ def test_offset_found_between_samples_on_other_rates(offset):
     merged = merge(display, recording, found)
     assert {"theta_s", "theta_s_display", "theta_s_cmd", "q"} <= set(merged.channels)
     assert merged.time[0] >= -1e-9 and merged.time[-1] <= t_disp[-1] + 1e-9
-    assert np.std(merged["theta_s"] - merged["theta_s_display"]) < 0.1 * np.std(merged["theta_s"])
+    # noise (1e-3) and steps falling between samples remain; a wrong offset leaves about 1.4 std
+    assert np.std(merged["theta_s"] - merged["theta_s_display"]) < 0.25 * np.std(merged["theta_s"])
 
 
 def test_unshared_or_still_channel_is_an_error():
