@@ -1,0 +1,52 @@
+"""Packaging and command-line niceties: one version everywhere, quiet on a closed pipe, runs not
+taken by a list option."""
+import os
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+import cueing
+import identify
+import signaldesign
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _run(args, **kw):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run(args, capture_output=True, text=True, env=env, cwd=ROOT, **kw)
+
+
+def test_one_version_everywhere():
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert pyproject["project"]["dynamic"] == ["version"]
+    assert pyproject["tool"]["setuptools"]["dynamic"]["version"]["attr"] == "identify._version.__version__"
+    assert re.fullmatch(r"\d+\.\d+\.\d+", identify.__version__)
+    assert cueing.__version__ == signaldesign.__version__ == identify.__version__
+    assert f"## {identify.__version__}" in (ROOT / "CHANGELOG.md").read_text()
+    # SPDX license strings need setuptools >= 77
+    assert any(r.startswith("setuptools>=") and int(r.split(">=")[1].split(".")[0]) >= 77
+               for r in pyproject["build-system"]["requires"])
+
+
+@pytest.mark.parametrize("argv", [["identify"], ["signaldesign"], ["cueing"], ["identify", "estimate"],
+                                  ["signaldesign", "design"], ["cueing", "fly"]])
+def test_version_on_every_command(argv):
+    proc = _run([sys.executable, "-m", *argv, "--version"])
+    assert proc.returncode == 0 and proc.stdout.strip() == f"{argv[0]} (pseudostep) {identify.__version__}"
+
+
+def test_closed_pipe_is_quiet():
+    proc = _run(["bash", "-c", f"{sys.executable} -m identify model s61_hover_8state | head -1"])
+    assert proc.returncode == 0 and proc.stderr == "" and proc.stdout.startswith("S 61")
+
+
+def test_list_option_before_runs_says_why():
+    proc = _run([sys.executable, "-m", "identify", "refine", "--profile", "examples/profile.toml", "--validate",
+                 "examples/val_1.csv", "examples/run_lon.csv", "--out", "never"])
+    assert proc.returncode == 2 and "--validate takes every file after it: put it after the runs" in proc.stderr
+    assert not (ROOT / "never").exists()
