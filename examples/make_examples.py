@@ -12,7 +12,7 @@ not declare. Measurement noise: 3 % of each measured channel's standard deviatio
   cyclic ``theta_c`` (one run per control axis, as flight tests are flown), 15 s at 50 Hz;
   ``val_1.csv``, ``val_2.csv``: doublets on both cyclics, for validation (refine chooses on one and
   judges on the other, so each moves both inputs);
-* ``flight.mat``: the longitudinal run as a data-acquisition system would store it: one matrix
+* ``flight_lon.mat``, ``flight_lat.mat``: the two runs as a data-acquisition system would store them: one matrix
   ``Z`` (column 0 time), angles in degrees, lateral cyclic as two actuator columns ``dar``, ``dal``;
   ``channel_map.json`` reads it;
 * ``cockpit_lon.csv`` and ``daq_lon.csv``: a simulated pilot flying a 3211 on the display (the
@@ -113,7 +113,8 @@ def main() -> None:
     for i, (name, (signals, label)) in enumerate(runs.items()):
         made[name] = run_of(truth, signals, t, SEED + 10 + i, label)
         made[name].to_csv(HERE / name)
-    write_mat(made["run_lon.csv"], HERE / "flight.mat")
+    write_mat(made["run_lon.csv"], HERE / "flight_lon.mat")
+    write_mat(made["run_lat.csv"], HERE / "flight_lat.mat")
     (HERE / "channel_map.json").write_text(json.dumps(
         {"time": 0, "matrix": "Z",
          "channels": {"theta_s": 1, "dar": 2, "dal": 3, "u": 4, "v": 5, "p": 6, "q": 7, "theta": 8, "phi": 9,
