@@ -89,8 +89,11 @@ def cmd_estimate(args) -> int:
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
     out = result.save(args.out)
+    with open(out / "summary.txt", "a") as f:  # the frequency-domain cost printed above, too
+        f.write("\n" + text + "\n")
     plots = save_plots(result, out)
-    print(f"\nwritten to {out}: result.json, identified_profile.toml, {', '.join(p.name for p in plots)}")
+    print(f"\nwritten to {out}: result.json, summary.txt, identified_profile.toml, time_histories.npz, "
+          f"{', '.join(p.name for p in plots)}")
     return 0
 
 

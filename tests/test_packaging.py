@@ -50,3 +50,18 @@ def test_list_option_before_runs_says_why():
                  "examples/val_1.csv", "examples/run_lon.csv", "--out", "never"])
     assert proc.returncode == 2 and "--validate takes every file after it: put it after the runs" in proc.stderr
     assert not (ROOT / "never").exists()
+
+
+def test_estimate_writes_summary_and_result_reads_back(tmp_path):
+    from identify import IdentificationResult
+    from identify.estimators.plots import save_plots
+    proc = _run([sys.executable, "-m", "identify", "estimate", "--profile", "examples/profile.toml", "--method", "ls",
+                 "examples/run_lon.csv", "examples/run_lat.csv", "--out", str(tmp_path)])
+    assert proc.returncode == 0, proc.stderr
+    summary = (tmp_path / "summary.txt").read_text()
+    assert summary.startswith("LS identification of") and "M_theta_s" in summary and "mean" in summary
+    back = IdentificationResult.from_json(tmp_path / "result.json")
+    assert back.summary().splitlines()[:22] == summary.splitlines()[:22]  # the parameter table, as printed
+    assert len(back.time) == 2 and back.measured[0].shape == back.modelled[0].shape
+    assert [p.name for p in save_plots(back, tmp_path / "again")] == ["time_history_run1.png", "time_history_run2.png",
+                                                                        "residuals.png"]

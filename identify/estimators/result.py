@@ -233,18 +233,60 @@ class IdentificationResult:
             "eigenvalues": modes,
             "info": _summarised(self.info),
             "notes": [NULL_NOTE],
+            "profile_toml": self.profile.to_toml(),  # the a priori, so that from_json rebuilds the result
         }
         return _jsonable(out)
 
     def save(self, outdir: str | Path) -> Path:
-        """Write ``result.json`` and ``identified_profile.toml`` into ``outdir``."""
+        """Write ``result.json``, ``identified_profile.toml``, ``summary.txt`` (the :meth:`summary`)
+        and, when the result holds them, the time histories (``time_histories.npz``: what
+        :meth:`from_json` needs to re-plot) into ``outdir``."""
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         (outdir / "result.json").write_text(dumps(self.to_dict()))
         self.identified_profile().save(outdir / "identified_profile.toml")
+        (outdir / "summary.txt").write_text(self.summary() + "\n")
+        if self.time:
+            arrays = {f"{kind}_{r}": a for kind, seq in (("time", self.time), ("measured", self.measured),
+                                                         ("modelled", self.modelled)) for r, a in enumerate(seq)}
+            np.savez_compressed(outdir / HISTORIES, **arrays)
         return outdir
 
+    @classmethod
+    def from_json(cls, path: str | Path) -> "IdentificationResult":
+        """The result ``save`` wrote to ``path`` (``result.json``), to re-plot or compare without
+        re-fitting: estimates, standard errors, covariance (from the stored correlation), fit, info
+        and, if ``time_histories.npz`` lies beside it, the runs' measured and modelled outputs.
+        Long info arrays come back as stored (cut, see ``_summarised``); None values as NaN/inf."""
+        from ..errors import RunError
+        from ..model.profile import parse_profile
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+            profile = parse_profile(data["profile_toml"], source=f"{path} (profile_toml)")
+            params = data["parameters"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise RunError(f"{path}: not a result.json that identify wrote ({exc})") from None
+        names = profile.free_names
+        theta = np.array([params[n]["value"] for n in names], float)
+        std = np.array([np.inf if params[n]["std"] is None else params[n]["std"] for n in names], float)
+        corr = np.array([[np.nan if c is None else c for c in row] for row in data["correlation"]["matrix"]], float)
+        with np.errstate(invalid="ignore"):
+            cov = corr * np.outer(std, std)
+        np.fill_diagonal(cov, std ** 2)
+        result = cls(data["method"], profile, theta, std, data.get("fit", {}), data.get("info", {}),
+                     data.get("runs", []), covariance=cov)
+        histories = path.with_name(HISTORIES)
+        if histories.exists():
+            with np.load(histories) as z:
+                for r in range(sum(k.startswith("time_") for k in z.files)):
+                    result.time.append(z[f"time_{r}"])
+                    result.measured.append(z[f"measured_{r}"])
+                    result.modelled.append(z[f"modelled_{r}"])
+        return result
 
+
+HISTORIES = "time_histories.npz"  # the runs' time, measured and modelled outputs beside result.json
 CR_GUIDELINE, INSENSITIVITY_GUIDELINE = 20.0, 10.0  # %: Tischler & Remple's marks of a parameter worth keeping
 NULL_NOTE = "null stands for a value that is not finite: an infinite standard error (a parameter no input excites) or NaN"
 MAX_LAGS = 200  # noise autocorrelation lags kept in result.json
