@@ -34,8 +34,27 @@ def _print_model(model: LinearModel) -> None:
         if values:
             print(f"\n{kind} parameters:")
             print("\n".join(f"  {name:<16}{value:13.6g}" for name, value in values.items()))
+    effects = _declared_effects(p)
+    print("\ndeclared effects (every command applies them to the runs):" + ("" if effects else " none"))
+    if effects:
+        print("\n".join(f"  {line}" for line in effects))
+    notes = [f"{key}: {value}" for key, value in p.meta.items() if key not in ("delays", "pseudo_inputs")]
+    if notes:
+        print("notes ([meta]):\n" + "\n".join(f"  {line}" for line in notes))
+    if p.limits:
+        print("\nresponse limits (signal design): " + ", ".join(f"{y} {v:g}" for y, v in p.limits.items()))
     print("\nmodes:")
     print(format_modes(model.modes()))
+
+
+def _declared_effects(p) -> list[str]:
+    """One line per input delay and pseudo-input the profile declares."""
+    from .model.pseudo_inputs import specs
+    lines = [f"delay on {name}: {float(tau):g} s (the aircraft sees {name}(t - {float(tau):g}))"
+             for name, tau in dict(p.meta.get("delays", {})).items()]
+    for name, spec in specs(p).items():
+        lines.append(f"pseudo-input {name}: " + ", ".join(f"{k} = {v}" for k, v in spec.items()))
+    return lines
 
 
 def build_parser() -> Parser:

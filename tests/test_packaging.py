@@ -65,3 +65,11 @@ def test_estimate_writes_summary_and_result_reads_back(tmp_path):
     assert len(back.time) == 2 and back.measured[0].shape == back.modelled[0].shape
     assert [p.name for p in save_plots(back, tmp_path / "again")] == ["time_history_run1.png", "time_history_run2.png",
                                                                         "residuals.png"]
+
+
+def test_model_prints_declared_delays():
+    proc = _run([sys.executable, "-m", "identify", "model", "examples/truth.toml"])
+    assert proc.returncode == 0
+    assert "delay on theta_s: 0.08 s" in proc.stdout and "delay on theta_c: 0.08 s" in proc.stdout
+    plain = _run([sys.executable, "-m", "identify", "model", "examples/profile.toml"])
+    assert "declared effects (every command applies them to the runs): none" in plain.stdout
