@@ -108,3 +108,12 @@ def test_commands_name_existing_files():
             if not (ROOT / name).exists():
                 missing.append(f"{doc.name}: {name}")
     assert not missing, "documents name example files that do not exist: " + ", ".join(missing)
+
+
+def test_api_example_runs():
+    """examples/api.py: design -> fly -> estimate -> refine through the Python API."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", MPLBACKEND="Agg")
+    proc = subprocess.run([sys.executable, str(ROOT / "examples" / "api.py")], capture_output=True, text=True,
+                          env=env, timeout=TIMEOUT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "ML identification of" in proc.stdout and "refine added a " in proc.stdout
