@@ -68,3 +68,12 @@ def test_open_ends_are_the_grid_not_a_band():
     assert band.bounded and band.omega[0] < band.low < band.high < band.omega[-1]
     assert any(p.open_low for p in band.parameters) and "open below 0.01 rad/s" in band.format()
     assert all(f"<{p.low:.3f}" in p.text for p in band.parameters if p.open_low)
+
+
+def test_implausible_control_amplitude_is_said():
+    from identify import load_profile
+    from signaldesign.design import implausible_amplitudes
+    p = load_profile("bo105_70kt")
+    assert implausible_amplitudes(p, ["theta_c"], [np.radians(5.0)]) == []
+    (line,) = implausible_amplitudes(p, ["theta_c"], [np.radians(79.0)])
+    assert "79.0 deg on theta_c is implausible" in line
