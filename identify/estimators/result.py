@@ -173,6 +173,8 @@ class IdentificationResult:
                 row += f"{truth.get(name, float('nan')):12.5g}"
             lines.append(row)
         lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
+        if self.info.get("held_note"):
+            lines.append(f"held (std inf): {self.info['held_note']}")
         lines.append(self._convergence_line())
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
