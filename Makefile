@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m cueing demo --out $(OUT)
+	$(BIN)/python -m campaign demo --out $(OUT)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests

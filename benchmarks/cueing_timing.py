@@ -27,7 +27,7 @@ import pygame  # noqa: E402
 
 from cueing.display import Display, FrameState  # noqa: E402
 from cueing.flightlog import LOW_RATE, SYNC_INTERVAL, FrameLogWriter, frame_rate_warning  # noqa: E402
-from cueing.runner import Runner  # noqa: E402
+from cueing.runner import Runner, Schedule, Screen  # noqa: E402
 from cueing.sources import PilotSource  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
 
@@ -35,8 +35,9 @@ RATE = 60.0
 
 
 def cueing_run(signal, folder: Path):
-    runner = Runner([signal], PilotSource(skill=0.5, seed=1), folder / "t.frames.csv", rate=RATE, countdown=1.0,
-                    tail=0.5, display="headless", audio=False)
+    runner = Runner([signal], PilotSource(skill=0.5, seed=1), folder / "t.frames.csv",
+                    schedule=Schedule(rate=RATE, countdown=1.0, tail=0.5), screen=Screen(display="headless"),
+                    audio=False)
     log = runner.fly()
     return log, np.array(runner.render_times_)
 

@@ -1,7 +1,7 @@
 """``make demo``'s wall time with a competing CPU load, against its idle time, in the same run.
 
-The workload (default ``--full``): ``cueing demo``, the whole ``make demo`` (design, simulated
-pilot through the off-screen display, LS/IV/ML, refine); ``--demo`` for ``cueing demo --quick``
+The workload (default ``--full``): ``campaign demo``, the whole ``make demo`` (design, simulated
+pilot through the off-screen display, LS/IV/ML, refine); ``--demo`` for ``campaign demo --quick``
 (the same pipeline at reduced size); ``--estimate`` for ``identify estimate --method ml`` on two
 20 s S 61 runs (the demo's identification step alone, seconds). Each timing is a fresh process whose
 environment sets no BLAS thread count, so that the command's own cap is what acts:
@@ -64,7 +64,7 @@ def workload_seconds(kind: str, extra: list[str], runs: list[str]) -> float:
             args = ["-m", "identify", "estimate", *runs, "--profile", "s61_hover_8state", "--method", "ml",
                     "--out", out]
         else:
-            args = ["-m", "cueing", "demo", "--out", out, *([] if kind == "full" else ["--quick"])]
+            args = ["-m", "campaign", "demo", "--out", out, *([] if kind == "full" else ["--quick"])]
         t0 = time.perf_counter()
         proc = subprocess.run([sys.executable, *args, *extra], capture_output=True, text=True, env=clean_env(),
                               cwd=ROOT)
@@ -90,7 +90,7 @@ def with_load(fn, single: bool = False):
 def main():
     kind = "demo" if "--demo" in sys.argv else "estimate" if "--estimate" in sys.argv else "full"
     cores = os.cpu_count() or 1
-    what = {"full": "make demo (cueing demo)", "demo": "cueing demo --quick",
+    what = {"full": "make demo (campaign demo)", "demo": "campaign demo --quick",
             "estimate": "identify estimate --method ml, two 20 s S 61 runs (the demo's identification step)"}[kind]
     print(f"Under load: {what}, {cores} cores", flush=True)
     with tempfile.TemporaryDirectory() as tmp:

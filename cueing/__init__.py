@@ -1,6 +1,8 @@
-"""cueing: the pilot's two-needle display, input sources, flight logs and practice scoring.
+"""cueing: the pilot's two-needle display, input sources, flight logs, practice scoring and the
+live estimate while flying.
 
-The top layer: uses :mod:`signaldesign` (signals) and :mod:`identify` (runs, models).
+Uses :mod:`signaldesign` (signals) and :mod:`identify` (runs, models); :mod:`campaign` (whole
+pipelines) sits above it.
 """
 import os as _os
 

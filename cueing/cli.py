@@ -1,4 +1,5 @@
-"""``python -m cueing``: fly signals on the two-needle display, practise, and run the demo."""
+"""``python -m cueing``: fly signals on the two-needle display (optionally with the live estimate),
+practise, and recover a run from its frame log."""
 from __future__ import annotations
 
 import os
@@ -13,13 +14,6 @@ from .errors import CueingError, RunAborted
 DEFAULT_LEAD_IN = 2.0  # s of quiet logged before the signal: the trim the response starts from
 UNATTENDED = ("pilot", "replay", "external")  # sources that need no human: may run on a fake clock
 EXIT_ABORTED = 3  # the pilot ended the run early (Escape, closed window): data kept, marked aborted
-
-
-def cmd_demo(args) -> int:
-    from .demo import run_demo
-    report = run_demo(args.out, args.profile, quick=args.quick)
-    print(f"demo written to {report.parent}/ (open {report})")
-    return 0
 
 
 def cmd_align(args) -> int:
@@ -98,8 +92,7 @@ def cmd_fly(args) -> int:
     source = _source(args, args.skill, args.seed)
     try:
         if args.live:
-            from .live import cmd_fly_live
-            return _aborted(cmd_fly_live(args, signals, options, source))
+            return _aborted(_fly_live(args, signals, options, source))
         flight = fly(signals, source, args.out, pilot=args.pilot or "", **options)
     except RunAborted as exc:
         return _aborted(exc)
@@ -108,6 +101,27 @@ def cmd_fly(args) -> int:
     print(f"run written to {flight.path} ({flight.log.status}; {flight.run.duration:.2f} s: {runner.lead_in:g} s "
           f"lead-in, then the signal's {runner.t_end - runner.lead_in:g} s record); frame log {flight.log.path}")
     return _aborted(flight)
+
+
+def _fly_live(args, signals, options: dict, source):
+    """``cueing fly --live PROFILE``: fly with the live estimate, print it beside ML; the flight."""
+    import numpy as np
+
+    from .live.session import fly_live, report_path
+    from .response import ExternalResponse
+    opts = dict(options)
+    simulate, noise, seed = opts.pop("simulate"), opts.pop("noise_fraction"), opts.pop("seed")
+    response = ExternalResponse(args.live_response) if args.live_response else None
+    flight, live, _ = fly_live(signals, source, args.out, args.live, simulate=simulate, response=response,
+                               targets=args.targets, noise_fraction=noise, seed=seed, pilot=args.pilot or "", **opts)
+    print("\n".join(flight.score.lines()[1:]))
+    report = report_path(args.out)
+    print(report.read_text() if report.exists() else "no live estimate (the run ended before the first re-solve)")
+    times = np.array(live.times_) * 1e3
+    if times.size:
+        print(f"live work per frame: median {np.median(times):.2f} ms, 99th percentile {np.percentile(times, 99):.2f} ms")
+    print(f"run written to {flight.path} ({flight.log.status}); frame log {flight.log.path}; live log {live.log_path}")
+    return flight
 
 
 def _aborted(flight) -> int:
@@ -165,7 +179,7 @@ def cmd_history(args) -> int:
 
 def cmd_recover(args) -> int:
     from .flightlog import log_to_run, read_frame_log
-    from .session import simulate_test_point
+    from .response import simulate_test_point
     log = read_frame_log(args.log)
     run_ = log_to_run(log)
     if args.simulate:
@@ -214,12 +228,6 @@ def _add_fly_arguments(p) -> None:
 def build_parser() -> Parser:
     parser = Parser(prog="cueing", description="Two-needle pilot cueing display for flight-test inputs.")
     sub = parser.add_subparsers(title="commands")
-    p = sub.add_parser("demo", help="run the whole pipeline on the default profile, without a window")
-    p.add_argument("--out", default="demo-output", type=output_dir, help="output folder (default: demo-output)")
-    p.add_argument("--profile", default="s61_hover_8state", help="profile path or bundled name")
-    p.add_argument("--quick", action="store_true", help="reduced size (shorter runs, shorter search)")
-    p.set_defaults(func=cmd_demo)
-
     p = sub.add_parser("fly", help="fly one run on the two-needle display",
                        description="Fly one run on the two-needle display. Escape or closing the window ends it "
                                    f"early: the data so far is kept, marked aborted, exit status {EXIT_ABORTED}.")

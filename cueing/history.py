@@ -95,12 +95,13 @@ def format_history(records: list[dict]) -> str:
 
 def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
     """Learning curve PNG: RMS error, switch timing and lag, and information retained per attempt."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     n = np.arange(1, len(records) + 1)
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 7))
+    fig = Figure(figsize=(7, 7))  # on its own Agg canvas: no pyplot state, no display
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 1, sharex=True)
     axes[0].plot(n, [100 * _num(r["rms"]) for r in records], "o-")
     axes[0].set_ylabel("RMS error [% amp.]")
     axes[1].plot(n, [1000 * abs(_num(r.get("timing_mean"))) for r in records], "o-", label="switch timing |mean|")
@@ -124,7 +125,6 @@ def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
 
 

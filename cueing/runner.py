@@ -16,8 +16,9 @@ from __future__ import annotations
 import json
 import platform
 from collections import deque
-from dataclasses import replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -34,76 +35,117 @@ WINDOW = "window"
 HEADLESS = "headless"
 
 
+@dataclass(frozen=True)
+class Schedule:
+    """When frames are flown and logged: ``rate`` (Hz); ``countdown``: s before the logging starts;
+    ``lead_in``: s logged before the signal starts (the pilot holds still; the signals are flown
+    delayed by it); ``record``: s logged from the signal's start (None: the signals' own
+    ``record``), at least the sequence plus ``tail`` s."""
+
+    rate: float = DEFAULT_RATE
+    countdown: float = 3.0
+    lead_in: float = 0.0
+    record: float | None = None
+    tail: float = 1.0
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What is drawn: ``display`` None (nothing), ``"headless"`` (off-screen Surface) or
+    ``"window"`` (resizable; ``fullscreen`` fills the screen) of ``size`` px; ``preview``: s of
+    preview strip (0: none); ``units`` {input: unit} labels the scales; ``end_screen``: s the
+    end-of-run screen stays up in a window; ``screenshot_every``: s between PNG screenshots
+    written to ``screenshot_dir``."""
+
+    display: str | None = None
+    size: tuple[int, int] = BASE_SIZE
+    fullscreen: bool = False
+    preview: float = 0.0
+    units: dict | None = None
+    end_screen: float = 0.0
+    screenshot_dir: Path | str | None = None
+    screenshot_every: float | None = None
+
+
+def runner_options(**options) -> dict:
+    """Flat keyword options (``rate=``, ``display=`` ...) as :class:`Runner`'s keywords: each field
+    of :class:`Schedule` and :class:`Screen` into its config, the rest as they are."""
+    out = dict(options)
+    for key, config in (("schedule", Schedule), ("screen", Screen)):
+        given = {f.name: out.pop(f.name) for f in fields(config) if f.name in out}
+        if given:
+            out[key] = replace(out.get(key, config()), **given)
+    return out
+
+
+class Panel(Protocol):
+    """Shown right of the needles, ``width`` px wide, fed every frame (also without a display)."""
+
+    width: int
+
+    def update(self, k: int, t: float, t_signal: float, flown: np.ndarray, paused: bool) -> None: ...
+
+    def draw(self, surface, rect: tuple[int, int, int, int]) -> None: ...
+
+
 class Runner:
     """Flies ``signals`` with ``source``, logging every frame to ``log_path``.
 
-    ``clock``: object with ``now()``, ``sleep_until(t)``, ``unix_offset()`` (default: the monotonic
-    clock); ``rate``: frame rate (Hz); ``countdown``: s before the logging starts; ``lead_in``: s
-    logged before the signal starts (the pilot holds still; the signals are flown delayed by it,
-    and ``signals`` holds them so); ``record``: s logged from the signal's start (default: the
-    signals' own ``record``), at least the sequence plus ``tail`` s; ``preview``: s of preview strip
-    (0: none); ``display``: None (no drawing), ``"headless"`` (off-screen Surface) or ``"window"``
-    (resizable; ``fullscreen`` fills the screen); ``units`` {input: unit} labels the scales;
-    ``events``: callable returning pending pygame events (default ``pygame.event.get`` whenever
-    pygame's display is up); ``screenshot_every``: s between PNG screenshots written to
-    ``screenshot_dir``; ``live``: a :class:`~cueing.live.LiveIdentification` fed every frame, its
-    panel drawn right of the needles. After :meth:`fly`, ``log_`` is the frame log read back and
-    ``render_times_`` the per-frame drawing times (s).
+    ``schedule``: :class:`Schedule` (rate, countdown, lead-in, record); ``screen``: :class:`Screen`
+    (display mode, preview, screenshots); ``panels``: :class:`Panel` objects fed every frame and
+    drawn left to right beside the needles; ``clock``: object with ``now()``, ``sleep_until(t)``,
+    ``unix_offset()`` (default: the monotonic clock); ``events``: callable returning pending pygame
+    events (default ``pygame.event.get`` whenever pygame's display is up); ``meta``: extra frame-log
+    header lines. After :meth:`fly`, ``log_`` is the frame log read back and ``render_times_`` the
+    per-frame drawing times (s).
     """
 
-    def __init__(self, signals, source: InputSource, log_path, *, clock=None, rate: float = DEFAULT_RATE,
-                 countdown: float = 3.0, lead_in: float = 0.0, record: float | None = None, tail: float = 1.0,
-                 preview: float = 0.0, display: str | None = None, audio: bool = True, events=None,
-                 meta: dict | None = None, size=BASE_SIZE, fullscreen: bool = False, units: dict | None = None,
-                 screenshot_dir=None, screenshot_every: float | None = None, end_screen: float = 0.0,
-                 live=None):
-        self.lead_in = float(lead_in)
+    def __init__(self, signals, source: InputSource, log_path, *, schedule: Schedule = Schedule(),
+                 screen: Screen = Screen(), panels=(), clock=None, audio: bool = True, events=None,
+                 meta: dict | None = None):
+        self.schedule, self.screen = schedule, screen
+        self.lead_in = float(schedule.lead_in)
         self.signals = [replace(s, delay=s.delay + self.lead_in) for s in signals]
         self.source = source
         self.log_path = Path(log_path)
+        self.panels = list(panels)
         self.clock = clock or MonotonicClock()
-        self.rate = float(rate)
-        self.countdown = float(countdown)
-        self.tail = float(tail)
-        self.preview = float(preview)
-        self.display_mode = display
+        self.rate = float(schedule.rate)
+        self.countdown = float(schedule.countdown)
+        self.preview = float(screen.preview)
         self.audio = audio
         self.events = events
         self.meta = dict(meta or {})
-        self.size = size
-        self.fullscreen = fullscreen
-        self.units = units
-        self.screenshot_dir = Path(screenshot_dir) if screenshot_dir else None
-        self.screenshot_every = screenshot_every
-        self.end_screen = end_screen
-        self.live = live
+        self.screenshot_dir = Path(screen.screenshot_dir) if screen.screenshot_dir else None
         self.inputs = [s.input for s in self.signals]
-        self.record = float(record) if record is not None else max(s.record for s in signals)
-        self.t_end = self.lead_in + max(self.record, max(s.end_time for s in signals) + self.tail)
+        self.record = float(schedule.record) if schedule.record is not None else max(s.record for s in signals)
+        self.t_end = self.lead_in + max(self.record, max(s.end_time for s in signals) + schedule.tail)
 
     # -- setup ----------------------------------------------------------------------------------
     def _setup_display(self):
         self.display = None
         self.surface = None
         self.window = None
-        if self.display_mode is None:
+        mode = self.screen.display
+        if mode is None:
             return
         import pygame
         try:
             pygame.display.init()
             pygame.font.init()
-            if self.display_mode == WINDOW:
-                self.window = pygame.display.set_mode((0, 0) if self.fullscreen else self.size,
-                                                      pygame.FULLSCREEN if self.fullscreen else pygame.RESIZABLE)
+            if mode == WINDOW:
+                full = self.screen.fullscreen
+                self.window = pygame.display.set_mode((0, 0) if full else self.screen.size,
+                                                      pygame.FULLSCREEN if full else pygame.RESIZABLE)
         except pygame.error as exc:
             raise CueingError(f"cannot open a display window ({exc}): use --headless") from None
-        if self.display_mode == WINDOW:
+        if mode == WINDOW:
             pygame.display.set_caption("pseudostep cueing")
             self.surface = self.window
         else:
-            self.surface = pygame.Surface(self.size)
+            self.surface = pygame.Surface(self.screen.size)
         self.needle_surface = self._needles()
-        self.display = Display(self.signals, self.needle_surface.get_size(), self.preview, self.units)
+        self.display = Display(self.signals, self.needle_surface.get_size(), self.preview, self.screen.units)
         if isinstance(self.source, MouseSource) and self.source.value_of is None:
             self.source.value_of = self.display.value_of_pointer
 
@@ -118,12 +160,18 @@ class Runner:
         self.display.layout(self.needle_surface.get_size())  # now, not at the next render: the mouse maps through it
 
     def _needles(self):
-        """The surface the needles are drawn on: all of it, or left of the live panel."""
-        if self.live is None:
+        """The surface the needles are drawn on: all of it, or left of the panels."""
+        if not self.panels:
             return self.surface
-        from .live import PANEL_WIDTH
         w, h = self.surface.get_size()
-        return self.surface.subsurface((0, 0, max(w - PANEL_WIDTH, 1), h))
+        return self.surface.subsurface((0, 0, max(w - sum(p.width for p in self.panels), 1), h))
+
+    def _draw_panels(self) -> None:
+        x, h = self.needle_surface.get_width(), self.surface.get_height()
+        for panel in self.panels:
+            width = min(panel.width, self.surface.get_width() - x)
+            panel.draw(self.surface, (x, 0, width, h))
+            x += width
 
     def _pending_events(self):
         if self.events is not None:
@@ -211,25 +259,22 @@ class Runner:
                 self.ticker.tick()
             last_levels = levels
             writer.frame(k, t, t_signal, paused, command, flown)
-            if self.live is not None:
-                self.live.frame(k, t, t_signal, flown, paused)
+            for panel in self.panels:
+                panel.update(k, t, t_signal, flown, paused)
             if self.display is not None:
                 state = FrameState(t, t_signal, command, flown,
                                    countdown=self.lead_in - t if t < self.lead_in else None,
                                    message=self.source.paused_reason, warning=monitor.warning, lead_in=t >= 0)
                 r0 = self.clock.now()
                 self.display.render(self.needle_surface, state)
-                if self.live is not None:
-                    w, h = self.surface.get_size()
-                    self.live.draw(self.surface, (self.needle_surface.get_width(), 0,
-                                                  w - self.needle_surface.get_width(), h))
+                self._draw_panels()
                 if self.window is not None:
                     import pygame
                     pygame.display.flip()
                 self.render_times_.append(self.clock.now() - r0)
-                if self.screenshot_every and self.screenshot_dir and t >= next_shot:
+                if self.screen.screenshot_every and self.screenshot_dir and t >= next_shot:
                     self.screenshot(f"frame_{k:05d}.png")
-                    next_shot = t + self.screenshot_every
+                    next_shot = t + self.screen.screenshot_every
             if t_signal >= self.t_end:
                 return "completed"
             k += 1
@@ -260,7 +305,7 @@ class Runner:
         if self.window is not None:
             import pygame
             pygame.display.flip()
-            deadline = self.clock.now() + self.end_screen
+            deadline = self.clock.now() + self.screen.end_screen
             while self.clock.now() < deadline:
                 if any(e.type in (pygame.QUIT, pygame.KEYDOWN) for e in self._pending_events()):
                     break

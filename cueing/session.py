@@ -1,18 +1,19 @@
 """One flown run end to end: fly, turn the frame log into a run file, simulate the aircraft, score."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from identify import LinearModel, Run, load_profile, simulate_run
+from identify import Run
 
 from .clock import FakeClock
 from .display import signal_units
-from .errors import CueingError, RunAborted
-from .flightlog import CMD, FrameLog, frame_log_path, log_to_run
-from .runner import Runner
+from .errors import RunAborted
+from .flightlog import FrameLog, frame_log_path, log_to_run
+from .response import aircraft_model, simulate_test_point
+from .runner import Runner, Screen, runner_options
 from .scoring import PracticeScore, score_run
 
 
@@ -28,46 +29,26 @@ class Flight:
     runner: Runner | None = None
 
 
-def simulate_test_point(run: Run, profile, noise_fraction: float = 0.02, seed: int | None = None) -> Run:
-    """Drive ``profile``'s model with the run's flown inputs; add every response channel.
-
-    Profile inputs the run does not hold are zero (the pilot held them still).
-    """
-    model = profile if isinstance(profile, LinearModel) else LinearModel(load_profile(profile))
-    p = model.profile
-    flown = [c for c in run.channels if c + CMD in run.channels]
-    unknown = [c for c in flown if c not in p.input_names]
-    if unknown:
-        raise CueingError(f"profile '{p.name}' has no input {', '.join(unknown)} "
-                          f"(its inputs: {', '.join(p.input_names)})")
-    u = np.column_stack([run.channels.get(name, np.zeros(len(run))) for name in p.input_names])
-    sim = simulate_run(model, run.time, u, noise_fraction=noise_fraction, seed=seed,
-                       meta={**run.meta, "source_of_response": "simulation"})
-    extra = {c: v for c, v in run.channels.items() if c not in sim.channels}
-    return Run(sim.time, {**sim.channels, **extra}, {**run.meta, **sim.meta,
-                                                   "simulated_profile": p.name}, source=run.source)
-
-
 def fly(signals, source, out, *, simulate=None, noise_fraction: float = 0.02, seed: int | None = None,
-        model=None, fast: bool = False, pilot: str = "", **runner_options) -> Flight:
+        model=None, fast: bool = False, pilot: str = "", **options) -> Flight:
     """Fly ``signals`` with ``source``; write the run file ``out`` (frame log beside it).
 
     ``simulate``: profile (name, path or LinearModel) whose response is added; ``model``: model for
     the information-retained score (default: the simulated one), whose profile also gives the
     scale's units; ``fast``: fake clock, no waiting (only for sources that need no human);
-    ``runner_options`` go to :class:`Runner` (``lead_in``, ``record``, ``rate`` ...).
+    ``options`` go to :class:`Runner`, flat (``lead_in``, ``rate``, ``display`` ...: see
+    :func:`~cueing.runner.runner_options`) or as configs (``schedule``, ``screen``, ``panels`` ...).
     """
     out = Path(out)
-    sim_model = None
-    if simulate is not None:
-        sim_model = simulate if isinstance(simulate, LinearModel) else LinearModel(load_profile(simulate))
+    sim_model = None if simulate is None else aircraft_model(simulate)
     model = model if model is not None else sim_model
+    options = runner_options(**options)
     if fast:
-        runner_options["clock"] = FakeClock()
-    if model is not None:
-        runner_options.setdefault("units", signal_units(signals, model.profile))
-    runner = Runner(signals, source, frame_log_path(out), meta={"pilot": pilot or "(unnamed)"},
-                    **runner_options)
+        options["clock"] = FakeClock()
+    screen = options.get("screen", Screen())
+    if model is not None and screen.units is None:
+        options["screen"] = replace(screen, units=signal_units(signals, model.profile))
+    runner = Runner(signals, source, frame_log_path(out), meta={"pilot": pilot or "(unnamed)"}, **options)
     signals = runner.signals  # as flown: delayed by the lead-in
     holder = {}
 

@@ -15,7 +15,7 @@ from cueing.cli import EXIT_ABORTED, main
 from cueing.clock import FakeClock
 from cueing.errors import CueingError
 from cueing.flightlog import read_frame_log
-from cueing.runner import Runner
+from cueing.runner import Runner, Schedule, Screen
 from cueing.scoring import MAX_LAG, PracticeScore, score_run, switch_timing, tracking_lag
 from cueing.session import fly
 from cueing.sources import MouseSource, PilotSource, ScriptedSource
@@ -159,8 +159,8 @@ def test_mouse_flies_two_axes_and_refuses_three(tmp_path):
         return 0.0
 
     pos["xy"] = (200, 400)
-    r = Runner(sigs, mouse, tmp_path / "m.frames.csv", clock=FakeClock(lateness=lateness), countdown=0.0,
-               display="headless", audio=False)
+    r = Runner(sigs, mouse, tmp_path / "m.frames.csv", clock=FakeClock(lateness=lateness), audio=False,
+               schedule=Schedule(countdown=0.0), screen=Screen(display="headless"))
     log = r.fly()
     k = np.arange(log.time.size)
     np.testing.assert_allclose(log.columns["theta_s"][1:], [r.display.value_of_x(200 + i - 1) for i in k[1:]])
@@ -196,8 +196,9 @@ def test_resized_window_relays_the_display_out(tmp_path):
         calls["n"] += 1
         return [pygame.event.Event(pygame.VIDEORESIZE, size=(1280, 720), w=1280, h=720)] if calls["n"] == 120 else []
 
-    r = Runner([sig], ScriptedSource(lambda t: -0.01), tmp_path / "z.frames.csv", clock=FakeClock(), countdown=0.0,
-               display="headless", audio=False, events=events, screenshot_dir=tmp_path / "shots", screenshot_every=1.0)
+    r = Runner([sig], ScriptedSource(lambda t: -0.01), tmp_path / "z.frames.csv", clock=FakeClock(), audio=False,
+               events=events, schedule=Schedule(countdown=0.0),
+               screen=Screen(display="headless", screenshot_dir=tmp_path / "shots", screenshot_every=1.0))
     log = r.fly()
     assert any("resized to 1280 x 720" in what for _, what in log.events)
     before = pygame.image.load(str(tmp_path / "shots" / "frame_00060.png"))
@@ -210,6 +211,41 @@ def test_resized_window_relays_the_display_out(tmp_path):
         assert xp.size == disp.NEEDLE_WIDTH and abs(xp.mean() - expected) <= 1.0
         scale = needle_columns(img, disp.SCALE_COLOR, (y - 1, y + 1))
         assert scale.min() == disp.MARGIN and scale.max() == w - disp.MARGIN  # the scale spans the new width
+
+
+class FilledPanel:
+    """A Panel that records what the runner gives it and fills its rectangle with one colour."""
+
+    def __init__(self, width, color):
+        self.width, self.color, self.frames, self.rects = width, color, [], []
+
+    def update(self, k, t, t_signal, flown, paused):
+        self.frames.append((k, t, float(flown[0])))
+
+    def draw(self, surface, rect):
+        self.rects.append(tuple(rect))
+        surface.fill(self.color, rect)
+
+
+@pytest.mark.parametrize("display", ["headless", None])
+def test_panels_are_fed_every_frame_and_drawn_right_of_the_needles(tmp_path, display):
+    sig = Signal("doublet", "theta_s", 1.0, [1, -1], AMP, delay=0.5)
+    panels = [FilledPanel(100, (255, 0, 0)), FilledPanel(60, (0, 0, 255))]
+    r = Runner([sig], ScriptedSource(lambda t: 0.5 * AMP), tmp_path / "p.frames.csv", clock=FakeClock(), audio=False,
+               schedule=Schedule(countdown=0.5), screen=Screen(display=display, screenshot_dir=tmp_path / "s"),
+               panels=panels)
+    log = r.fly()
+    for panel in panels:  # every frame, the countdown's included, with the frame log's own numbers
+        assert [f[0] for f in panel.frames] == list(range(log.time.size))
+        np.testing.assert_allclose([f[1] for f in panel.frames], log.time, atol=1e-6)  # logged to 1 µs
+        np.testing.assert_allclose([f[2] for f in panel.frames], log.columns["theta_s"])
+    if display is None:  # fed without a display, never drawn
+        assert not panels[0].rects and not panels[1].rects
+        return
+    assert set(panels[0].rects) == {(640, 0, 100, 480)} and set(panels[1].rects) == {(740, 0, 60, 480)}
+    assert r.needle_surface.get_size() == (640, 480)  # the needles' layout leaves the panels their room
+    shot = pygame.image.load(str(r.screenshot("last.png")))
+    assert tuple(shot.get_at((700, 240)))[:3] == (255, 0, 0) and tuple(shot.get_at((790, 240)))[:3] == (0, 0, 255)
 
 
 def test_scale_shows_the_input_unit_rad_as_degrees(design):

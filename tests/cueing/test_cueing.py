@@ -14,7 +14,7 @@ from cueing.errors import CueingError
 from cueing.flightlog import FrameLogWriter, log_to_run, read_frame_log
 from cueing.history import append_attempt, format_history, load_history, plot_learning_curve
 from cueing.pilot import PilotModel
-from cueing.runner import Runner
+from cueing.runner import Runner, Schedule, Screen
 from cueing.scoring import score_run, switch_timing
 from cueing.sources import (Calibration, JoystickSource, KeyboardSource, MouseSource, PilotSource, ReplaySource,
                             ScriptedSource, make_source)
@@ -46,8 +46,9 @@ def needle_columns(surface, color, rows):
 def test_screenshot_shows_both_needles_where_signal_and_input_put_them(s3211, tmp_path):
     # the flown input is a scripted ramp; screenshots are taken mid-run and read back as PNG
     source = ScriptedSource(lambda t: -0.02 + 0.004 * t)
-    r = Runner([s3211], source, tmp_path / "a.frames.csv", clock=FakeClock(), countdown=0.5, tail=0.2,
-               display="headless", audio=False, screenshot_dir=tmp_path / "shots", screenshot_every=1.3)
+    r = Runner([s3211], source, tmp_path / "a.frames.csv", clock=FakeClock(), audio=False,
+               schedule=Schedule(countdown=0.5, tail=0.2),
+               screen=Screen(display="headless", screenshot_dir=tmp_path / "shots", screenshot_every=1.3))
     log = r.fly()
     shots = sorted((tmp_path / "shots").glob("frame_*.png"))
     assert len(shots) >= 5
@@ -97,8 +98,8 @@ def test_log_equals_what_the_scripted_source_produced(s3211, tmp_path):
     base = jitter(0.002, seed=3)
     lateness = lambda k: 0.07 if k == 100 else base(k)  # noqa: E731
     source = ScriptedSource(lambda t: 0.01 * np.sin(3 * t))
-    r = Runner([s3211], source, tmp_path / "b.frames.csv", clock=FakeClock(lateness=lateness), countdown=1.0,
-               audio=False)
+    r = Runner([s3211], source, tmp_path / "b.frames.csv", clock=FakeClock(lateness=lateness), audio=False,
+               schedule=Schedule(countdown=1.0))
     log = r.fly()
     produced = np.array(source.produced)[:, 0]
     assert log.status == "completed" and not log.aborted
@@ -116,8 +117,8 @@ def test_log_equals_what_the_scripted_source_produced(s3211, tmp_path):
 
 def test_run_file_from_the_log_loads_in_identify(s3211, tmp_path):
     source = ScriptedSource(lambda t: 0.5 * float(s3211(t - 0.3)))
-    r = Runner([s3211], source, tmp_path / "c.frames.csv", clock=FakeClock(lateness=jitter(0.003, 1)),
-               countdown=0.5, audio=False)
+    r = Runner([s3211], source, tmp_path / "c.frames.csv", clock=FakeClock(lateness=jitter(0.003, 1)), audio=False,
+               schedule=Schedule(countdown=0.5))
     run = log_to_run(r.fly(), sample_rate=100.0)
     run.to_csv(tmp_path / "c.csv")
     back = read_run(tmp_path / "c.csv", require=["theta_s", "theta_s_cmd"])
@@ -164,8 +165,8 @@ def test_joystick_removal_pauses_the_run_and_is_logged(s3211, tmp_path):
             pygame.event.post(pygame.event.Event(pygame.JOYDEVICEADDED, device_index=0))
         return 0.0
 
-    runner = Runner([s3211], source, tmp_path / "j.frames.csv", clock=FakeClock(lateness=lateness),
-                    countdown=0.0, display="headless", audio=False)
+    runner = Runner([s3211], source, tmp_path / "j.frames.csv", clock=FakeClock(lateness=lateness), audio=False,
+                    schedule=Schedule(countdown=0.0), screen=Screen(display="headless"))
     pygame.display.init()  # the dummy video driver carries the event queue
     pygame.event.clear()
     log = runner.fly()
@@ -223,8 +224,8 @@ def test_closed_window_aborts_but_keeps_the_log(s3211, tmp_path):
         calls["n"] += 1
         return [pygame.event.Event(pygame.QUIT)] if calls["n"] == 200 else []
 
-    r = Runner([s3211], PilotSource(skill=0.5, seed=2), tmp_path / "q.frames.csv", clock=FakeClock(),
-               countdown=0.5, events=events, audio=False)
+    r = Runner([s3211], PilotSource(skill=0.5, seed=2), tmp_path / "q.frames.csv", clock=FakeClock(), events=events,
+               audio=False, schedule=Schedule(countdown=0.5))
     log = r.fly()
     assert log.aborted and "window closed" in log.status and len(log.time) == 199  # frame 200 never happened
     run = log_to_run(log)
@@ -232,8 +233,8 @@ def test_closed_window_aborts_but_keeps_the_log(s3211, tmp_path):
 
 
 def test_killed_log_reads_as_aborted_even_cut_mid_line(s3211, tmp_path):
-    r = Runner([s3211], PilotSource(seed=1), tmp_path / "k.frames.csv", clock=FakeClock(), countdown=0.0,
-               audio=False)
+    r = Runner([s3211], PilotSource(seed=1), tmp_path / "k.frames.csv", clock=FakeClock(), audio=False,
+               schedule=Schedule(countdown=0.0))
     r.fly()
     text = (tmp_path / "k.frames.csv").read_text().splitlines(keepends=True)
     cut = "".join(text[:300]) + text[300][:7]  # a kill lands in the middle of a row
@@ -248,19 +249,20 @@ def test_ticks_at_every_level_change_and_silent_audio_is_harmless(s3211, tmp_pat
     silent = Ticker(enabled=False)
     silent.tick()
     assert silent.ticks == 1 and not silent.enabled
-    r = Runner([s3211], ScriptedSource(lambda t: 0.0), tmp_path / "t.frames.csv", clock=FakeClock(),
-               countdown=0.2, audio=True)  # dummy audio driver: must not fail either way
+    r = Runner([s3211], ScriptedSource(lambda t: 0.0), tmp_path / "t.frames.csv", clock=FakeClock(), audio=True,
+               schedule=Schedule(countdown=0.2))  # dummy audio driver: must not fail either way
     r.fly()
     assert r.ticker.ticks == s3211.switch_times().size
 
 
 def test_replay_source_reproduces_a_logged_run(s3211, tmp_path):
-    r1 = Runner([s3211], PilotSource(skill=0.3, seed=5), tmp_path / "r1.frames.csv", clock=FakeClock(),
-                countdown=0.0, audio=False)
+    r1 = Runner([s3211], PilotSource(skill=0.3, seed=5), tmp_path / "r1.frames.csv", clock=FakeClock(), audio=False,
+                schedule=Schedule(countdown=0.0))
     log1 = r1.fly()
     replay = make_source(f"replay:{tmp_path / 'r1.frames.csv'}")
     assert isinstance(replay, ReplaySource)
-    r2 = Runner([s3211], replay, tmp_path / "r2.frames.csv", clock=FakeClock(), countdown=0.0, audio=False)
+    r2 = Runner([s3211], replay, tmp_path / "r2.frames.csv", clock=FakeClock(), audio=False,
+                schedule=Schedule(countdown=0.0))
     log2 = r2.fly()
     np.testing.assert_allclose(log2.columns["theta_s"], log1.columns["theta_s"], rtol=1e-7)
 
@@ -355,3 +357,16 @@ def test_practice_history_and_learning_curve(tmp_path):
         load_history("Kaletka", tmp_path)
     with pytest.raises(CueingError, match="pilot name"):
         load_history("../etc", tmp_path)
+
+
+def test_figures_use_no_pyplot_state():
+    """cueing's and campaign's figures are drawn on their own Agg canvas (matplotlib.figure.Figure):
+    no pyplot, no matplotlib.use() switching a caller's backend."""
+    import re
+
+    from tests.helpers import ROOT
+    pyplot = re.compile(r"matplotlib\.pyplot|from matplotlib import .*pyplot|matplotlib\.use\(")
+    files = [f for package in ("cueing", "campaign") for f in sorted((ROOT / package).rglob("*.py"))]
+    hits = [f"{f.relative_to(ROOT)}:{i}" for f in files
+            for i, line in enumerate(f.read_text().splitlines(), 1) if pyplot.search(line)]
+    assert not hits, hits

@@ -1,5 +1,9 @@
 """The live estimate in the cockpit: recursive frequency-domain equation error while the simulated
 pilot flies, checked against ML on the same run after the flight."""
+import subprocess
+import sys
+import textwrap
+
 import numpy as np
 import pytest
 
@@ -9,7 +13,7 @@ from identify import LinearModel, load_profile
 from signaldesign import save_signals
 from signaldesign.baselines import m3211
 
-from tests.helpers import one_error_line, run_cli
+from tests.helpers import ROOT, one_error_line, run_cli
 
 PROFILE = "s61_hover_4dof"
 RATE = 60.0  # the cockpit default; its frame times are not exact decimals (see the last test)
@@ -140,14 +144,14 @@ _EXTERNAL = {}
 
 
 def external_states(t, stick):
-    from cueing.live import SimulatedAircraft
+    from cueing.response import SimulatedAircraft
     if "aircraft" not in _EXTERNAL:
         _EXTERNAL["aircraft"] = SimulatedAircraft(LinearModel(load_profile(PROFILE)), signals(), RATE, 0.02, seed=9)
     return _EXTERNAL["aircraft"].read(t, stick)
 
 
 def test_external_response_feeds_the_live_estimate(tmp_path):
-    from cueing.live import ExternalResponse
+    from cueing.response import ExternalResponse
     _EXTERNAL.clear()
     response = ExternalResponse("external:tests.cueing.test_live:external_states")
     flight, live, ml = fly_live(signals(), PilotSource(skill=0.6, seed=3), tmp_path / "run.csv", PROFILE,
@@ -163,7 +167,7 @@ def three_states(t, stick):
 
 def test_external_response_of_the_wrong_size_is_named(tmp_path):
     from cueing.errors import CueingError
-    from cueing.live import ExternalResponse
+    from cueing.response import ExternalResponse
     with pytest.raises(CueingError, match="gave 3 states.*6"):
         fly_live(signals(), PilotSource(skill=0.6, seed=3), tmp_path / "run.csv", PROFILE,
                  response=ExternalResponse("tests.cueing.test_live:three_states"), fast=True, audio=False,
@@ -179,3 +183,36 @@ def test_run_file_inputs_are_each_frames_own(flown):
     _, cols = read_live_log(live.log_path)
     for name in ("theta_s", "theta_c"):
         np.testing.assert_allclose(flight.run[name], cols[name], rtol=0, atol=1e-12)
+
+
+def test_the_estimate_runs_without_pygame(tmp_path):
+    """The live estimate and its response sources are not the cockpit: they load and estimate
+    with pygame unimportable (only the panel and the runner draw)."""
+    code = textwrap.dedent(f"""
+        import sys
+        class Blocker:
+            def find_spec(self, name, path=None, target=None):
+                if name.split(".")[0] == "pygame":
+                    raise ImportError("pygame blocked")
+        sys.meta_path.insert(0, Blocker())
+        import numpy as np
+        from cueing.live.estimate import LiveIdentification
+        from cueing.live.log import read_live_log
+        from cueing.response import SimulatedAircraft
+        from identify import LinearModel, load_profile
+        from signaldesign.baselines import m3211
+        signals = [m3211(0.6, 0.01, "theta_s", delay=1.0), m3211(0.5, 0.01, "theta_c", delay=6.0)]
+        aircraft = SimulatedAircraft(LinearModel(load_profile({PROFILE!r})), signals, 60.0, seed=1)
+        live = LiveIdentification(load_profile({PROFILE!r}), signals, aircraft, sys.argv[1])
+        for k in range(660):  # 11 s at 60 Hz, the stick flown exactly
+            t = k / 60
+            live.update(k, t, t, np.array([s(t) for s in signals]), False)
+        live.close()
+        assert "pygame" not in sys.modules
+        print(len(live.history_.t), int(np.isfinite(read_live_log(sys.argv[1])[1]["M_q"]).sum()))
+    """)
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "run.live.csv")], capture_output=True,
+                          text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rounds, logged = map(int, proc.stdout.split())
+    assert rounds >= 8 and logged == rounds  # about one re-solve a second, each logged

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cueing.session import fly
+from cueing.sources import PilotSource
 from identify import IV, LS, ML, LinearModel, Run, format_modes, load_profile, perturbed_model, simulate_run
 from identify.estimators.plots import plot_residuals, plot_time_histories
 from identify.refine import Refine
@@ -25,9 +27,6 @@ from signaldesign import save_signals
 from signaldesign.baselines import m3211
 from signaldesign.design import SequenceDesign
 from signaldesign.spectrum import half_power_band, plot_signals
-
-from .session import fly
-from .sources import PilotSource
 
 DEFAULT_PROFILE = "s61_hover_8state"
 AMPLITUDE = 0.01  # rad of cyclic of the validation run's 3211s (the designs take theirs from the limits)
@@ -54,8 +53,6 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
     """Run the pipeline into ``out``; return the path of its ``report.md``."""
     import os
 
-    import matplotlib
-    matplotlib.use("Agg")
     for var in ("SDL_VIDEODRIVER", "SDL_AUDIODRIVER"):  # no window, no sound: the display is off-screen
         os.environ.setdefault(var, "dummy")
     size = QUICK if quick else FULL
@@ -187,12 +184,15 @@ def _design_section(designs: list[SequenceDesign], out: Path) -> list[str]:
 def _fly_section(flights, out: Path, first_signal) -> list[str]:
     import shutil
 
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     shots = sorted((out / "display_frames_1").glob("*.png"))  # one a second from t = -countdown
     if shots:  # the frame a second before the second switch: needles deflected, switch in the preview
         t_shot = first_signal.switch_times()[min(1, first_signal.switch_times().size - 1)] - 1.0
         shutil.copy(shots[int(np.clip(round(t_shot + 1.0), 0, len(shots) - 1))], out / "display.png")
-    fig, axes = plt.subplots(len(flights), 1, figsize=(8, 2.4 * len(flights)), sharex=True, squeeze=False)
+    fig = Figure(figsize=(8, 2.4 * len(flights)))  # on its own Agg canvas: no pyplot state
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(flights), 1, sharex=True, squeeze=False)
     lines = ["", "## 2. Flight (simulated pilot, off-screen two-needle display)", "",
              "![the display during the first run](display.png)", "",
              "| run | RMS tracking error [% of amplitude] | switch timing [ms, mean ± std] | "
@@ -210,7 +210,6 @@ def _fly_section(flights, out: Path, first_signal) -> list[str]:
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(out / "flown_vs_designed.png", dpi=80)
-    plt.close(fig)
     return lines + ["", "![flown vs designed](flown_vs_designed.png)"]
 
 

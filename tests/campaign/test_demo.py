@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from cueing.demo import DELAY, run_demo
+from campaign.demo import DELAY, run_demo
 
 DELAY_STEP = r"\*\*delay\*\* on `(theta_[sc])`: `tau_theta_[sc]` = ([0-9.]+) ± ([0-9.e-]+)"
 
