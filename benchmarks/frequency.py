@@ -40,7 +40,7 @@ from cueing.live import fly_live  # noqa: E402
 from cueing.session import fly  # noqa: E402
 from cueing.sources import PilotSource  # noqa: E402
 from identify import ML, LinearModel, load_profile, simulate_run  # noqa: E402
-from identify.estimators.frequency_ee import FDEE  # noqa: E402
+from identify.estimators.frequency.equation_error import FDEE  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
 

@@ -45,8 +45,8 @@ def false_alarms(n: int) -> None:
             r = Refine(PROFILE, coloured=coloured).fit(fit, validate=val)
             found[coloured] += not r.nothing_found
             fired[coloured] += bool(r.steps_ or r.rejected_)  # the first score test found something
-            top = max(r.last_scores_, key=lambda d: d["statistic"] / d["threshold"], default=None)
-            worst = f"{top['candidate'].name} {top['statistic']:.1f}/{top['threshold']:.1f}" if top else "-"
+            top = max(r.last_scores_, key=lambda d: d.statistic / d.threshold, default=None)
+            worst = f"{top.candidate.name} {top.statistic:.1f}/{top.threshold:.1f}" if top else "-"
             added = [f"{s.effect}:{s.target}" for s in r.steps_]
             line.append(f"{'coloured' if coloured else 'white'}: added {added or 'nothing'}, "
                         f"{len(r.rejected_)} rejected, top {worst}, {time.perf_counter() - t0:.1f} s")

@@ -29,8 +29,8 @@ def main(n: int = 20) -> None:
         t0 = time.perf_counter()
         r = Refine(PROFILE).fit([run])
         found += not r.nothing_found
-        top = max(r.last_scores_, key=lambda d: d["statistic"] / d["threshold"], default=None)
-        worst = f"{top['candidate'].name} {top['statistic']:.1f} / {top['threshold']:.1f}" if top else "-"
+        top = max(r.last_scores_, key=lambda d: d.statistic / d.threshold, default=None)
+        worst = f"{top.candidate.name} {top.statistic:.1f} / {top.threshold:.1f}" if top else "-"
         print(f"realisation {seed:2d}: added {[(s.effect, s.target) for s in r.steps_]}, "
               f"largest score / threshold: {worst}; {time.perf_counter() - t0:.2f} s", flush=True)
     print(f"something found in {found} of {n} matched-model realisations (full catalogue: "

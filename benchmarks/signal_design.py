@@ -127,7 +127,7 @@ def _truth_table(ev: Evaluator, signals: dict):
     idx = [i for i, label in enumerate(ev.model_labels) if "draw" not in label]
     print("  truth (a priori derivatives)   " + "  ".join(f"{ev.model_labels[i]:>10}" for i in idx))
     for label, sigs in signals.items():
-        effs = [np.exp((ev.equal_peak_log_det(sigs, ev.models[i]) - ev._yardsticks[i]) / ev.p) for i in idx]
+        effs = [np.exp((ev.equal_peak_log_det(sigs, ev.models[i]) - ev.yardstick_log_dets[i]) / ev.p) for i in idx]
         print(f"  {label:<30} " + "  ".join(f"{e:10.3f}" for e in effs))
     print("  (D-efficiency relative to the best-width 3211 tuned on the truth; baselines tuned on the a priori)")
 

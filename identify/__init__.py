@@ -18,7 +18,8 @@ from .errors import ConvergenceWarning, EstimationError, ProfileError, Pseudoste
 
 # public name -> submodule that defines it
 _LAZY = {
-    **dict.fromkeys(["Run", "read_run", "read_runs"], "data.runs"),
+    **dict.fromkeys(["Run"], "data.runs"),
+    **dict.fromkeys(["read_run", "read_runs"], "data.csvfile"),
     **dict.fromkeys(["IdentificationResult"], "estimators.result"),
     **dict.fromkeys(["LinearModel", "Mode", "format_modes", "modes_of", "residualize"], "model.linear"),
     **dict.fromkeys(["Profile", "load_profile", "output_units", "parse_profile"], "model.profile"),
@@ -30,8 +31,9 @@ _LAZY = {
                      "smooth_derivative"], "data.preprocess"),
     **dict.fromkeys(["IV", "LS", "state_derivatives"], "estimators.equation_error"),
     **dict.fromkeys(["ML"], "estimators.ml"),  # output-error maximum likelihood
-    # frequency-domain equation error, batch and recursive (the cockpit's live estimate)
-    **dict.fromkeys(["FDEE", "RecursiveFDEE"], "estimators.frequency_ee"),
+    # the frequency home: equation error (batch, streamed for the cockpit), frequency responses
+    **dict.fromkeys(["FDEE"], "estimators.frequency.equation_error"),
+    **dict.fromkeys(["FrequencyResponse", "frequency_response", "fit_cost"], "estimators.frequency.response"),
 }
 
 __all__ = ["__version__", "ConvergenceWarning", "EstimationError", "ProfileError", "PseudostepError", "RunError",

@@ -78,8 +78,6 @@ def cmd_estimate(args) -> int:
     from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
 
-    if args.max_iter is not None and args.method not in ("iv", "ml"):
-        raise EstimationError(f"--max-iter applies to the iterative methods (iv, ml), not {args.method}")
     profile = load_profile(args.profile)
     runs = []
     for r in _read_runs(args.runs, args.channel_map, profile):
@@ -94,16 +92,10 @@ def cmd_estimate(args) -> int:
     if not runs:
         raise EstimationError("no run has samples between --t-start and --t-end")
 
-    def show(it, value, theta, what="max rel. change" if args.method == "iv" else "cost"):
-        print(f"{args.method.upper()} iteration {it}: {what} {value:.4g}", file=sys.stderr, flush=True)
-
-    iterations = {} if args.max_iter is None else {"max_iter": args.max_iter}
-    options = {"ml": dict(progress=show, **iterations),
-               "iv": dict(progress=show, diff_cutoff_hz=args.diff_cutoff, **iterations),
-               "ls": dict(diff_cutoff_hz=args.diff_cutoff), "fdee": {}}[args.method]
-    result = _fit(args.method, options, profile, runs)
+    estimator = _estimator(args, profile)
+    result = _fit(estimator, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
-    from .frequency import cost_report
+    from .estimators.frequency.response import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
@@ -116,24 +108,36 @@ def cmd_estimate(args) -> int:
     return 0
 
 
-def _fit(method: str, options: dict, profile, runs):
-    """The estimator's result; a refined profile's state-built nonlinear terms (ML only) from the
-    model's simulated states, as refine fitted them, so that its estimates are reproduced."""
-    from .estimators.registry import estimator_class
-    from .refine.evaluation import state_terms
+def _estimator(args, profile, show_progress: bool = True):
+    """The estimator instance of ``--method`` with the options given for it (an option the method
+    does not take is one clear error); progress of the iterative ones on stderr."""
+    from .estimators.registry import build
 
-    cls, terms = estimator_class(method), state_terms(profile)
-    if not (terms and method == "ml"):
-        return cls(profile, **options).fit(runs).result_
-    from .estimators.output_error import auto_segment
-    from .refine.evaluation import fit_state_terms
+    def show(it, value, theta):
+        print(f"{args.method.upper()} iteration {it}: {estimator.progress_quantity} {value:.4g}",
+              file=sys.stderr, flush=True)
 
-    # ML's own automatic choice, fixed so that the terms are predicted over the same segments
-    segment = auto_segment(LinearModel(profile), max(r.duration for r in runs))
+    estimator = build(args.method, profile, progress=show if show_progress else None,
+                      names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff"},
+                      max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None))
+    return estimator
+
+
+def _fit(estimator, runs):
+    """The estimator's result; a profile's state-built nonlinear terms (a refined profile's) from
+    the model's simulated states where the estimator simulates (as refine fitted them), so that
+    its estimates are reproduced."""
+    from .estimators.prediction import fit_state_terms, state_terms
+
+    profile = estimator.profile
+    terms = state_terms(profile)
+    if not (terms and estimator.simulates_state_terms):
+        return estimator.fit(runs).result_
+    # the estimator's own segments, fixed so that the terms are predicted over the same ones
+    segment = estimator.prediction_segment(LinearModel(profile), max(r.duration for r in runs))
     print(f"note: {', '.join(terms)} built from the model's simulated states (re-fitted until "
           f"the estimates settle)", file=sys.stderr)
-    return fit_state_terms(lambda p: cls(p, segment=segment, **options), profile, runs,
-                           segment=segment)[1]
+    return fit_state_terms(lambda p: estimator.nested(p, segment=segment), profile, runs, segment=segment)[1]
 
 
 def _add_estimate_parser(sub) -> None:
@@ -190,9 +194,9 @@ def cmd_refine(args) -> int:
     if not kinds:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
     profile = load_profile(args.profile)
-    refiner = Refine(profile, method=args.method, alpha=args.alpha, kinds=kinds, max_steps=args.max_steps,
-                     zero_shifts=not args.no_zero_shifts, frequencies=args.frequency, f_min=args.f_min,
-                     tau_max=args.tau_max, progress=True)
+    refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
+                     kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
+                     frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)
     refiner.fit(_read_runs(args.runs, args.channel_map, profile),
                 validate=_read_runs(args.validate or [], args.channel_map, profile))
     if refiner.nothing_found:
@@ -234,8 +238,9 @@ def cmd_freq(args) -> int:
     """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
     from pathlib import Path
 
-    from .data.runs import read_run
-    from .frequency import cost_report, frequency_response, plot_bode
+    from .data.csvfile import read_run
+    from .estimators.frequency.bode import plot_bode
+    from .estimators.frequency.response import cost_report, frequency_response
 
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]

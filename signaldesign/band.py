@@ -176,8 +176,8 @@ def plot_band(band: RequiredBand, path, title: str = "") -> None:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(9, 5.5))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
+    FigureCanvasAgg(fig)  # drawn off-screen, no pyplot state
+    ax = fig.subplots()
     for col, b in enumerate(band.parameters):
         ax.semilogx(band.omega, band.curves[:, col], lw=1, label=b.name)
     if band.bounded:

@@ -24,7 +24,7 @@ from .workers import run_tasks
 MIN_WIDTH = 0.3  # s: the shortest pulse a pilot flies accurately (the designer's default min pulse)
 
 
-def _grid(lo: float, hi: float, dt: float) -> np.ndarray:
+def width_grid(lo: float, hi: float, dt: float) -> np.ndarray:
     i0, i1 = max(int(np.ceil(lo / dt - 1e-9)), 1), int(np.floor(hi / dt + 1e-9))
     return np.round(np.arange(i0, i1 + 1) * dt, 10)
 
@@ -39,7 +39,7 @@ def _on_axes(factory, inputs, amplitude):
     return build
 
 
-def _tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400, model=None):
+def tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400, model=None):
     """Best widths: one per axis tuned jointly on a coarsened grid when there are several axes
     (identical signals on two axes cannot tell their control derivatives apart), else the grid."""
     build = _on_axes(factory, inputs, amplitude)
@@ -60,13 +60,13 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
     The PRTS has 26 steps (order 3) when they fit in the duration at that width, else 8."""
     dt, inputs = ev.dt, ev.inputs
     out = []
-    widths = _grid(min_width, duration / 2, dt)
+    widths = width_grid(min_width, duration / 2, dt)
     if widths.size:
-        sigs, w, _ = _tune(doublet, widths, ev, inputs, amplitude)
+        sigs, w, _ = tune(doublet, widths, ev, inputs, amplitude)
         out.append((f"doublet, best width {w} s", sigs))
-    widths = _grid(min_width, duration / 7, dt)
+    widths = width_grid(min_width, duration / 7, dt)
     if widths.size:
-        sigs, w, _ = _tune(m3211, widths, ev, inputs, amplitude)
+        sigs, w, _ = tune(m3211, widths, ev, inputs, amplitude)
         out.append((f"3211, best width {w} s", sigs))
     w0 = 2 * np.pi / duration
     top = max(3.05 * w0, 2 * band_high if band_high else 0.0)
@@ -78,7 +78,7 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
     if prts_order is None:
         prts_order = 3 if 26 * min_width <= duration + 1e-9 else 2
     period = 3 ** prts_order - 1
-    widths = _grid(min_width, duration / period, dt)
+    widths = width_grid(min_width, duration / period, dt)
     if widths.size:
         def factory(w, a, name):
             return prts(period * w, prts_order, a, name)
@@ -99,7 +99,7 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
 
 def widths_3211(duration: float, min_width: float, dt: float) -> np.ndarray:
     """Pulse widths of a 3211 that fits in ``duration`` s, none under ``min_width`` s."""
-    widths = _grid(min_width, duration / 7, dt)
+    widths = width_grid(min_width, duration / 7, dt)
     if not widths.size:
         raise DesignError(f"duration {duration:g} s is too short for a 3211 of {min_width:g} s pulses "
                           f"(at least {7 * min_width:g} s)")
@@ -111,7 +111,7 @@ def default_limits(ev: Evaluator, duration: float, amplitude, min_width: float =
     det at ``amplitude``) become the limits: every comparison is then at the 3211's response."""
     if ev.has_limits:
         return ev
-    sigs, w, _ = _tune(m3211, widths_3211(duration, min_width, ev.dt), ev, ev.inputs, amplitude)
+    sigs, w, _ = tune(m3211, widths_3211(duration, min_width, ev.dt), ev, ev.inputs, amplitude)
     peaks = ev.peaks(sigs)
     limits = {y: float(v) for y, v in zip(ev.model.profile.outputs, peaks) if v > 0}
     amps = "/".join(f"{a:g}" for a in np.broadcast_to(np.asarray(amplitude, float), (len(ev.inputs),)))
@@ -128,7 +128,7 @@ def yardsticks(ev: Evaluator, duration: float, min_width: float = MIN_WIDTH, job
 
 
 def _yardstick(ev: Evaluator, _, model, widths) -> float:
-    return _tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=model)[2]
+    return tune(m3211, widths, ev, ev.inputs, 1.0, max_pairs=64, model=model)[2]
 
 
 def reference_of(baselines) -> list:

@@ -23,7 +23,7 @@ from identify import LinearModel
 
 from .baselines import doublet, m3211
 from .bound import objective_bound
-from .compare import _grid, _tune, default_limits, yardsticks
+from .compare import width_grid, tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
 from .quadform import Objective, StepBasis
@@ -158,7 +158,7 @@ class SequenceDesign:
         if self.criterion in ("worst", "robust"):
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
-            offsets = yardsticks(yard, self.duration, self.min_pulse, jobs=self._jobs())._yardsticks
+            offsets = yardsticks(yard, self.duration, self.min_pulse, jobs=self._jobs()).yardstick_log_dets
         amp = None if self.amplitude is None else float(np.atleast_1d(self.amplitude)[0])
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
@@ -227,10 +227,10 @@ class SequenceDesign:
         Also their equal-peak log dets on the a priori (at their tuned widths, off the grid)."""
         out, lds = [], []
         for factory, pulses, parts in ((m3211, 7, (3, 2, 1, 1)), (doublet, 2, (1, 1))):
-            widths = _grid(self.min_pulse, self.duration / pulses, self.dt)
+            widths = width_grid(self.min_pulse, self.duration / pulses, self.dt)
             if not widths.size:
                 continue
-            _, w, ld = _tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)
+            _, w, ld = tune(factory, widths, ev, self.inputs, 1.0, max_pairs=64)
             lds.append(ld)
             ws = [float(x) for x in str(w).split("/")]
             ws = ws * len(self.inputs) if len(ws) == 1 else ws

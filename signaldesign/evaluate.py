@@ -98,7 +98,7 @@ class Evaluator:
             f"model {i}" for i in range(len(self.models))]
         self.set_limits(model.profile.limits if limits is None else limits, "the profile's [limits]")
         self.reference: list[Signal] | None = None
-        self._yardsticks = None
+        self.yardstick_log_dets = None
         self._cache: dict = {}
 
     @property
@@ -143,7 +143,7 @@ class Evaluator:
         return log_det(self.information(signals, model)) - 2 * self.p * np.log(r)
 
     # -- responses --------------------------------------------------------------------------------
-    def _unit_responses(self, model: LinearModel):
+    def unit_responses(self, model: LinearModel):
         """Per input: (sensitivities (N, ny, p_scored) / noise, outputs (N, ny)) to a unit input held
         for the first sample only, cached per model. The discrete model is linear and time-invariant
         from rest, so any input's responses are these convolved with the input samples."""
@@ -163,7 +163,7 @@ class Evaluator:
         from scipy.signal import fftconvolve  # here: scipy.signal takes 0.4 s to import
         model = model or self.model
         u = record_inputs(model, _as_list(signals), self.record, self.dt)
-        units = self._unit_responses(model)
+        units = self.unit_responses(model)
         n = u.shape[0]
         dy, y = 0.0, 0.0
         for name in {s.input for s in _as_list(signals)}:
@@ -197,7 +197,7 @@ class Evaluator:
 
     def set_yardsticks(self, log_dets) -> "Evaluator":
         """Per model of the set, the equal-peak log det the robust columns are relative to."""
-        self._yardsticks = np.asarray(log_dets, float)
+        self.yardstick_log_dets = np.asarray(log_dets, float)
         return self
 
     def score(self, signals, label: str | None = None) -> Score:
@@ -211,9 +211,9 @@ class Evaluator:
         covered = [band_coverage(s, self.bands[s.input]) for s in signals if s.input in self.bands]
         worst = mean = float("nan")
         worst_model = "-"
-        if self.models and self._yardsticks is not None:
+        if self.models and self.yardstick_log_dets is not None:
             with np.errstate(invalid="ignore"):  # a singular model gives -inf, shown as 0
-                rel = (self.robust_log_dets(signals) - self._yardsticks) / self.p
+                rel = (self.robust_log_dets(signals) - self.yardstick_log_dets) / self.p
             i = int(np.argmin(rel))
             worst, mean, worst_model = float(np.exp(rel[i])), float(np.exp(rel.mean())), self.model_labels[i]
         with np.errstate(invalid="ignore"):  # a singular reference gives nan, shown as such

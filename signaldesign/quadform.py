@@ -57,7 +57,7 @@ class StepBasis:
     def _pulses(self, model: LinearModel):
         """Per axis: weighted sensitivities (N, ny, p) and outputs (N, ny) for a unit pulse lasting
         one step from t = 0, as running sums of the evaluator's cached unit-sample responses."""
-        units = self.evaluator._unit_responses(model)
+        units = self.evaluator.unit_responses(model)
         out = []
         for name in self.inputs:
             pulse = []

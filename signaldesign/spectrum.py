@@ -89,7 +89,7 @@ def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str
 
     labels = labels or [f"{s.kind} on {s.input}" for s in signals]
     fig = Figure(figsize=(8, 7))
-    FigureCanvasAgg(fig)
+    FigureCanvasAgg(fig)  # drawn off-screen, no pyplot state
     ax_t, ax_f = fig.subplots(2, 1)
     top = max(frequency_grid(s)[-1] for s in signals) / 4
     lows = [half_power_band(s)[0] for s in signals] + ([band[0]] if band is not None else [])

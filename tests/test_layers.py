@@ -1,17 +1,23 @@
-"""The layer rule: imports point down only (identify <- signaldesign <- cueing <- campaign).
+"""The layer rule: imports point down only (identify <- signaldesign <- cueing <- campaign), inside
+identify too (data < model < estimators < refine < compat), and no import cycle anywhere.
 
-Two checks: every module of a layer is imported in a fresh interpreter with the layers above it
-blocked (an import of them raises), and the source is scanned for upward imports anywhere, lazy
-in-function ones and ``importlib.import_module("...")`` included (they run only on some paths).
+Every module of a layer is imported in a fresh interpreter with the layers above it blocked (an
+import of them raises); the source's import graph (:mod:`tests.importgraph`: relative imports
+resolved, lazy in-function ones and ``importlib.import_module("...")`` included, since they run
+only on some paths) is checked for upward edges between packages and wings and for cycles. The
+seams between rooms: no module reads another's ``_private`` attribute, refine and the command line
+never branch on an estimator's name, and ``identify estimate`` loads nothing of the refine wing.
 """
 import ast
 import os
+import re
 import subprocess
 import sys
 import textwrap
 
 import pytest
 
+from tests import importgraph as ig
 from tests.helpers import ROOT
 
 ABOVE = {"identify": ("signaldesign", "cueing", "campaign"), "signaldesign": ("cueing", "campaign"),
@@ -36,24 +42,6 @@ _BLOCKED_IMPORT = textwrap.dedent("""
 """)
 
 
-def upward_imports(source: str, package: str, filename: str = "<source>") -> list[str]:
-    """``file:line module`` of every import in ``source`` of a layer above ``package``."""
-    hits = []
-    for node in ast.walk(ast.parse(source, filename)):
-        if isinstance(node, ast.Import):
-            modules = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            modules = [node.module]
-        elif (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None))
-              in ("import_module", "__import__") and node.args and isinstance(node.args[0], ast.Constant)
-              and isinstance(node.args[0].value, str)):
-            modules = [node.args[0].value]
-        else:
-            continue
-        hits += [f"{filename}:{node.lineno} {m}" for m in modules if m.split(".")[0] in ABOVE[package]]
-    return hits
-
-
 @pytest.mark.parametrize("package", sorted(ABOVE))
 def test_every_module_imports_with_the_layers_above_blocked(package):
     code = f"PACKAGE = {package!r}\nBLOCKED = {ABOVE[package]!r}\n" + _BLOCKED_IMPORT
@@ -64,26 +52,135 @@ def test_every_module_imports_with_the_layers_above_blocked(package):
     assert int(proc.stdout.split()[-1]) > 5  # the package and its submodules, not just __init__
 
 
-@pytest.mark.parametrize("package", sorted(ABOVE))
-def test_no_upward_import_anywhere_in_the_source(package):
-    files = sorted((ROOT / package).rglob("*.py"))
-    assert files
-    hits = [h for f in files for h in upward_imports(f.read_text(), package, str(f.relative_to(ROOT)))]
-    assert not hits, "upward imports:\n" + "\n".join(hits)
+def _package_violations(g: dict[str, set[str]]) -> list[str]:
+    rank = {p: i for i, p in enumerate(ig.PACKAGES)}
+    return [f"{m} -> {t}" for m in sorted(g) for t in sorted(g[m])
+            if rank[t.split(".")[0]] > rank[m.split(".")[0]]]
 
 
-def test_the_scan_sees_lazy_and_dynamic_upward_imports():
-    source = textwrap.dedent("""
-        import numpy
-        from .model import LinearModel
-        def later():
-            from cueing.session import fly
-            import signaldesign.design
-            return importlib.import_module("signaldesign.band")
+def _graph_of(sources: dict[str, str]) -> dict[str, set[str]]:
+    """The import graph of made-up modules ``{name: source}`` (plus the real ones they name)."""
+    known = set(ig.modules(ROOT)) | set(sources)
+    return {name: {t for _, t in ig.imports(name, textwrap.dedent(src), known)} - {name}
+            for name, src in sources.items()}
+
+
+@pytest.fixture(scope="module")
+def graph():
+    return ig.graph(ROOT)
+
+
+def test_no_upward_import_between_packages(graph):
+    assert len(graph) > 60  # every module of every package read
+    assert not _package_violations(graph), "upward imports:\n" + "\n".join(_package_violations(graph))
+
+
+def test_wings_inside_identify_in_order(graph):
+    assert not ig.wing_violations(graph), "upward imports between identify's wings:\n" + \
+        "\n".join(ig.wing_violations(graph))
+
+
+def test_no_import_cycle_anywhere(graph):
+    found = ig.cycles(graph)
+    assert found == [], "import cycles:\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_the_checks_see_lazy_relative_dynamic_and_cyclic_imports():
+    """The scan fails where it must: an upward package import (lazy, dynamic), a ``data`` module
+    importing ``refine`` (relative or by importlib name), and a cycle."""
+    g = _graph_of({
+        "identify.data.bad": """
+            from ..refine.loop import Refine
+            def later():
+                from cueing.session import fly
+                import signaldesign.design
+                return importlib.import_module("identify.refine.report")
+            """,
+        "identify.data.dyn": "importlib.import_module('..refine', __package__)",
+        "identify.model.a": "from . import b",
+        "identify.model.b": "from .a import x",
+    })
+    assert g["identify.data.bad"] == {"identify.refine.loop", "identify.refine.report", "cueing.session",
+                                      "signaldesign.design"}
+    assert g["identify.data.dyn"] == {"identify.refine"}
+    assert set(ig.wing_violations(g)) == {"identify.data.bad -> identify.refine.loop",
+                                          "identify.data.bad -> identify.refine.report",
+                                          "identify.data.dyn -> identify.refine"}
+    assert _package_violations(g) == ["identify.data.bad -> cueing.session",
+                                      "identify.data.bad -> signaldesign.design"]
+    assert ig.cycles(g) == [["identify.model.a", "identify.model.b"]]
+
+
+def test_no_module_reads_another_modules_private_attributes():
+    hits = [h for f in ig.modules(ROOT).values() for h in ig.private_reads(f.read_text(), str(f.relative_to(ROOT)))]
+    assert not hits, "private attributes read across modules:\n" + "\n".join(hits)
+    made_up = textwrap.dedent("""
+        from .result import _jsonable
+        class A:
+            def __init__(self):
+                self._mine = 1
+            def copy(self, other):
+                return other._mine + self._mine + super()._x
+        def report(r):
+            return r._raw
+        """)
+    assert [h.split()[-1] for h in ig.private_reads(made_up)] == ["_jsonable", "._raw"]
+
+
+def test_no_pyplot_state_in_library_code():
+    """Figures on an Agg canvas (``matplotlib.figure.Figure``), never pyplot's global state or a
+    ``matplotlib.use()`` that switches a caller's backend."""
+    pattern = re.compile(r"matplotlib\.pyplot|from matplotlib import .*pyplot|matplotlib\.use\(")
+    hits = [f"{f.relative_to(ROOT)}:{i}" for f in ig.modules(ROOT).values()
+            for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not hits, hits
+
+
+def _estimator_name_branches(source: str, filename: str) -> list[str]:
+    """Comparisons with, and dict keys of, an estimator's method name (``method == "ml"``,
+    ``{"ml": ...}[args.method]``)."""
+    from identify.estimators.registry import METHOD_NAMES
+
+    hits = []
+    for node in ast.walk(ast.parse(source, filename)):
+        consts = []
+        if isinstance(node, ast.Compare):
+            consts = [c for c in ast.walk(node) if isinstance(c, ast.Constant)]
+        elif isinstance(node, ast.Dict):
+            consts = [k for k in node.keys if isinstance(k, ast.Constant)]
+        hits += [f"{filename}:{c.lineno} {c.value!r}" for c in consts if c.value in METHOD_NAMES]
+    return hits
+
+
+def test_refine_and_the_command_line_never_branch_on_an_estimator_name():
+    files = sorted((ROOT / "identify" / "refine").glob("*.py")) + [ROOT / "identify" / "cli.py"]
+    hits = [h for f in files for h in _estimator_name_branches(f.read_text(), str(f.relative_to(ROOT)))]
+    assert not hits, hits
+    made_up = 'x = {"ls": 1}[m] if method == "ml" else 0'
+    assert sorted(_estimator_name_branches(made_up, "<s>")) == ["<s>:1 'ls'", "<s>:1 'ml'"]
+
+
+def test_identify_estimate_loads_nothing_of_the_refine_wing(tmp_path):
+    """``identify estimate`` runs without importing any module of identify/refine/ (LS, the cheap
+    path: every method passes through the check for state-built terms that fits them as refine does)."""
+    code = textwrap.dedent(f"""
+        import sys
+        import numpy as np
+        from identify import LinearModel, load_profile, simulate_run
+        from identify.cli import main
+        p = load_profile("s61_hover_4dof")
+        t = np.arange(0, 8, 0.02)
+        u = np.zeros((t.size, 2)); u[50:100, 0] = 0.01; u[150:200, 1] = 0.01
+        run = simulate_run(LinearModel(p), t, u, noise_fraction=0.02, seed=1)
+        run.to_csv({str(tmp_path / "run.csv")!r})
+        status = main(["estimate", {str(tmp_path / "run.csv")!r}, "--profile", "s61_hover_4dof",
+                       "--method", "ls", "--out", {str(tmp_path / "out")!r}])
+        print(status, sorted(m for m in sys.modules if m.startswith("identify.refine")))
     """)
-    hits = upward_imports(source, "identify")
-    assert [h.split()[-1] for h in hits] == ["cueing.session", "signaldesign.design", "signaldesign.band"]
-    assert upward_imports(source, "signaldesign") == ["<source>:5 cueing.session"]
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg"), timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[-2] == "0 []", proc.stdout[-500:]
 
 
 def test_import_identify_leaves_out_the_slow_optional_libraries():

@@ -1,7 +1,7 @@
 """Identification while the pilot flies: the recursive frequency-domain estimate, without drawing.
 
 Every frame the aircraft's measured response and the flown stick go into a
-:class:`~identify.RecursiveFDEE` (one complex multiply-add per frequency and channel); one equation
+:class:`~identify.FDEE` streamed by ``partial_fit`` (one complex multiply-add per frequency and channel); one equation
 group is re-solved per frame, so the whole estimate and its Cramér-Rao bounds are renewed about
 once a second without any frame carrying a whole solve. Every frame is appended to the live log
 (:mod:`.log`). :class:`~cueing.live.panel.LivePanel` shows the estimate beside the needles.
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identify import Profile, RecursiveFDEE
+from identify import FDEE, Profile
 
 from ..errors import CueingError
 from .log import LiveLogWriter
@@ -55,7 +55,8 @@ class LiveIdentification:
         if missing:
             raise CueingError(f"targets {', '.join(missing)} belong to inputs not flown ("
                               f"{', '.join(self.fixed_unflown)} are fixed at their a priori values)")
-        self.estimator = RecursiveFDEE(self.profile, band=band, n_freq=n_freq)
+        # no samples yet: validates the options now and fixes the frequencies (omega_)
+        self.estimator = FDEE(self.profile, band=band, n_freq=n_freq).partial_fit([], [], [])
         self.response = response
         self.log = LiveLogWriter(log_path)
         self.names = self.profile.free_names
@@ -78,7 +79,7 @@ class LiveIdentification:
     # -- logging ----------------------------------------------------------------------------------
     def open(self) -> None:
         """Start the live log: what is estimated, from what, and the columns."""
-        hz = self.estimator.omega / 2 / np.pi
+        hz = self.estimator.omega_ / 2 / np.pi
         meta = {"profile": self.profile.name, "response": self.response.describe(),
                 "band_hz": f"{hz[0]:g}..{hz[-1]:g} ({hz.size} frequencies)",
                 "targets": ", ".join(f"{k} {v:g} %" for k, v in self.targets.items())}
@@ -109,7 +110,7 @@ class LiveIdentification:
                               f"the profile has {n} ({', '.join(self.profile.state_names)})")
         u = np.zeros(len(self.profile.inputs))
         u[self._input_cols] = flown
-        self.estimator.update(t, x, u)
+        self.estimator.partial_fit(t, x, u)
         done = self._work(t)
         row = [str(k), f"{t:.9f}", f"{t_signal:.9f}"] + [f"{v:.9g}" for v in x] + [f"{v:.9g}" for v in flown]
         if done is not None:

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import RunError
 from . import units as U
-from .runs import TIME, Run, _check_time, uneven_steps
+from .runs import TIME, Run, check_time, uneven_steps
 
 GAP_FACTOR = 1.5
 JITTER_MAX = 0.05
@@ -140,7 +140,7 @@ def _si_time(raw: Raw) -> np.ndarray:
         if kind != "time":
             raise RunError(f"{raw.source}: channel '{raw.time_name}': unit '{unit}' is not a time unit")
         t = t * factor
-    _check_time(t, raw.source, raw.row, uniform=False)
+    check_time(t, raw.source, raw.row, uniform=False)
     return t
 
 

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from ..errors import RunError, read_text
 from .matfile import mat_runs
-from .runs import Run, csv_runs
+from .csvfile import csv_runs
+from .runs import Run
 from .units import unit_info
 
 

@@ -3,22 +3,19 @@
 A run file is CSV: optional metadata comment lines ``# key: value`` on top, one header row of
 channel names, then one row per sample. The ``time`` column is in seconds, strictly increasing and
 uniformly sampled; every other column is a channel in SI units and radians, named as in the
-profile. Measured files may declare other units, derived channels, jittered or gapped time: see
-:mod:`identify.data.ingest`, which turns them into runs. Reading rejects bad data with one line naming
-the file, row and channel.
+profile. Reading a file is :mod:`identify.data.csvfile` (its raw content) and
+:mod:`identify.data.ingest` (measured files' other units, derived channels, jittered or gapped time
+turned into runs); reading rejects bad data with one line naming the file, row and channel.
 """
 from __future__ import annotations
 
-import csv
 import io
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import RunError
-from . import units as U
 
 TIME = "time"
 _UNIFORM_RTOL = 1e-6
@@ -36,7 +33,7 @@ class Run:
     def __post_init__(self):
         self.time = np.asarray(self.time, dtype=float)
         self.channels = {k: np.asarray(v, dtype=float) for k, v in self.channels.items()}
-        _check_time(self.time, self.source)
+        check_time(self.time, self.source)
         for name, values in self.channels.items():
             if values.shape != self.time.shape:
                 raise RunError(f"{self.source}: channel '{name}' has {values.size} samples, "
@@ -108,181 +105,7 @@ class Run:
         return out.getvalue()
 
 
-def read_run(path: str | Path, require: list[str] | None = None, *, channel_map: dict | None = None,
-             profile=None) -> Run:
-    """Read a run CSV; ``require`` lists channels that must be present (e.g. ``profile.channels``).
-    A file that time gaps split into several runs is an error here: read it with :func:`read_runs`.
-    ``channel_map`` and ``profile`` as in :func:`read_run_segments`."""
-    run = csv_runs(path, channel_map, profile).one("read_runs")
-    if require:
-        run.require(require)
-    return run
-
-
-def read_run_segments(path: str | Path, channel_map: dict | None = None, profile=None) -> list[Run]:
-    """Every run of a CSV file: one, or several when time gaps split it (:mod:`identify.data.ingest`).
-
-    ``channel_map`` (``{"channels": {channel: column or expression}, "units": {name: unit},
-    "time": column}``) adds derived or renamed channels; ``profile`` lets undeclared channels be
-    checked against the profile's units (radian channels holding degrees)."""
-    return csv_runs(path, channel_map, profile).all()
-
-
-def csv_runs(path, channel_map=None, profile=None):
-    """A CSV file's runs with the notes and warnings of reading it, not yet said
-    (an :class:`~identify.data.ingest.Ingested`)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise RunError(f"{path}: not a text (CSV) file") from None
-    return _parse(text, str(path), channel_map, profile)
-
-
-def read_runs(paths, require: list[str] | None = None, *, channel_map: dict | None = None,
-              profile=None) -> list[Run]:
-    """Runs of several files, for multi-run evaluation; a file split by time gaps gives several."""
-    runs = [r for p in paths for r in read_run_segments(p, channel_map, profile)]
-    for run in runs:
-        run.require(require or [])
-    return runs
-
-
-def parse_run(text: str, source: str = "<run>") -> Run:
-    """A run from CSV text (see :func:`read_run`)."""
-    return _parse(text, source, None, None).one("read_runs")
-
-
-def _parse(text: str, source: str, channel_map, profile):
-    from .ingest import build_runs
-
-    raw = csv_raw(text, source, channel_map)
-    return build_runs(raw, csv_channels(raw, channel_map), profile)
-
-
-# -- a CSV file's raw content (identify.data.ingest makes runs of it) ---------------------------
-_BLANKS = re.compile(r"\s+(?![\[(])(?![^\[(]*[\])])")  # blanks not before or inside "[deg/s]" / "(deg/s)"
-_HEADER_UNIT = re.compile(r"^(?P<name>.*?)\s*(?:\[(?P<u1>[^\]]*)\]|\((?P<u2>[^)]*)\))\s*$")
-
-
-def csv_raw(text: str, source: str, channel_map: dict | None = None):
-    """A CSV run file's content: ``# key: value`` metadata lines on top (``# units: q=deg/s, ...``
-    declares units), a header of column names (``q [deg/s]`` / ``q (deg/s)`` declares a unit),
-    one row per sample, delimited by commas (or tabs, semicolons or blanks, as the header is)."""
-    from .ingest import Raw
-
-    lines = text.lstrip("\ufeff").splitlines()
-    meta, header, header_line = {}, None, 0
-    for lineno, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        if line.startswith("#"):
-            key, sep, value = line[1:].partition(":")
-            if sep:
-                meta[key.strip()] = value.strip()
-            continue
-        header_line, header = lineno, line
-        break
-    if header is None:
-        raise RunError(f"{source}: no header row of channel names")
-    delim = next((d for d in (",", "\t", ";") if d in header), None)  # None: blanks (units in brackets kept)
-    cells = next(csv.reader([header], delimiter=delim)) if delim else _BLANKS.split(header.strip())
-    trailing = len(cells) > 1 and not cells[-1].strip()  # "time,q," as spreadsheets write it
-    names, units = _header(cells[:-1] if trailing else cells, source, header_line)
-    _merge_units(units, U.parse_units_spec(meta["units"], f"{source}: metadata 'units'") if "units" in meta else {},
-                 source)
-    _merge_units(units, (channel_map or {}).get("units", {}), source)
-    time_name = (channel_map or {}).get("time")
-    if time_name is None:  # 'time' in any case, else a column 't'
-        time_name = next((n for n in names if n.lower() == TIME), next((n for n in names if n.lower() == "t"), None))
-    if isinstance(time_name, int):
-        time_name = names[time_name] if -len(names) <= time_name < len(names) else None
-    if time_name not in names:
-        raise RunError(f"{source}: line {header_line}: no '{TIME}' column in header")
-    values, line_of = _csv_values(lines, header_line, names, delim, trailing, source)
-
-    def column(where, channel):
-        if isinstance(where, int) and not isinstance(where, bool):
-            if not -len(names) <= where < len(names):
-                raise RunError(f"{source}: channel '{channel}': column {where} out of range ({len(names)} columns)")
-            return values[:, where]
-        if where not in names:
-            raise RunError(f"{source}: channel '{channel}': no column '{where}' in the header")
-        return values[:, names.index(where)]
-
-    return Raw(source, column(time_name, TIME), column, names, units, meta, lambda i: f"line {line_of[i]}",
-               time_name)
-
-
-def csv_channels(raw, channel_map: dict | None) -> dict[str, object]:
-    """A CSV file's run channels: every column but time, plus (or replaced by) the map's channels."""
-    specs = {n: n for n in raw.names if n != raw.time_name}
-    specs.update((channel_map or {}).get("channels", {}))
-    return specs
-
-
-def _header(cells: list[str], source: str, lineno: int) -> tuple[list[str], dict[str, str]]:
-    names, units = [], {}
-    for cell in cells:
-        cell = cell.strip()
-        m = _HEADER_UNIT.match(cell)
-        name = m.group("name").strip() if m else cell
-        if m:
-            unit = m.group("u1") if m.group("u1") is not None else m.group("u2")
-            U.unit_info(unit, f"{source}: line {lineno}, column '{cell}'")
-            units[name] = unit.strip()
-        names.append(name)
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise RunError(f"{source}: line {lineno}: duplicate column(s) {', '.join(dup)}")
-    return names, units
-
-
-def _merge_units(units: dict, more: dict, source: str) -> None:
-    for name, unit in more.items():
-        if name in units and U.canonical(units[name]) != U.canonical(unit):
-            raise RunError(f"{source}: channel '{name}': unit declared as both '{units[name]}' and '{unit}'")
-        units[name] = unit
-
-
-def _csv_values(lines, header_line, names, delim, trailing, source):
-    """The data rows as an (N, columns) array; an empty cell is a missing value (NaN)."""
-    rows = [(n, l) for n, l in enumerate(lines[header_line:], start=header_line + 1)
-            if l.strip() and not l.startswith("#")]
-    if len(rows) < 2:
-        raise RunError(f"{source}: fewer than two data rows")
-    values = np.empty((len(rows), len(names)))
-    for r, (lineno, line) in enumerate(rows):
-        cells = _cells(line, delim)
-        if trailing and len(cells) == len(names) + 1 and not cells[-1].strip():
-            cells.pop()
-        if len(cells) != len(names):
-            raise RunError(f"{source}: line {lineno}: {len(cells)} values for {len(names)} columns")
-        try:
-            values[r] = [float(cell) for cell in cells]
-        except ValueError:
-            values[r] = [_cell(cell, f"{source}: line {lineno}, channel '{name}'") for cell, name in zip(cells, names)]
-    return values, [n for n, _ in rows]
-
-
-def _cells(line: str, delim: str | None) -> list[str]:
-    if delim is None:
-        return line.split()
-    return next(csv.reader([line], delimiter=delim)) if '"' in line else line.split(delim)
-
-
-def _cell(cell: str, where: str) -> float:
-    if not cell.strip():
-        return float("nan")
-    try:
-        return float(cell)
-    except ValueError:
-        raise RunError(f"{where}: not a number ({cell.strip()!r})") from None
-
-
-def _check_time(t: np.ndarray, source: str, where=lambda i: f"row {i + 1}", uniform: bool = True) -> None:
+def check_time(t: np.ndarray, source: str, where=lambda i: f"row {i + 1}", uniform: bool = True) -> None:
     """Time finite and strictly increasing (and, with ``uniform``, evenly sampled); ``where(i)``
     names sample i in the error."""
     if t.ndim != 1 or t.size < 2:

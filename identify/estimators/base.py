@@ -7,10 +7,44 @@ and ``std_`` as shortcuts and ``summary()`` printing the parameter table.
 As in scikit-learn, ``__init__`` only stores its arguments (a profile may be a :class:`Profile`, a
 TOML path or a bundled name); ``fit`` validates them (:meth:`Estimator._validate`: the loaded
 profile is ``profile_``, converted options end in ``_``) and raises the one-line error there.
+
+The protocol refine (and any tool that compares nested models) relies on, so that it never asks
+which estimator it holds -- a new estimator (filter error, a frequency-response fit) plugs in by
+subclassing :class:`Estimator` and overriding what differs:
+
+``get_params()`` / ``clone(profile, **changes)``
+    scikit-learn's: the constructor arguments, and a new unfitted estimator with the same ones for
+    another (an extended) profile. Refine holds one estimator instance and clones it per fit.
+``nested(profile, *, zero_shifts, segment, bounds)``
+    the estimator for one of refine's nested fits: ``clone(profile)`` adjusted so that the
+    likelihoods of fits before and after an added effect compare (the same nuisance: per-run zero
+    shifts or not; the same multiple-shooting ``segment``); ``bounds=False`` when only the estimate
+    and its likelihood are used (may skip costly standard errors). Default: ``clone(profile)``.
+``prediction_segment(model, duration)``
+    the segment length (s) the estimator's predictions restart at (``inf``: whole runs).
+``prediction(profile, runs, *, zero_shifts, segment, start)``
+    the model's prediction of the runs as a :class:`~identify.estimators.prediction.ModelFit`:
+    residuals per run with the nuisance fitted. The residuals are what the estimator minimises
+    and what refine tests: by default output error (the model simulated from the inputs, each
+    segment's initial state and zero shifts fitted; state-built pseudo-inputs from the simulated
+    states, ``start`` runs holding a nearby model's). A filter-error estimator returns its
+    one-step-ahead innovations instead.
+``sensitivities(profile, runs, null, *, zero_shifts, segment)``
+    the prediction of an extended ``profile`` (its added parameters at their null values) with
+    ``dy`` (its residuals' sensitivities to the parameters) and ``nuisance`` (to the nuisance):
+    the score tests' columns, at ``null``, the prediction of the model without the extension.
+``input_response(profile, runs, *, segment, input_name, transform)``
+    per run the model's response to a transformed input (a delay's score column, ``-du/dt``).
+``simulates_state_terms``
+    whether pseudo-inputs built from states are taken from the model's simulated states when
+    fitting (output error) rather than from the measured channels (equation error).
+``progress_quantity``
+    what the ``progress`` callback's value is (``cost``, ``max rel. change``), for messages.
 """
 from __future__ import annotations
 
-import copy
+import inspect
+import math
 import warnings
 from pathlib import Path
 
@@ -54,6 +88,8 @@ class Estimator:
     """Base class: holds the profile (structure + a priori values) and checks the runs."""
 
     method = "base"
+    simulates_state_terms = False
+    progress_quantity = "value"
 
     def __init__(self, profile: Profile | str | Path):
         self.profile = profile
@@ -74,8 +110,7 @@ class Estimator:
             raise EstimationError(f"{line}: no free parameter is left to estimate")
         # the same estimator on the profile with those parameters fixed; its fitted state is kept,
         # then the full profile's restored (``_validate`` rebuilds what depends on it)
-        sub = copy.copy(self)
-        sub.profile = fix(full, held)
+        sub = self.clone(fix(full, held))
         sub._validate()
         reduced = sub._fit(runs)
         self.__dict__.update({k: v for k, v in sub.__dict__.items() if k.endswith("_")})
@@ -112,6 +147,63 @@ class Estimator:
             if len(run) < MIN_SAMPLES:
                 raise EstimationError(f"{run.source}: only {len(run)} samples; at least {MIN_SAMPLES} needed")
         return runs
+
+    # -- the protocol of nested fits (see the module notes) ------------------------------------
+    @classmethod
+    def param_names(cls) -> list[str]:
+        """Named constructor arguments, those a ``**options`` passes on to a base class included."""
+        names = []
+        for klass in cls.__mro__:
+            if "__init__" not in vars(klass):
+                continue
+            params = inspect.signature(klass.__init__).parameters.values()
+            names += [p.name for p in params if p.name != "self" and p.name not in names
+                      and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+            if not any(p.kind == p.VAR_KEYWORD for p in params):
+                break
+        return names
+
+    def get_params(self) -> dict:
+        """The constructor arguments (scikit-learn's ``get_params(deep=False)``)."""
+        return {n: getattr(self, n) for n in self.param_names()}
+
+    def clone(self, profile=None, **changes) -> "Estimator":
+        """A new, unfitted estimator with the same arguments, for ``profile`` (default the same)."""
+        unknown = set(changes) - set(self.param_names())
+        if unknown:
+            raise EstimationError(f"{type(self).__name__} has no option(s) {', '.join(sorted(unknown))}")
+        params = {**self.get_params(), **changes}
+        if profile is not None:
+            params["profile"] = profile
+        return type(self)(**params)
+
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
+               bounds: bool = True) -> "Estimator":
+        return self.clone(profile)
+
+    def prediction_segment(self, model, duration: float) -> float:
+        return math.inf
+
+    def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
+                   start: list[Run] | None = None):
+        from .prediction import predict  # output error, loaded only when asked
+
+        return predict(profile, runs, zero_shifts, segment, start=start)
+
+    def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True,
+                      segment: float = math.inf):
+        from .prediction import evaluate, simulated_terms, state_terms
+
+        # a state-built term's column from the null model's simulated states (the model's own at
+        # the null value): an instrumental-variable score, uncorrelated with the gusts the
+        # measured states carry
+        runs = simulated_terms(profile, runs, null, state_terms(profile), segment)
+        return evaluate(profile, runs, zero_shifts, segment, jacobian=True)
+
+    def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform):
+        from .prediction import input_response
+
+        return input_response(profile, runs, segment, input_name, transform)
 
     @property
     def theta_(self) -> np.ndarray:

@@ -9,16 +9,11 @@ records are taken a group of segments, a time block or a chunk of Jacobian colum
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import scipy.fft
 
 from .colour import power
 from .information import BlockCovariance, BlockInformation
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .output_error import OutputError, Response
 
 COLOUR_MAX_ITER = 30  # passes of the noise-autocorrelation fixed point at most
 COLOUR_TOL = 1e-2  # ... until no parameter standard error changes by more than this (relative)
@@ -45,7 +40,7 @@ class ColouredBounds:
     (COLOUR_CACHE), else recomputed, so an hour at 100 Hz stays within a few hundred MB.
     """
 
-    def __init__(self, prob: "OutputError", ev: "Response", Wh: np.ndarray, info: BlockInformation):
+    def __init__(self, prob, ev, Wh: np.ndarray, info: BlockInformation):
         self.prob, self.ev, self.Wh, self.info = prob, ev, Wh, info
         L, ny, S = ev.e.shape
         self.L, self.ny, self.S = L, ny, S
@@ -68,7 +63,7 @@ class ColouredBounds:
         self.cache = {}
         self.held = None
         if self.cache_ok:  # small: every segment's Jacobian built once for all passes
-            self.held = list(self._rebuilt([(0, S)], prob._local_jacobian(ev, Wh)))
+            self.held = list(self._rebuilt([(0, S)], prob.local_jacobian(ev, Wh)))
 
     # -- the segments' Jacobians and their spectra -------------------------------------------------
     def segments(self):
@@ -77,13 +72,13 @@ class ColouredBounds:
         group), a long one a time block at a time."""
         if self.held is not None:
             return iter(self.held)
-        return self._rebuilt(self.prob._segment_groups() if self.short else [(0, self.S)])
+        return self._rebuilt(self.prob.segment_groups() if self.short else [(0, self.S)])
 
     def _rebuilt(self, groups, Jloc=None):
         prob = self.prob
         for a, b in groups:
             group = Jloc if Jloc is not None else \
-                prob._local_jacobian(self.ev, self.Wh, segment=slice(a, b)) if self.short else None
+                prob.local_jacobian(self.ev, self.Wh, segment=slice(a, b)) if self.short else None
             for s in range(a, b):
                 keep = prob.local_index[s] >= 0
                 whole = None if group is None else group[s - a, :prob.layout.length[s]][..., keep]
@@ -239,7 +234,7 @@ class _SegmentJacobian:
     either held ``whole`` or rebuilt from the stored sensitivities a time block at a time, so
     that a long record's Jacobian never exists whole: its products are all it offers."""
 
-    def __init__(self, prob: "OutputError", ev: "Response", Wh: np.ndarray, segment: int, keep: np.ndarray,
+    def __init__(self, prob, ev, Wh: np.ndarray, segment: int, keep: np.ndarray,
                  whole: np.ndarray | None = None):
         self.prob, self.ev, self.Wh, self.segment, self.keep, self.whole = prob, ev, Wh, segment, keep, whole
         self.length, self.q, self.ny = int(prob.layout.length[segment]), int(keep.sum()), ev.e.shape[1]
@@ -266,11 +261,11 @@ class _SegmentJacobian:
         if self.whole is not None:
             yield 0, self.length, self.whole
             return
-        for k0, k1 in self.prob._blocks(len(self.keep)):
+        for k0, k1 in self.prob.blocks(len(self.keep)):
             if k0 >= self.length:
                 break
             k1 = min(k1, self.length)
-            yield k0, k1, self.prob._local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
+            yield k0, k1, self.prob.local_jacobian(self.ev, self.Wh, k0, k1, self.segment)[0][..., self.keep]
 
     def gram(self, T: np.ndarray) -> np.ndarray:
         """``J^T T`` (q, w) summed over time and outputs, T (w, ny, l)."""

@@ -136,14 +136,15 @@ def fixed_part(model: LinearModel, x: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class _Data:
-    """One run prepared for equation error."""
+class MeasuredRun:
+    """One run prepared for equation error: measured states and inputs, and (time domain only)
+    the state derivatives with, per state, where each came from."""
 
     run: Run
     x: np.ndarray  # (N, n) measured states
     u: np.ndarray  # (N, m) inputs
-    xdot: np.ndarray  # (N, n)
-    sources: dict
+    xdot: np.ndarray | None = None  # (N, n)
+    sources: dict | None = None
 
 
 def _design(group: Group, regs: list[np.ndarray]):
@@ -166,7 +167,7 @@ def _design(group: Group, regs: list[np.ndarray]):
     return blocks
 
 
-def _targets(model: LinearModel, group: Group, data: list[_Data]) -> list[np.ndarray]:
+def _targets(model: LinearModel, group: Group, data: list[MeasuredRun]) -> list[np.ndarray]:
     out = []
     for d in data:
         y = d.xdot - fixed_part(model, d.x, d.u)
@@ -174,14 +175,14 @@ def _targets(model: LinearModel, group: Group, data: list[_Data]) -> list[np.nda
     return out
 
 
-def _column_names(model: LinearModel, group: Group, data: list[_Data]) -> list[str]:
+def _column_names(model: LinearModel, group: Group, data: list[MeasuredRun]) -> list[str]:
     p = model.profile
     eqs = [p.equation(p.state_names[e]) for e in group.equations]
     return ([model.names[j] for j in group.params]
             + [f"zero shift of equation {eq} in run {r + 1}" for r in range(len(data)) for eq in eqs])
 
 
-def _check_rank(X: np.ndarray, names: list[str]) -> np.ndarray:
+def check_rank(X: np.ndarray, names: list[str]) -> np.ndarray:
     """Column scales of X; raise naming the parameters that the data cannot separate."""
     scale = np.linalg.norm(X, axis=0)
     dead = [names[i] for i in np.flatnonzero(scale == 0)]
@@ -200,13 +201,13 @@ def _solve(X_blocks, y_blocks, Z_blocks, names):
     """Estimate, residual blocks, coloured-residual and white covariances of one group."""
     X, y = np.vstack(X_blocks), np.concatenate(y_blocks)
     Z = X if Z_blocks is None else np.vstack(Z_blocks)
-    scale = _check_rank(X, names)
+    scale = check_rank(X, names)
     Xs, Zs = X / scale, Z / scale
     H = Zs.T @ Xs
     if Z_blocks is None:
         theta_s = np.linalg.lstsq(Xs, y, rcond=None)[0]
     else:
-        _check_rank(Zs, names)
+        check_rank(Zs, names)
         theta_s = np.linalg.solve(H, Zs.T @ y)
     theta = theta_s / scale
     residuals = [yb - Xb @ theta for Xb, yb in zip(X_blocks, y_blocks)]
@@ -249,7 +250,7 @@ def _segment(model: LinearModel, reinit, duration: float) -> float | None:
 
 
 # -- estimators -------------------------------------------------------------------------------
-class _EquationError(Estimator):
+class EquationError(Estimator):
     """Shared machinery of LS and IV."""
 
     def __init__(self, profile, *, bias: bool = True, diff_cutoff_hz: float | None = None,
@@ -273,22 +274,29 @@ class _EquationError(Estimator):
         return super().check_runs(runs, channels)
 
     # data -----------------------------------------------------------------------------------
-    def _prepare(self, runs: list[Run]) -> list[_Data]:
+    def _measured(self, run: Run) -> MeasuredRun:
+        """A run's measured states and inputs, every value finite (no derivatives yet)."""
+        p = self.profile_
+        for name in p.state_names + p.input_names:
+            bad = np.flatnonzero(~np.isfinite(run[name]))
+            if bad.size:
+                raise EstimationError(f"{run.source}: channel '{name}': non-finite value at t = "
+                                      f"{run.time[bad[0]]:g} s")
+        return MeasuredRun(run, run.matrix(p.state_names), run.matrix(p.input_names))
+
+    def _prepare(self, runs: list[Run]) -> list[MeasuredRun]:
+        """The measured runs with their state derivatives (what the time-domain regression needs)."""
         p = self.profile_
         out = []
         for run in runs:
-            for name in p.state_names + p.input_names:
-                bad = np.flatnonzero(~np.isfinite(run[name]))
-                if bad.size:
-                    raise EstimationError(f"{run.source}: channel '{name}': non-finite value at t = "
-                                          f"{run.time[bad[0]]:g} s")
-            xdot, sources = state_derivatives(run, p, self.diff_cutoff_hz)
-            bad = np.argwhere(~np.isfinite(xdot))
+            d = self._measured(run)
+            d.xdot, d.sources = state_derivatives(run, p, self.diff_cutoff_hz)
+            bad = np.argwhere(~np.isfinite(d.xdot))
             if bad.size:
                 k, s = bad[0][0], p.state_names[bad[0][1]]
-                raise EstimationError(f"{run.source}: derivative of '{s}' ({sources[s]}): "
+                raise EstimationError(f"{run.source}: derivative of '{s}' ({d.sources[s]}): "
                                       f"non-finite value at t = {run.time[k]:g} s")
-            out.append(_Data(run, run.matrix(p.state_names), run.matrix(p.input_names), xdot, sources))
+            out.append(d)
         return out
 
     def _groups(self) -> list[Group]:
@@ -302,7 +310,7 @@ class _EquationError(Estimator):
         return groups
 
     # one regression pass --------------------------------------------------------------------
-    def _estimate(self, data: list[_Data], instruments: list[np.ndarray] | None):
+    def _estimate(self, data: list[MeasuredRun], instruments: list[np.ndarray] | None):
         m = self.model_
         p, n = len(m.names), m.n_states
         theta, cov_col, cov_white = np.zeros(p), np.zeros((p, p)), np.zeros((p, p))
@@ -335,10 +343,10 @@ class _EquationError(Estimator):
         return theta, cov_col, cov_white, biases, residual_std
 
     # simulation ---------------------------------------------------------------------------------
-    def _simulate(self, model: LinearModel, data: list[_Data], biases: np.ndarray, segment):
+    def _simulate(self, model: LinearModel, data: list[MeasuredRun], biases: np.ndarray, segment):
         return [simulate_states(model, d.u, d.run.dt, d.x, b, segment) for d, b in zip(data, biases)]
 
-    def _modelled(self, model: LinearModel, data: list[_Data], biases: np.ndarray):
+    def _modelled(self, model: LinearModel, data: list[MeasuredRun], biases: np.ndarray):
         """Output-error simulation of the identified model from each run's measured initial state;
         restarted as for the instruments only if a plain simulation diverges or drifts away."""
         C, D, Cd = model.C, model.D, model.Cd
@@ -373,7 +381,7 @@ class _EquationError(Estimator):
             "std_coloured": np.sqrt(np.diag(cov_col)),
             "standard_errors": "coloured-residual correction (Morelli & Klein)" if self.coloured
             else "white residuals",
-            "derivatives": [d.sources for d in data],
+            "derivatives": [d.sources for d in data] if data[0].sources is not None else info.get("derivatives"),
             "zero_shifts": [{p.equation(s): float(b[j]) for j, s in enumerate(p.state_names)} for b in biases]
             if self.bias else None,
             "initial_states": [dict(zip(p.state_names, d.x[0].tolist())) for d in data],
@@ -387,7 +395,7 @@ class _EquationError(Estimator):
             measured=measured, modelled=modelled)
 
 
-class LS(_EquationError):
+class LS(EquationError):
     """Equation-error least squares over one or several runs.
 
     Options: ``bias`` (a zero shift per run and equation, default True); ``diff_cutoff_hz`` for
@@ -405,7 +413,7 @@ class LS(_EquationError):
         return self._result(data, theta, cc, cw, biases, {"residual_std": rstd})
 
 
-class IV(_EquationError):
+class IV(EquationError):
     """Iterated instrumental variables.
 
     The instruments are the states simulated (per run, from the measured initial state, with the
@@ -416,6 +424,7 @@ class IV(_EquationError):
     """
 
     method = "iv"
+    progress_quantity = "max rel. change"
 
     def __init__(self, profile, *, start: str = "ls", max_iter: int = 30, tol: float = 1e-9,
                  progress=None, **options):

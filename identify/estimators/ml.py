@@ -98,6 +98,8 @@ class ML(Estimator):
     """
 
     method = "ml"
+    simulates_state_terms = True  # output error: a term built from states comes from the simulated ones
+    progress_quantity = "cost"
 
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
@@ -109,6 +111,18 @@ class ML(Estimator):
         self.noise_cov, self.coloured = noise_cov, coloured
         self.progress, self.verbose = progress, verbose
         self.covariance_ = self.problem_ = self.beta_ = None
+
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
+               bounds: bool = True) -> "ML":
+        """Refine's nested fit: the loop's zero shifts and segments (so that likelihoods before and
+        after an added effect compare); without ``bounds`` the coloured-residual correction is skipped."""
+        return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds)
+
+    def prediction_segment(self, model: LinearModel, duration: float) -> float:
+        """Its own ``segment`` if given, else the automatic choice for ``model`` (multiple shooting
+        for an unstable one)."""
+        seg = self.segment if self.segment is not None else auto_segment(model, duration)
+        return math.inf if seg == "plain" else float(seg)
 
     def _validate(self) -> None:
         super()._validate()

@@ -231,19 +231,19 @@ class OutputError:
             def compute(segments):
                 return self._sensitivities(model, Phi, dPhi, dGamma, x[..., segments], self.U[..., segments])
 
-            if self._segment_groups() == [(0, S)]:
+            if self.segment_groups() == [(0, S)]:
                 ev.held = compute(slice(None))
             else:
                 ev.compute = compute
         return ev
 
-    def _segment_groups(self) -> list[tuple[int, int]]:
+    def segment_groups(self) -> list[tuple[int, int]]:
         """Groups of segments ``(a, b)`` whose parameter sensitivities hold about SENS_GROUP_FLOATS."""
         lay = self.layout
         size = max(1, SENS_GROUP_FLOATS // (lay.L * self.ny * self.p))
         return [(a, min(lay.n_segments, a + size)) for a in range(0, lay.n_segments, size)]
 
-    def _blocks(self, columns: int):
+    def blocks(self, columns: int):
         """Time blocks ``(k0, k1)`` over the padded length, each holding about BLOCK_FLOATS floats
         of a (block, n, columns) array: long records never hold the sensitivity work whole."""
         L = self.layout.L
@@ -259,7 +259,7 @@ class OutputError:
         C = model.C
         dy_theta = np.empty((L, ny, p, S))
         sens = np.zeros((n, p * S))
-        for k0, k1 in self._blocks(p * S):
+        for k0, k1 in self.blocks(p * S):
             xb, ub = x[k0:k1], U[k0:k1]
             # forcing of the sensitivities, dPhi_i x + dGamma_i u, for all i at once: (l, n, p, S)
             forcing = ((dPhi.reshape(p * n, n) @ xb + dGamma.reshape(p * n, self.m) @ ub)
@@ -281,7 +281,7 @@ class OutputError:
     def _state_response(self, C: np.ndarray, Phi: np.ndarray) -> np.ndarray:
         """``C Phi^k`` (L, ny, n), a time block at a time."""
         out, power = np.empty((self.layout.L, self.ny, self.n)), np.eye(self.n)
-        for k0, k1 in self._blocks(self.n):
+        for k0, k1 in self.blocks(self.n):
             powers = propagate(Phi, np.zeros((k1 - k0, self.n, self.n)), power)
             out[k0:k1] = C @ powers
             power = Phi @ powers[-1]
@@ -316,7 +316,7 @@ class OutputError:
         """Whitened residuals at ``beta`` (what a general least-squares solver minimises)."""
         return self.whitened(self.evaluate(beta, jacobian=False), Wh)
 
-    def _local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None,
+    def local_jacobian(self, ev: Response, Wh: np.ndarray, k0: int = 0, k1: int | None = None,
                         segment: int | slice | None = None, dy_theta: np.ndarray | None = None) -> np.ndarray:
         """Whitened local Jacobian ``Wh [dy/dtheta, dy/dx0_s, dy/db]`` of every segment (or of
         ``segment``, an index or a slice of them) over the samples k0..k1 (default all),
@@ -367,11 +367,11 @@ class OutputError:
         _, ny, S = ev.e.shape
         k = self.p + self.n + ny
         Ml, gl = np.zeros((S, k, k)), np.zeros((S, k))
-        for a, b in self._segment_groups():  # a group of segments at a time, block by block in time:
+        for a, b in self.segment_groups():  # a group of segments at a time, block by block in time:
             segs = slice(a, b)               # bounded memory for long records
             dy = ev.theta_sensitivities(segs)
-            for k0, k1 in self._blocks((b - a) * k):
-                Jloc = self._local_jacobian(ev, Wh, k0, k1, segs, dy).reshape(b - a, (k1 - k0) * ny, k)
+            for k0, k1 in self.blocks((b - a) * k):
+                Jloc = self.local_jacobian(ev, Wh, k0, k1, segs, dy).reshape(b - a, (k1 - k0) * ny, k)
                 ew = (Wh @ ev.e[k0:k1, :, segs]).transpose(2, 0, 1).reshape(b - a, (k1 - k0) * ny, 1)
                 Jt = Jloc.transpose(0, 2, 1)
                 Ml[segs] += Jt @ Jloc

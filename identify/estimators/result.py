@@ -237,7 +237,7 @@ class IdentificationResult:
             "notes": [NULL_NOTE],
             "profile_toml": self.profile.to_toml(),  # the a priori, so that from_json rebuilds the result
         }
-        return _jsonable(out)
+        return jsonable(out)
 
     def save(self, outdir: str | Path) -> Path:
         """Write ``result.json``, ``identified_profile.toml``, ``summary.txt`` (the :meth:`summary`)
@@ -296,8 +296,8 @@ MAX_LISTED = 100  # per-segment entries kept in result.json
 
 
 def dumps(obj) -> str:
-    """Strict JSON text (no NaN/Infinity: they must be None already, see :func:`_jsonable`)."""
-    return json.dumps(_jsonable(obj), indent=1, allow_nan=False)
+    """Strict JSON text (no NaN/Infinity: they must be None already, see :func:`jsonable`)."""
+    return json.dumps(jsonable(obj), indent=1, allow_nan=False)
 
 
 def _summarised(info: dict) -> dict:
@@ -315,17 +315,17 @@ def _summarised(info: dict) -> dict:
     return info
 
 
-def _jsonable(obj):
+def jsonable(obj):
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
+        return jsonable(obj.tolist())
     if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return _jsonable(obj.item())
+        return jsonable(obj.item())
     if isinstance(obj, float) and not np.isfinite(obj):
         return None
     if isinstance(obj, complex):
-        return {"real": _jsonable(obj.real), "imag": _jsonable(obj.imag)}
+        return {"real": jsonable(obj.real), "imag": jsonable(obj.imag)}
     return obj

@@ -180,6 +180,25 @@ class LinearModel:
         return control.ss(self.A, self.B, self.C, self.D, states=p.state_names,
                           inputs=p.input_names, outputs=list(p.outputs), name=p.name)
 
+    def frequency_response(self, omega, inputs: list[str] | None = None,
+                           outputs: list[str] | None = None) -> np.ndarray:
+        """The continuous transfer matrix ``C (jwI - A)^-1 B + D`` at frequencies ``omega``.
+
+        ``omega``: (nf,) rad/s (a scalar gives nf = 1). ``inputs`` / ``outputs``: names of the
+        pairs wanted, default all of the profile's, in its order. Returns complex (nf, ny, nu)
+        in output units per input unit (rad/s per rad for ``q/theta_s``), frequency first as in
+        the measured :class:`~identify.estimators.frequency.FrequencyResponse` (python-control's
+        ``frequency_response`` orders (ny, nu, nf)). Solved for all frequencies at once.
+        """
+        p = self.profile
+        yi = [p.outputs.index(y) for y in (outputs or p.outputs)]
+        ui = [p.input_names.index(u) for u in (inputs or p.input_names)]
+        s = 1j * np.atleast_1d(np.asarray(omega, dtype=float))
+        n = self.n_states
+        X = np.linalg.solve(s[:, None, None] * np.eye(n) - self.A,
+                            np.broadcast_to(self.B[:, ui], (len(s), n, len(ui))))
+        return np.einsum("yn,fnu->fyu", self.C[yi], X) + self.D[np.ix_(yi, ui)]
+
     def modes(self) -> list[Mode]:
         return modes_of(self.A)
 

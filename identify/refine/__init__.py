@@ -1,7 +1,7 @@
 """Refine: find the structure left in the residuals, name the effect, add it, re-identify."""
-from ..estimators.registry import estimator_class
-from .evaluation import ModelFit, errors, evaluate, neg_log_likelihood, split_validation
+from .evaluation import errors, neg_log_likelihood, split_validation
+from .fitting import Fitting
 from .loop import Refine, Step
+from .scoring import ScoreTest
 
-__all__ = ["ModelFit", "Refine", "Step", "errors", "estimator_class", "evaluate", "neg_log_likelihood",
-           "split_validation"]
+__all__ = ["Fitting", "Refine", "ScoreTest", "Step", "errors", "neg_log_likelihood", "split_validation"]

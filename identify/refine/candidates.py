@@ -8,13 +8,17 @@ Each class owns everything about its effect:
 * ``pseudo()``: the pseudo-input channels it needs, as descriptions that
   :mod:`identify.model.pseudo_inputs` rebuilds from any run (so a refined profile works on plain
   measured runs with every command); ``runs(runs)`` adds them (a delay shifts its input instead);
-* ``score_columns(loop, p)``: its score-test columns when they are not the output sensitivities of
-  its parameters (``linear = False``: the delay's response to ``-du/dt``);
-* ``estimate(loop, p, noise, hint)``: its fit(s), by default one ML re-fit (the delay searches tau
-  by profile likelihood and also fits a lag).
+* ``score_columns(fitting, p)``: its score-test columns when they are not the output sensitivities
+  of its parameters (``linear = False``: the delay's response to ``-du/dt``);
+* ``estimate(fitting, p, noise, hint)``: its fit(s), by default one re-fit with the loop's
+  estimator (the delay searches tau by profile likelihood and also fits a lag);
+* ``revisit(fitting, p, result, noise, steps)`` (class method): a last look at the final model
+  once the loop has ended (the delay searches each of its delays again among the later effects).
 
-``KINDS`` maps a kind's name to its class; adding an effect is adding one class here and its name
-there (docs/refine.md lists the steps). The loop (:mod:`identify.refine.loop`) knows no kind.
+A candidate is handed a :class:`~identify.refine.fitting.Fitting` (refit, residuals, input
+response, cached predictions), never the loop. ``KIND_CLASSES`` maps a kind's name to its class;
+adding an effect is adding one class here and its name there (docs/architecture.md). The loop
+(:mod:`identify.refine.loop`) knows no kind.
 
 =============  ==============  ===============================================================
 kind           target          added
@@ -108,17 +112,23 @@ class Candidate:
     def apply(self, p: Profile, runs: list[Run], values: dict[str, float] | None = None):
         return self.profile(p, values), self.runs(runs)
 
-    def score_columns(self, loop, p: Profile) -> list[np.ndarray] | None:
+    def score_columns(self, fitting, p: Profile) -> list[np.ndarray] | None:
         """Per fit run (N_r, ny, q) columns for a candidate that is not ``linear``."""
         return None
 
-    def estimate(self, loop, p: Profile, noise, hint=None) -> list[tuple]:
-        """Fits as ``(profile, result, parameters, kind)``, the more likely first: one ML re-fit of
-        the extended profile (``loop.refit``), the parameters with ML's (coloured-residual) bounds."""
-        new_p, result = loop.refit(self.profile(p), p)
+    def estimate(self, fitting, p: Profile, noise, hint=None) -> list[tuple]:
+        """Fits as ``(profile, result, parameters, kind)``, the more likely first: one re-fit of the
+        extended profile (``fitting.refit``), the parameters with the estimator's bounds."""
+        new_p, result = fitting.refit(self.profile(p), p)
         params = {k: {"value": float(result.theta[result.names.index(k)]),
                       "std": float(result.std[result.names.index(k)])} for k in self.params}
         return [(new_p, result, params, self.kind)]
+
+    @classmethod
+    def revisit(cls, fitting, p: Profile, result, noise, steps: list) -> tuple:
+        """``(profile, result)`` after a last look at the final model ``p`` (fitted as ``result``)
+        by the kind whose ``steps`` were accepted; by default nothing changes."""
+        return p, result
 
     def implausible(self, params: dict[str, dict]) -> str:
         """Why the fitted ``params`` ({name: {"value", "std"}}) are physically implausible for
@@ -239,34 +249,54 @@ class Delay(Candidate):
         tau = (values or {}).get(self.params[0], self.spec["tau"])
         return self.profile(p, {self.params[0]: tau}), self.runs(runs, tau)
 
-    def score_columns(self, loop, p):
-        return [d[:, :, None] for d in loop.input_response(p, self.target, lambda u, dt: -np.gradient(u, dt))]
+    def score_columns(self, fitting, p):
+        return [d[:, :, None] for d in fitting.input_response(p, self.target, lambda u, dt: -np.gradient(u, dt))]
 
-    def estimate(self, loop, p, noise, hint=None):
+    @classmethod
+    def revisit(cls, fitting, p, result, noise, steps):
+        """A delay found early was searched without the effects found after it (the demo: 0.104 s
+        for a 0.1 s delay, 5 standard errors off, before the other cyclic's delay was added): with
+        more than one delay accepted, search each again in the final model, the others held, and
+        record the new estimate in its step."""
+        delays_found = [s for s in steps if s.effect == cls.kind]
+        if len(delays_found) < 2:
+            return p, result
+        for step in delays_found:
+            delays = dict(p.meta["delays"])
+            tau = delays.pop(step.target)
+            without = replace(p, meta={**p.meta, "delays": delays})
+            new_p, new_result, params, _ = cls(step.target, lag=False).estimate(fitting, without, noise, hint=tau)[0]
+            if noise.cost(fitting.residuals(new_p)) <= noise.cost(fitting.residuals(p)):
+                p, result, step.parameters = new_p, new_result, params
+            fitting.say(f"delay on {step.target} searched again in the final model: {tau:.4g} -> "
+                        f"{step.parameters[f'tau_{step.target}']['value']:.4g} s")
+        return p, result
+
+    def estimate(self, fitting, p, noise, hint=None):
         options = []
-        dt = loop.dt
+        dt = fitting.dt
         if self.spec["_search"]:
             fits: dict[float, tuple] = {}
 
             def at(tau: float):
-                tau = float(np.clip(tau, 0.0, loop.tau_max))
+                tau = float(np.clip(tau, 0.0, fitting.tau_max))
                 key = round(tau, 9)
                 if key not in fits:
                     # warm start from the nearest delay fitted so far: a few iterations, not twenty
                     start = fits[min(fits, key=lambda k: abs(k - key))][1] if fits else p
                     try:
-                        prof, res = loop.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
-                        fits[key] = (0.5 * noise.cost(loop.residuals(prof)), prof, res)
+                        prof, res = fitting.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
+                        fits[key] = (0.5 * noise.cost(fitting.residuals(prof)), prof, res)
                     except (EstimationError, SimulationError):  # a delay whose fit diverges is not the likeliest one
                         fits[key] = (math.inf, start, None)
                 return fits[key]
 
             # the profile likelihood in the metric of the test's noise model (under turbulence the
             # white one is biased: 0.088 s for a 0.1 s delay, 10 standard errors off)
-            tau = _search_delay(lambda t: at(t)[0], hint or 0.0, dt, loop.tau_max)
+            tau = _search_delay(lambda t: at(t)[0], hint or 0.0, dt, fitting.tau_max)
             if not math.isfinite(at(tau)[0]):
                 raise EstimationError(f"delay on '{self.target}': the fit diverged at every delay tried")
-            prof, res = loop.refit(at(tau)[1], p)  # the same fit, with its bounds
+            prof, res = fitting.refit(at(tau)[1], p)  # the same fit, with its bounds
             # the bound from the curvature (central difference, shifted off the bound tau = 0)
             h = max(dt / 2, 0.05 * tau)
             c = tau if tau >= h else h
@@ -277,12 +307,12 @@ class Delay(Candidate):
         if self.spec["_lag"]:
             tau0 = options[0][2][self.params[0]]["value"] if options else 0.1
             try:
-                options += Lag(self.target, k=1.0 / max(tau0, 2 * dt)).estimate(loop, p, noise)
+                options += Lag(self.target, k=1.0 / max(tau0, 2 * dt)).estimate(fitting, p, noise)
             except PseudostepError:
                 pass  # a lag that diverges or cannot be fitted is not the effect
         if not options:
             raise EstimationError(f"neither a delay nor a lag on '{self.target}' could be fitted")
-        return sorted(options, key=lambda o: noise.cost(loop.residuals(o[0])))
+        return sorted(options, key=lambda o: noise.cost(fitting.residuals(o[0])))
 
 
 def _search_delay(cost, tau0: float, dt: float, tau_max: float) -> float:

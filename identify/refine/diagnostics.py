@@ -24,6 +24,7 @@ import numpy as np
 from scipy import signal, stats
 
 from ..errors import EstimationError
+from ..estimators.prediction import block_design
 
 
 def _stack(residuals) -> list[np.ndarray]:
@@ -216,26 +217,6 @@ def orthonormal_basis(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
         keep = lam > cut * max(lam.max(initial=0.0), 1e-300)
         Q = Q @ (V[:, keep] / np.sqrt(lam[keep]))
     return Q
-
-
-def block_design(shared: list[np.ndarray], per_run: list[np.ndarray]) -> np.ndarray:
-    """Stack per-run sensitivities into one design matrix.
-
-    ``shared``: per run (N_r, ny, p) columns common to all runs (parameters); ``per_run``: per run
-    (N_r, ny, k_r) nuisance columns (initial state, zero shifts) that get their own block. Rows are
-    run-major, then sample, then output (as ``residual.ravel()``). Returns (M, p + sum k_r).
-    """
-    p = shared[0].shape[2]
-    k_tot = sum(c.shape[2] for c in per_run)
-    rows = sum(c.shape[0] * c.shape[1] for c in shared)
-    J = np.zeros((rows, p + k_tot))
-    r0, c0 = 0, p
-    for s, c in zip(shared, per_run):
-        m = s.shape[0] * s.shape[1]
-        J[r0:r0 + m, :p] = s.reshape(m, p)
-        J[r0:r0 + m, c0:c0 + c.shape[2]] = c.reshape(m, c.shape[2])
-        r0, c0 = r0 + m, c0 + c.shape[2]
-    return J
 
 
 def sidak_threshold(alpha: float, n_tests: int, dof: int) -> float:

@@ -6,7 +6,7 @@ std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``e
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
 ``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
 the declared model's fit and of the refined model against the fit runs' frequency responses, per
-input-output pair and the mean: :func:`identify.frequency.cost_report`) and ``final_profile`` (the
+input-output pair and the mean: :func:`identify.estimators.frequency.response.cost_report`) and ``final_profile`` (the
 refined model as profile TOML text).
 """
 from __future__ import annotations
@@ -16,19 +16,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimators.result import _jsonable
-from ..frequency import cost_report, format_cost
+from ..estimators.result import jsonable
+from ..estimators.frequency.response import cost_report, format_cost
 from .diagnostics import spectral_peak
 from .loop import Refine
 
 
 def to_dict(r: Refine) -> dict:
     """Everything ``refine.json`` holds (plain JSON types)."""
-    return _jsonable({
+    return jsonable({
         "profile": r.declared_.name,
-        "method": r.method if r.estimator is None else getattr(r.estimator, "__name__", str(r.estimator)),
-        "runs": [run.source for run in r._raw],
-        "validation_runs": [run.source for run in r._val],
+        "method": r.estimator_.method,
+        "estimator": {"class": type(r.estimator_).__name__,
+                      **{k: v for k, v in r.estimator_.get_params().items() if k != "profile" and not callable(v)}},
+        "runs": [run.source for run in r.runs_],
+        "validation_runs": [run.source for run in r.validation_runs_],
         "data": r.data_,
         "alpha": r.alpha,
         "coloured_tests": r.coloured,
@@ -36,7 +38,7 @@ def to_dict(r: Refine) -> dict:
         "noise_model_white": r.noise_white_,
         "tries": r.tries_,
         "evaluations": r.evaluations_,
-        "catalogue": list(r._kinds),
+        "catalogue": list(r.kinds_),
         "unconverged_fits": r.unconverged_,
         "segment_s": r.segment_ if np.isfinite(r.segment_) else None,
         "nothing_found": r.nothing_found,
@@ -46,11 +48,8 @@ def to_dict(r: Refine) -> dict:
         "error_before": r.error_before_,
         "error_after": r.error_after_,
         "diagnostics": r.diagnostics_,
-        "frequency_cost_J": cost_report(r._raw, {"before": r.initial_result_.model, "after": r.result_.model})[1],
-        "last_scores": [{"effect": t["candidate"].kind, "target": t["candidate"].target,
-                         "statistic": t["statistic"], "threshold": t["threshold"], "dof": t["dof"],
-                         "metric": t["metric"]}
-                        for t in sorted(r.last_scores_, key=lambda t: t["log_p"])[:10]],
+        "frequency_cost_J": cost_report(r.runs_, {"before": r.initial_result_.model, "after": r.result_.model})[1],
+        "last_scores": [t.to_dict() for t in sorted(r.last_scores_, key=lambda t: t.log_p)[:10]],
         "poorly_identified": _poorly_identified(r),
         "final_parameters": {n: {"value": float(v), "std": float(s)}
                              for n, v, s in zip(r.result_.names, r.result_.theta, r.result_.std)},
@@ -114,7 +113,7 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
               f"{_names(d['choosing'])}",
               f"- **judging** (only confirms a candidate the rest has chosen, once; the `validation` "
               f"errors below): {_names(d['validation'])}",
-              f"- method {data['method']}; candidates of {', '.join(r._kinds)}; family-wise false-alarm "
+              f"- method {data['method']}; candidates of {', '.join(r.kinds_)}; family-wise false-alarm "
               f"level alpha = {r.alpha} per step (Šidák over all candidates tested)",
               "- tests " + ("valid for coloured residuals: score and likelihood-ratio statistics in the metric "
                             "of a vector autoregressive noise model of the residuals (orders per step: "
@@ -198,7 +197,7 @@ def _plots(r: Refine, outdir: Path) -> list[str]:
     before, after = ev["before"].residuals, ev["fit"].residuals
     _before_after(ev["time"][0], before[0], after[0], outputs, "time [s]",
                   "residuals (first fit run)", outdir / "residuals.png", log=False)
-    dt = r._raw[0].dt
+    dt = r.runs_[0].dt
     sb, sa = spectral_peak(before, dt), spectral_peak(after, dt)
     _before_after(sb["freqs"][1:], sb["psd"][1:], sa["psd"][1:], outputs, "frequency [Hz]",
                   "residual spectra (periodogram, fit runs averaged)", outdir / "residual_spectra.png", log=True)
@@ -206,13 +205,15 @@ def _plots(r: Refine, outdir: Path) -> list[str]:
 
 
 def _before_after(x, before, after, outputs, xlabel: str, title: str, path: Path, log: bool) -> None:
-    """One panel per output, before and after refinement; ``before``/``after`` (N, ny)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """One panel per output, before and after refinement; ``before``/``after`` (N, ny); drawn on
+    an Agg canvas (no pyplot state)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     ny = len(outputs)
-    fig, axes = plt.subplots(ny, 1, figsize=(8, 1.6 * ny + 0.6), sharex=True, squeeze=False)
+    fig = Figure(figsize=(8, 1.6 * ny + 0.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(ny, 1, sharex=True, squeeze=False)
     for j, y in enumerate(outputs):
         ax = axes[j, 0]
         draw = ax.semilogy if log else ax.plot
@@ -222,6 +223,4 @@ def _before_after(x, before, after, outputs, xlabel: str, title: str, path: Path
     axes[0, 0].legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel(xlabel)
     fig.suptitle(title)
-    fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)

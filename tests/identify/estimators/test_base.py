@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from identify import IV, LS, ML, EstimationError, ProfileError, simulate_run
-from identify.estimators.frequency_ee import FDEE
+from identify.estimators.frequency.equation_error import FDEE
 from identify.estimators.registry import METHODS, estimator_class
 
 

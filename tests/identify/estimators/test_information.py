@@ -78,7 +78,7 @@ def _dense_coloured_std(prob, ev, Wh, cov, passes=300):
     autocorrelation, and the fixed point rho = r + [2 tr(S_k H T) - tr(S_k H T H)] / N solved by
     plain iteration to machine precision."""
     lay, ny = prob.layout, prob.ny
-    Jloc = prob._local_jacobian(ev, Wh)  # (S, L, ny, k)
+    Jloc = prob.local_jacobian(ev, Wh)  # (S, L, ny, k)
     J = []  # per segment (l, ny, n_beta)
     for s in range(lay.n_segments):
         keep = prob.local_index[s] >= 0

@@ -302,7 +302,7 @@ def test_evaluation_of_the_true_model_leaves_only_the_noise(s61):
     the true model's residuals must be the measurement noise on every output, however different
     their units (m/s next to rad). Unweighted, the rotor-tilt residuals were 15x the noise."""
     from identify import simulate_run
-    from identify.refine import evaluate
+    from identify.estimators.prediction import evaluate
 
     t = np.arange(501) * 0.02
     u = np.zeros((501, 2))
@@ -372,16 +372,16 @@ def test_effects_found_under_turbulence(case):
 def test_each_model_is_evaluated_once_per_data_set(monkeypatch):
     """The loop asks for the same (model, data) pair many times (errors, likelihoods, held-out
     checks, diagnostics); the model is simulated once."""
-    import identify.refine.loop as loop
+    import identify.estimators.prediction as prediction
 
     seen = []
-    real = loop.predict  # a model on a data set (the jacobian of the score test goes to evaluate)
+    real = prediction.predict  # a model on a data set (the jacobian of the score test goes to evaluate)
 
     def counting(p, runs, *args, **kw):
         seen.append((p.to_toml(), tuple(r.source for r in runs), len(runs[0])))
         return real(p, runs, *args, **kw)
 
-    monkeypatch.setattr(loop, "predict", counting)
+    monkeypatch.setattr(prediction, "predict", counting)
     truth = parse_profile(TOML.replace("M_eta = 5.0", "M_eta = 5.0\nM_u = 0.05"))
     r = refine(*make_runs(truth), kinds=("derivative", "drift"))
     assert r.steps_ and len(seen) == r.evaluations_ - len(r.noise_orders_)
@@ -428,14 +428,14 @@ def test_no_nonlinear_term_from_turbulence_in_the_measured_states():
         fit, val = trimmed_turbulent_runs((100 + 3 * i, 101 + 3 * i, 102 + 3 * i))
         r = Refine(PROFILE, kinds=("derivative", "nonlinear")).fit(fit, validate=val)
         assert not [s for s in r.steps_ if s.effect == "nonlinear"], [s.to_dict() for s in r.steps_]
-        scores.append(next(t["statistic"] for t in r.last_scores_ if t["candidate"].name == "nonlinear:M:q_absq"))
+        scores.append(next(t.statistic for t in r.last_scores_ if t.candidate.name == "nonlinear:M:q_absq"))
     assert np.mean(scores) < 4.0, scores
 
 
 def test_state_built_terms_come_from_the_simulated_states():
     """``predict`` builds q|q| from the model's simulated q (zero shift removed), never the measured q."""
     from identify.refine.candidates import Nonlinear, prepare_runs
-    from identify.refine.evaluation import predict
+    from identify.estimators.prediction import predict
 
     fit, _ = nonlinear_runs(-20.0)
     p = Nonlinear("M", "q_absq", ("q",), "absq").profile(PROFILE, {"M_q_absq": -20.0})
@@ -459,7 +459,8 @@ def test_unconverged_internal_fits_are_recorded_not_silent(tmp_path):
     from identify.refine.report import write
 
     fit, val = make_runs()
-    r = Refine(PROFILE, estimator_options={"max_iter": 1}, kinds=("drift",), max_steps=1).fit(fit, validate=val)
+    from identify import ML
+    r = Refine(PROFILE, estimator=ML(PROFILE, max_iter=1), kinds=("drift",), max_steps=1).fit(fit, validate=val)
     assert r.unconverged_ and all("did not converge" in note for note in r.unconverged_)
     assert not r.initial_result_.converged
     write(r, tmp_path, plots=False)
@@ -485,7 +486,7 @@ def test_estimate_on_a_refined_profile_builds_state_terms_as_refine_does(tmp_pat
     cli = json.loads((tmp_path / "out" / "result.json").read_text())["parameters"]["M_q_absq"]
     loop = Refine(p)
     loop.fit(fit)  # sets up the loop's data; its own refit of p is the reference
-    _, ref = loop.refit(p, p)
+    _, ref = loop.fitting_.refit(p, p)
     i = ref.names.index("M_q_absq")
     assert abs(cli["value"] - ref.theta[i]) < 0.2 * ref.std[i], (cli, ref.theta[i], ref.std[i])
     assert abs(cli["value"] + 20.0) < 3 * cli["std"], cli
@@ -498,7 +499,7 @@ def test_feedback_bounds_match_the_fixed_point_of_the_fits():
     from identify import ML
     from identify.model.pseudo_inputs import prepare
     from identify.refine.candidates import Nonlinear
-    from identify.refine.evaluation import feedback_bounds, fit_state_terms, predict
+    from identify.estimators.prediction import feedback_bounds, fit_state_terms, predict
 
     fit, _ = nonlinear_runs(-20.0, noise=0.10)
     p = parse_profile(Nonlinear("M", "q_absq", ("q",), "absq").profile(PROFILE, {"M_q_absq": -20.0}).to_toml())

@@ -1,4 +1,4 @@
-"""Frequency-domain equation error (Morelli & Klein): batch (``FDEE``) and recursive (``RecursiveFDEE``).
+"""Frequency-domain equation error (Morelli & Klein): ``FDEE``, batch (``fit``) and streaming (``partial_fit``).
 
 The state equations ``dx/dt = A x + B u + b`` (b a zero shift per run and equation), Fourier
 transformed over a record ``[0, T]`` at frequencies ``w`` of a chosen band, read::
@@ -23,9 +23,10 @@ K(w_k - w_l)`` and ``E[e_k e_l] ~ sqrt(S_k S_l) K(w_k + w_l)`` with ``K(d) = int
 covariance is the sandwich ``M^-1 1/2 Re(X^H V X + X^H V' conj(X)) M^-1``, ``M = Re(X^H X)``. The
 white-residual bound (one flat spectrum per run and equation) is kept in ``info["std_white"]``.
 
-The recursive version (Morelli, AIAA 99-4043) updates the transforms every sample, one complex
-multiply-add per frequency and channel, and re-solves whenever asked (about once a second in the
-cockpit); see :class:`RecursiveFDEE`.
+Streaming (Morelli, AIAA 99-4043): ``FDEE.partial_fit(t, x, u)`` adds samples to one growing
+record's transform (one complex multiply-add per frequency and channel, :class:`FourierTransform`)
+and :meth:`FDEE.solve` / :meth:`FDEE.step` re-solve whenever asked (about once a second in the
+cockpit), giving a :class:`LiveEstimate`. The same samples through ``fit`` give the same numbers.
 """
 from __future__ import annotations
 
@@ -33,60 +34,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.runs import Run
-from ..errors import EstimationError
-from ..model.linear import LinearModel
-from ..model.profile import Profile, load_profile
-from .equation_error import Group, _check_rank, _EquationError, equation_groups
-from .result import IdentificationResult, insensitivity
+from ...data.runs import Run
+from ...errors import EstimationError
+from ...model.linear import LinearModel
+from ..equation_error import Group, check_rank, EquationError, MeasuredRun
+from ..result import IdentificationResult, insensitivity
+from .base import FourierTransform, Transform, record_kernel
 
+LIVE_BAND = (0.05, 1.5)  # Hz: the streamed record's band (the cockpit's), fixed before any sample
+LIVE_N_FREQ = 60
 DEFAULT_F_MAX = 2.0  # Hz: above it rotorcraft rigid-body models stop holding
 MAX_FREQUENCIES = 200
 SMOOTH_HALF_WIDTH = 3  # frequencies either side in the residual-spectrum estimate
-
-
-@dataclass
-class Transform:
-    """Finite Fourier transforms of one record at ``omega`` (rad/s): states ``X`` (nf, n), inputs
-    ``U`` (nf, m) (units x s), boundary term ``end`` (nf, n) = ``x(T) e^{-jwT} - x(0)``, ``one``
-    (nf,) the transform of 1 (the zero shift's regressor), record length ``T`` (s)."""
-
-    X: np.ndarray
-    U: np.ndarray
-    end: np.ndarray
-    one: np.ndarray
-    T: float
-
-
-def _kernel(d: np.ndarray, T: float) -> np.ndarray:
-    """``int_0^T e^{-jdt} dt`` for an array of frequency differences d (rad/s)."""
-    small = np.abs(d) * T < 1e-9
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k = (1 - np.exp(-1j * d * T)) / (1j * d)
-    return np.where(small, T + 0j, k)
-
-
-def transform(t: np.ndarray, x: np.ndarray, u: np.ndarray, omega: np.ndarray, held_inputs: bool = True,
-              chunk: int = 4096) -> Transform:
-    """Transforms of states x (N, n) and inputs u (N, m) sampled at t (N,) (from t[0]), in chunks
-    of samples so memory stays (chunk, nf)."""
-    t = np.asarray(t, dtype=float) - t[0]
-    N, T = len(t), float(t[-1])
-    w_trap = np.concatenate([[(t[1] - t[0]) / 2], (t[2:] - t[:-2]) / 2, [(t[-1] - t[-2]) / 2]])
-    X = np.zeros((len(omega), x.shape[1]), complex)
-    U = np.zeros((len(omega), u.shape[1]), complex)
-    for k0 in range(0, N, chunk):
-        k1 = min(N, k0 + chunk + 1)  # one sample of overlap for the held inputs' intervals
-        e = np.exp(-1j * np.outer(t[k0:k1], omega))  # (c, nf)
-        own = slice(0, min(chunk, N - k0))
-        X += e[own].T @ (x[k0:k0 + own.stop] * w_trap[k0:k0 + own.stop, None])
-        if held_inputs:  # u[k] held over [t_k, t_k+1]: int = u_k (e_k - e_k+1) / (jw)
-            diff = (e[:-1] - e[1:]) / (1j * omega)
-            U += diff.T @ u[k0:k1 - 1]
-        else:
-            U += e[own].T @ (u[k0:k0 + own.stop] * w_trap[k0:k0 + own.stop, None])
-    end = np.outer(np.exp(-1j * omega * T), x[-1]) - x[0]
-    return Transform(X, U, end, _kernel(omega, T), T)
 
 
 def default_frequencies(durations: list[float], dt: float, band: tuple[float, float] | None = None,
@@ -145,8 +104,8 @@ class _Kernels:
     def __call__(self, T: float):
         if T != self._T:
             self._T = T
-            self._K = (_kernel(self.d_vals, T)[self.d_idx].reshape(self.shape),
-                       _kernel(self.s_vals, T)[self.s_idx].reshape(self.shape))
+            self._K = (record_kernel(self.d_vals, T)[self.d_idx].reshape(self.shape),
+                       record_kernel(self.s_vals, T)[self.s_idx].reshape(self.shape))
         return self._K
 
 
@@ -196,7 +155,7 @@ def solve_groups(model: LinearModel, groups: list[Group], trs: list[Transform], 
         X, y = np.vstack(Xb), np.concatenate(yb)
         names = [model.names[j] for j in g.params] + [f"zero shift {k}" for k in range(X.shape[1] - len(g.params))]
         try:
-            scale = _check_rank(np.vstack([X.real, X.imag]), names)
+            scale = check_rank(np.vstack([X.real, X.imag]), names)
         except EstimationError as exc:
             out[gi] = {"error": str(exc)}
             continue
@@ -226,16 +185,23 @@ def solve_groups(model: LinearModel, groups: list[Group], trs: list[Transform], 
     return out
 
 
-# -- batch estimator -----------------------------------------------------------------------------
-class FDEE(_EquationError):
-    """Frequency-domain equation error over one or several runs (Morelli & Klein).
+# -- the estimator -------------------------------------------------------------------------------
+class FDEE(EquationError):
+    """Frequency-domain equation error over one or several runs (Morelli & Klein), or streamed.
 
-    Options: ``band`` (Hz, default one cycle of the shortest run to min(2 Hz, 0.2 x sample rate));
-    ``n_freq`` (default: spacing half of 1/T, at most 200); ``held_inputs`` (inputs held over each
-    sample, as simulations and the cockpit log have them; False for inputs sampled from continuous
-    signals); ``bias`` (a zero shift per run and equation); ``coloured`` (standard errors corrected
-    for coloured residuals, default True); ``reinit`` only for how ``result_.modelled`` is simulated.
-    Every state must be measured; no derivative is needed.
+    Options: ``band`` (Hz, default one cycle of the shortest run to min(2 Hz, 0.2 x sample rate);
+    streamed: LIVE_BAND); ``n_freq`` (default: spacing half of 1/T, at most 200; streamed:
+    LIVE_N_FREQ); ``held_inputs`` (inputs held over each sample, as simulations and the cockpit log
+    have them; False for inputs sampled from continuous signals); ``bias`` (a zero shift per run and
+    equation); ``coloured`` (standard errors corrected for coloured residuals, default True);
+    ``reinit`` only for how ``result_.modelled`` is simulated. Every state must be measured; no
+    derivative is needed (``jw X(w)`` stands for the transform of ``dx/dt``).
+
+    ``fit(runs)`` estimates from whole runs (``result_``). ``partial_fit(t, x, u)`` adds samples of
+    the states (n,) or (k, n) and inputs (m,) or (k, m) at times t (s) to one live record, whose
+    frequencies ``omega_`` are fixed at the first call; ``solve()`` re-solves every equation group,
+    ``step()`` only the next one in turn (to spread a re-solve over frames) and returns the
+    :class:`LiveEstimate` when a round completes.
     """
 
     method = "fdee"
@@ -253,42 +219,105 @@ class FDEE(_EquationError):
         if self.n_freq is not None and not (isinstance(self.n_freq, int) and self.n_freq >= 2):
             raise EstimationError(f"n_freq must be an integer of at least 2, got {self.n_freq!r}")
 
+    def _prepare(self, runs: list[Run]) -> list[MeasuredRun]:
+        """The measured states and inputs, checked finite; unlike LS and IV no derivative."""
+        return [self._measured(run) for run in runs]
+
+    # batch ------------------------------------------------------------------------------------
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         data = self._prepare(runs)
         dt = min(d.run.dt for d in data)
         omega = default_frequencies([d.run.duration for d in data], dt, self.band, self.n_freq)
-        trs = [transform(d.run.time, d.x, d.u, omega, self.held_inputs) for d in data]
-        m = self.model_
+        trs = [FourierTransform(omega, self.held_inputs).fit(d.run.time, d.x, d.u).transform() for d in data]
         groups = self._groups()
-        solved = solve_groups(m, groups, trs, omega, self.bias)
+        solved = solve_groups(self.model_, groups, trs, omega, self.bias)
         failed = [s["error"] for s in solved.values() if "error" in s]
         if failed:
             raise EstimationError(f"FDEE over {omega[0] / 2 / np.pi:.3g}..{omega[-1] / 2 / np.pi:.3g} Hz: "
                                   f"{'; '.join(failed)}")
-        p, n = len(m.names), m.n_states
+        theta, cov, cov_white, biases, rms = self._collect(groups, solved, len(data))
+        info = {"band_hz": [float(omega[0] / 2 / np.pi), float(omega[-1] / 2 / np.pi)], "n_frequencies": len(omega),
+                "held_inputs": self.held_inputs, "residual_rms_frequency_domain": rms,
+                "derivatives": "not used: j w X(w) in the frequency domain",
+                "frequency_domain": True}
+        result = self._result(data, theta, cov, cov_white, biases, info)
+        result.info["standard_errors"] = ("coloured-residual correction (smoothed residual spectrum, "
+                                          "finite-record kernel)" if self.coloured else "white residuals")
+        result.info["accuracy"] = result.accuracy()  # Cramér-Rao and insensitivity %, flagged
+        return result
+
+    def _collect(self, groups: list[Group], solved: dict, n_runs: int):
+        """The groups' solutions placed into the full parameter vector and covariances."""
+        m = self.model_
+        p = len(m.names)
         theta, cov, cov_white = np.zeros(p), np.zeros((p, p)), np.zeros((p, p))
-        biases, rms = np.zeros((len(data), n)), {}
+        biases, rms = np.zeros((n_runs, m.n_states)), {}
         for gi, g in enumerate(groups):
             s, idx = solved[gi], np.array(g.params)
             theta[idx] = s["theta"]
             cov[np.ix_(idx, idx)], cov_white[np.ix_(idx, idx)] = s["cov"], s["cov_white"]
             biases[:, g.equations] = s["biases"]
             rms.update({self.profile_.state_names[e]: v for e, v in zip(g.equations, s["residual_rms"])})
-        info = {"band_hz": [float(omega[0] / 2 / np.pi), float(omega[-1] / 2 / np.pi)], "n_frequencies": len(omega),
-                "held_inputs": self.held_inputs, "residual_rms_frequency_domain": rms}
-        result = self._result(data, theta, cov, cov_white, biases, info)
-        result.info["derivatives"] = "not used: j w X(w) in the frequency domain"
-        result.info["standard_errors"] = ("coloured-residual correction (smoothed residual spectrum, "
-                                          "finite-record kernel)" if self.coloured else "white residuals")
-        result.info["frequency_domain"] = True
-        result.info["accuracy"] = result.accuracy()  # Cramér-Rao and insensitivity %, flagged
-        return result
+        return theta, cov, cov_white, biases, rms
+
+    # streaming --------------------------------------------------------------------------------
+    def partial_fit(self, t, x, u) -> "FDEE":
+        """Add samples to the live record (see the class notes); the first call fixes the frequencies."""
+        if getattr(self, "transform_", None) is None:
+            self._validate()
+            self.groups_ = self._groups()
+            lo, hi = self.band or LIVE_BAND
+            self.omega_ = 2 * np.pi * np.linspace(lo, hi, self.n_freq or LIVE_N_FREQ)
+            self.transform_ = FourierTransform(self.omega_, self.held_inputs)
+            self.solved_, self.next_group_ = {}, 0
+        self.transform_.partial_fit(t, x, u)
+        return self
+
+    @property
+    def n_samples(self) -> int:
+        return 0 if getattr(self, "transform_", None) is None else self.transform_.n_samples
+
+    def _solve_live(self, only) -> None:
+        if self.n_samples == 0:
+            raise EstimationError("FDEE: no samples streamed yet (call partial_fit first)")
+        tr = self.transform_.transform()
+        self.solved_.update(solve_groups(self.model_, self.groups_, [tr], self.omega_, self.bias, only,
+                                         white=False))
+
+    def solve(self) -> "LiveEstimate":
+        """Re-solve every group of the streamed record now."""
+        self._solve_live(None)
+        self.next_group_ = 0
+        return self.estimate()
+
+    def step(self) -> "LiveEstimate | None":
+        """Re-solve the next group; the estimate when this completes a round, else None."""
+        if self.n_samples == 0 or self.transform_.T <= 0:
+            return None
+        self._solve_live([self.next_group_])
+        self.next_group_ = (self.next_group_ + 1) % len(self.groups_)
+        return self.estimate() if self.next_group_ == 0 else None
+
+    def estimate(self) -> "LiveEstimate":
+        """The live estimate from the groups solved so far (a priori values where none is)."""
+        p = len(self.model_.names)
+        theta, std, ins = self.model_.theta.copy(), np.full(p, np.nan), np.full(p, np.nan)
+        errors = {}
+        for gi, g in enumerate(self.groups_):
+            r = self.solved_.get(gi)
+            eq = ",".join(self.profile_.equation(self.profile_.state_names[e]) for e in g.equations)
+            if r is None or "error" in r:
+                errors[eq] = "not solved yet" if r is None else r["error"]
+                continue
+            theta[g.params] = r["theta"]
+            std[g.params] = np.sqrt(np.maximum(np.diag(r["cov"]), 0))
+            ins[g.params] = insensitivity(r["cov"])
+        return LiveEstimate(self.transform_.T, theta, std, errors, ins)
 
 
-# -- recursive estimator -------------------------------------------------------------------------
 @dataclass
 class LiveEstimate:
-    """One re-solve of the recursive estimator: at record time ``t`` (s), ``theta`` and ``std``
+    """One re-solve of the streamed estimate: at record time ``t`` (s), ``theta`` and ``std``
     (p,) (nan where a group is not identifiable yet), ``errors`` {group equations: reason}."""
 
     t: float
@@ -306,96 +335,3 @@ class LiveEstimate:
     def relative_insensitivity(self) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             return 100 * self.insensitivity / np.abs(self.theta)
-
-
-class RecursiveFDEE:
-    """Frequency-domain equation error with transforms updated sample by sample (Morelli 1999).
-
-    ``update(t, x, u)`` adds one sample (states (n,), inputs (m,) at time t s): one complex
-    multiply-add per frequency and channel, vectorised over both; ``solve()`` re-solves every
-    equation group now, ``step()`` only the next one in turn (to spread a re-solve over frames),
-    returning the estimate when a full round has completed. Frequencies: ``band`` (Hz) with
-    ``n_freq`` points, fixed for the whole record. Inputs are taken as held over each sample.
-    """
-
-    def __init__(self, profile: Profile | str, band: tuple[float, float] = (0.05, 1.5), n_freq: int = 60,
-                 bias: bool = True):
-        self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
-        if not (len(band) == 2 and 0 < band[0] < band[1]) or n_freq < 2:
-            raise EstimationError(f"band must be (low, high) Hz with 0 < low < high and n_freq >= 2")
-        self.model = LinearModel(self.profile)
-        self.groups = equation_groups(self.model)
-        covered = {j for g in self.groups for j in g.params}
-        if len(covered) < len(self.model.names):
-            raise EstimationError("some parameters act only on the output equation: equation error cannot "
-                                  "estimate them")
-        self.omega = 2 * np.pi * np.linspace(band[0], band[1], n_freq)
-        self.bias = bias
-        n, m = self.model.n_states, self.model.n_inputs
-        self._X = np.zeros((n_freq, n), complex)
-        self._U = np.zeros((n_freq, m), complex)
-        self._t0 = None
-        self._prev = None  # (t, e (nf,), x e (nf, n), u (m,))
-        self._x0 = None
-        self._inv_jw = 1 / (1j * self.omega)
-        self._results: dict[int, dict] = {}
-        self._next = 0
-        self.n_samples = 0
-
-    def update(self, t: float, x, u) -> None:
-        x, u = np.asarray(x, dtype=float), np.asarray(u, dtype=float)
-        if self._t0 is None:
-            self._t0, self._x0 = t, x.copy()
-        tau = t - self._t0
-        e = np.exp(-1j * self.omega * tau)
-        xe = e[:, None] * x  # the multiply: one per frequency and state
-        if self._prev is not None:
-            tp, ep, xep, up = self._prev
-            dt = tau - tp
-            if dt <= 0:
-                return  # a repeated time stamp adds nothing
-            self._X += 0.5 * dt * (xep + xe)  # the add (trapezoid)
-            self._U += ((ep - e) * self._inv_jw)[:, None] * up  # held input over [tp, tau]
-        self._prev = (tau, e, xe, u)
-        self._x_last = x
-        self.n_samples += 1
-
-    def transform(self) -> Transform:
-        if self._prev is None:
-            raise EstimationError("no samples yet")
-        T = self._prev[0]
-        return Transform(self._X.copy(), self._U.copy(), self._prev[2] - self._x0, _kernel(self.omega, T), T)
-
-    def _solve(self, only) -> None:
-        tr = self.transform()
-        self._results.update(solve_groups(self.model, self.groups, [tr], self.omega, self.bias, only, white=False))
-
-    def solve(self) -> LiveEstimate:
-        """Re-solve every group now."""
-        self._solve(None)
-        self._next = 0
-        return self.estimate()
-
-    def step(self) -> LiveEstimate | None:
-        """Re-solve the next group; the estimate when this completes a round, else None."""
-        if self._prev is None or self._prev[0] <= 0:
-            return None
-        self._solve([self._next])
-        self._next = (self._next + 1) % len(self.groups)
-        return self.estimate() if self._next == 0 else None
-
-    def estimate(self) -> LiveEstimate:
-        p = len(self.model.names)
-        theta, std, ins = self.model.theta.copy(), np.full(p, np.nan), np.full(p, np.nan)
-        errors = {}
-        for gi, g in enumerate(self.groups):
-            r = self._results.get(gi)
-            eq = ",".join(self.profile.equation(self.profile.state_names[e]) for e in g.equations)
-            if r is None or "error" in r:
-                errors[eq] = "not solved yet" if r is None else r["error"]
-                continue
-            theta[g.params] = r["theta"]
-            std[g.params] = np.sqrt(np.maximum(np.diag(r["cov"]), 0))
-            ins[g.params] = insensitivity(r["cov"])
-        return LiveEstimate(self._prev[0] if self._prev else 0.0, theta, std, errors, ins)
-

@@ -6,8 +6,8 @@ response (a priori, identified) is checked by Tischler's cost J.
 
 Estimation (:func:`frequency_response`): each run is cut into overlapping (default 50 %) segments of
 several window lengths ``T_w``; each segment is detrended, Hann-windowed and Fourier-transformed at
-the frequencies of a log-spaced grid (a direct evaluation of the DFT at arbitrary frequencies, the
-job a chirp-z transform does in CIFER). Segments of all runs are pooled (runs are concatenated
+the frequencies of a log-spaced grid (:func:`~identify.estimators.frequency.base.fourier_sum`, a
+direct evaluation at arbitrary frequencies, the job a chirp-z transform does in CIFER). Segments of all runs are pooled (runs are concatenated
 without any window spanning two runs), giving per window the spectral matrix
 ``G_ab(w) = mean_s conj(A_s) B_s`` of inputs and outputs. Per output ``y`` the frequency responses
 to all inputs together solve ``G_uu H_y = G_uy`` (multi-input conditioning: correct even when the
@@ -52,9 +52,10 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import detrend
 
-from .data.runs import Run
-from .errors import EstimationError
-from .model.linear import LinearModel
+from ...data.runs import Run
+from ...errors import EstimationError
+from ...model.linear import LinearModel
+from .base import fourier_sum
 
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
 OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
@@ -251,8 +252,7 @@ class _Transforms:
 
     def __init__(self, seg: np.ndarray, dt: float, omega: np.ndarray, nu: int):
         self.seg, self.nu = seg, nu
-        self.t = np.arange(seg.shape[1]) * dt
-        self.E = np.exp(-1j * np.outer(self.t, omega))  # (L, nf)
+        self.t, self.omega = np.arange(seg.shape[1]) * dt, omega
         self.hann = np.hanning(seg.shape[1])
         self.F = self._transform(self.hann)
         self.G = np.einsum("sfa,sfb->fab", self.F.conj(), self.F) / len(seg)
@@ -260,7 +260,7 @@ class _Transforms:
         self._Guu = Guu + _ridge(Guu)
 
     def _transform(self, taper: np.ndarray, channels=slice(None)) -> np.ndarray:
-        return np.einsum("slc,lf->sfc", self.seg[:, :, channels] * taper[None, :, None], self.E)
+        return fourier_sum(self.seg[:, :, channels] * taper[None, :, None], self.t, self.omega)
 
     def _cross(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(nf, nu, nb) mean over segments of conj(A) B, A's inputs only."""
@@ -321,19 +321,7 @@ def _composite(per_window):
     return H_c, coh_c, mult_c, err_c
 
 
-# -- models --------------------------------------------------------------------------------------
-def model_response(model: LinearModel, omega: np.ndarray, inputs: list[str] | None = None,
-                   outputs: list[str] | None = None) -> np.ndarray:
-    """``C (jwI - A)^-1 B + D`` at ``omega`` (rad/s): (nf, ny, nu), solved for all frequencies at once."""
-    p = model.profile
-    yi = [p.outputs.index(y) for y in (outputs or p.outputs)]
-    ui = [p.input_names.index(u) for u in (inputs or p.input_names)]
-    n = model.n_states
-    s = 1j * np.asarray(omega, dtype=float)
-    X = np.linalg.solve(s[:, None, None] * np.eye(n) - model.A, np.broadcast_to(model.B[:, ui], (len(s), n, len(ui))))
-    return np.einsum("yn,fnu->fyu", model.C[yi], X) + model.D[np.ix_(yi, ui)]
-
-
+# -- models against the estimate -----------------------------------------------------------------
 def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE) -> dict:
     """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
 
@@ -343,7 +331,7 @@ def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = M
     p = model.profile
     outs = [y for y in fr.outputs if y in p.outputs]
     ins = [u for u in fr.inputs if u in p.input_names]
-    Hm = model_response(model, fr.omega, ins, outs)
+    Hm = model.frequency_response(fr.omega, ins, outs)
     pairs, counts = {}, {}
     for jm, y in enumerate(outs):
         for im, u in enumerate(ins):
@@ -373,90 +361,6 @@ def format_cost(cost: dict, label: str = "model") -> str:
                                        f"{'-':>10}  (fewer than 3 coherent frequencies)"))
     lines.append(f"  {'mean':<22}" + (f"{cost['mean']:10.1f}" if cost["mean"] is not None else f"{'-':>10}"))
     return "\n".join(lines)
-
-
-# -- plots ---------------------------------------------------------------------------------------
-def plot_bode(fr: FrequencyResponse, models: dict[str, LinearModel] | None = None, outdir: str | Path = ".",
-              min_coherence: float = MIN_COHERENCE) -> list[Path]:
-    """One PNG per input: magnitude, phase and coherence of every output, models overlaid."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import matplotlib.ticker
-
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    models = models or {}
-    responses = {}
-    for label, m in models.items():
-        outs = [y for y in fr.outputs if y in m.profile.outputs]
-        ins = [u for u in fr.inputs if u in m.profile.input_names]
-        responses[label] = (outs, ins, model_response(m, fr.omega, ins, outs))
-    f_hz = fr.omega / (2 * np.pi)
-    paths = []
-    for i, u in enumerate(fr.inputs):
-        ny = len(fr.outputs)
-        fig, axes = plt.subplots(3, ny, figsize=(3.2 * ny, 7.5), sharex=True, squeeze=False)
-        for j, y in enumerate(fr.outputs):
-            coherent = fr.coherence[:, j, i] >= min_coherence
-            mag, ph = fr.magnitude_db[:, j, i], fr.phase_deg[:, j, i]
-            a_m, a_p, a_c = axes[0, j], axes[1, j], axes[2, j]
-            a_m.semilogx(f_hz, np.where(coherent, mag, np.nan), "k-", lw=1.5, label="flight data")
-            a_m.semilogx(f_hz, mag, "k:", lw=0.8)
-            a_p.semilogx(f_hz, np.where(coherent, ph, np.nan), "k-", lw=1.5)
-            a_p.semilogx(f_hz, ph, "k:", lw=0.8)
-            for (label, (outs, ins, Hm)), style in zip(responses.items(), ("C1--", "C0-", "C2-.")):
-                if y in outs and u in ins:
-                    h = Hm[:, outs.index(y), ins.index(u)]
-                    a_m.semilogx(f_hz, 20 * np.log10(np.abs(h)), style, lw=1.2, label=label)
-                    a_p.semilogx(f_hz, _phase_near(h, ph), style, lw=1.2)
-            for a in (a_m, a_p, a_c):
-                _shade_unresolved(a, f_hz, fr.resolved[:, j, i])
-            a_c.semilogx(f_hz, fr.coherence[:, j, i], "k-")
-            a_c.axhline(min_coherence, color="0.6", ls=":")
-            a_c.set_ylim(0, 1.05)
-            a_m.set_title(f"{y} / {u}")
-            a_c.set_xlabel("frequency [Hz]")
-            a_c.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-            a_c.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        axes[0, 0].set_ylabel("magnitude [dB]")
-        axes[1, 0].set_ylabel("phase [deg]")
-        axes[2, 0].set_ylabel("coherence")
-        axes[0, 0].legend(fontsize=7)
-        fig.suptitle(f"frequency responses to {u} (solid: coherence >= {min_coherence}; "
-                     f"grey: no valid window, nothing estimated)")
-        fig.tight_layout()
-        path = outdir / f"bode_{u}.png"
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        paths.append(path)
-    return paths
-
-
-def _shade_unresolved(ax, f_hz: np.ndarray, resolved: np.ndarray) -> None:
-    """Grey bands over the frequencies without a valid estimate (edges half-way in log frequency)."""
-    edges = np.sqrt(f_hz[1:] * f_hz[:-1])
-    edges = np.concatenate([[f_hz[0] ** 2 / edges[0]], edges, [f_hz[-1] ** 2 / edges[-1]]]) if f_hz.size > 1 \
-        else np.array([f_hz[0] / 1.1, f_hz[0] * 1.1])
-    k = 0
-    while k < f_hz.size:
-        if resolved[k]:
-            k += 1
-            continue
-        k1 = k
-        while k1 < f_hz.size and not resolved[k1]:
-            k1 += 1
-        ax.axvspan(edges[k], edges[k1], color="0.88", lw=0)
-        k = k1
-
-
-def _phase_near(h: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:
-    """Unwrapped model phase (deg) shifted by whole turns to lie near the data's."""
-    ph = np.degrees(np.unwrap(np.angle(h)))
-    ok = np.isfinite(reference_deg)
-    if ok.any():
-        ph += 360 * np.round(np.median(reference_deg[ok] - ph[ok]) / 360)
-    return ph
 
 
 def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, dict]:

@@ -4,7 +4,7 @@ import pytest
 from scipy.signal import chirp
 
 from identify import LinearModel, discretize, parse_profile, simulate_run
-from identify.frequency import fit_cost, frequency_response, model_response
+from identify.estimators.frequency.response import fit_cost, frequency_response
 from signaldesign.baselines import m3211
 
 from tests.helpers import one_error_line, run_cli
@@ -143,10 +143,10 @@ def test_fit_cost_small_for_the_truth_large_for_a_wrong_model(truth):
     assert wrong["mean"] > 5 * good["mean"]
 
 
-def test_model_response_matches_python_control(truth):
+def test_linear_model_frequency_response_matches_python_control(truth):
     import control
     omega = np.geomspace(0.1, 30, 20)
-    H = model_response(truth, omega)
+    H = truth.frequency_response(omega)
     ref = control.ss(truth.A, truth.B, truth.C, truth.D).frequency_response(omega).frdata  # (ny, nu, nf)
     assert np.allclose(H, np.moveaxis(ref, 2, 0))
 

@@ -29,7 +29,7 @@ def s61_4dof():
 
 @pytest.mark.parametrize("process_noise", [0.0, 0.02])
 def test_fdee_within_three_standard_errors_on_the_unstable_s61(s61_4dof, process_noise):
-    from identify.estimators.frequency_ee import FDEE
+    from identify.estimators.frequency.equation_error import FDEE
     assert s61_4dof.unstable
     est = FDEE(s61_4dof.profile).fit(s61_runs(s61_4dof, process_noise, seed=7))
     z = (est.theta_ - s61_4dof.theta) / est.std_
@@ -40,7 +40,7 @@ def test_fdee_within_three_standard_errors_on_the_unstable_s61(s61_4dof, process
 
 def test_fdee_needs_every_state(s61_4dof):
     from identify import RunError
-    from identify.estimators.frequency_ee import FDEE
+    from identify.estimators.frequency.equation_error import FDEE
     run = s61_runs(s61_4dof)[0]
     run.channels.pop("phi")
     with pytest.raises(RunError, match="phi"):
@@ -50,7 +50,7 @@ def test_fdee_needs_every_state(s61_4dof):
 def test_fdee_unexcited_parameter_is_named(s61_4dof):
     """A run with the lateral cyclic held still cannot give its derivatives: held at their a
     priori values and said, not guessed."""
-    from identify.estimators.frequency_ee import FDEE
+    from identify.estimators.frequency.equation_error import FDEE
     t = np.arange(0, 20, DT)
     U = np.column_stack([m3211(0.6, 0.01, "theta_s", delay=1.0)(t), np.zeros_like(t)])
     run = simulate_run(s61_4dof, t, U, noise_fraction=0.03, seed=1)
@@ -59,20 +59,37 @@ def test_fdee_unexcited_parameter_is_named(s61_4dof):
     assert "L_theta_c" in result.info["held"]["theta_c"] and np.isinf(result.std[result.names.index("L_theta_c")])
 
 
-def test_recursive_transform_equals_the_batch_one(s61_4dof):
-    """Sample by sample, the recursive estimator reaches exactly the batch estimate."""
-    from identify.estimators.frequency_ee import FDEE, RecursiveFDEE
+def test_streamed_estimate_equals_the_batch_one(s61_4dof):
+    """Sample by sample (partial_fit, as in the cockpit), the streamed estimate reaches exactly the
+    batch estimate; so does the record streamed in uneven blocks with a repeated frame."""
+    from identify.estimators.frequency.equation_error import FDEE
     run = s61_runs(s61_4dof)[0]
-    rec = RecursiveFDEE(s61_4dof.profile, band=(0.05, 1.5), n_freq=40)
     x, u = run.matrix(s61_4dof.profile.state_names), run.matrix(s61_4dof.profile.input_names)
+    live = FDEE(s61_4dof.profile, band=(0.05, 1.5), n_freq=40)
     for k in range(len(run)):
-        rec.update(run.time[k], x[k], u[k])
-    live = rec.solve()
+        live.partial_fit(run.time[k], x[k], u[k])
+    blocks = FDEE(s61_4dof.profile, band=(0.05, 1.5), n_freq=40)
+    for k0, k1 in [(0, 1), (1, 300), (299, 300), (300, 5000)]:  # (299, 300): a repeated frame
+        blocks.partial_fit(run.time[k0:k1], x[k0:k1], u[k0:k1])
     batch = FDEE(s61_4dof.profile, band=(0.05, 1.5), n_freq=40).fit(run).result_
-    assert not live.errors
-    assert np.allclose(live.theta, batch.theta, rtol=1e-8, atol=1e-10)
-    assert np.allclose(live.std, batch.std, rtol=1e-6)
-    assert np.allclose(live.insensitivity, batch.insensitivity, rtol=1e-6)
+    assert live.n_samples == blocks.n_samples == len(run)
+    for est in (live.solve(), blocks.solve()):
+        assert not est.errors
+        assert np.allclose(est.theta, batch.theta, rtol=1e-8, atol=1e-10)
+        assert np.allclose(est.std, batch.std, rtol=1e-6)
+        assert np.allclose(est.insensitivity, batch.insensitivity, rtol=1e-6)
+
+
+def test_fdee_takes_no_state_derivative(s61_4dof, monkeypatch):
+    """FDEE's preparation reads the measured states only: nothing is differentiated."""
+    from identify.estimators import equation_error
+    from identify.estimators.frequency.equation_error import FDEE
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("FDEE differentiated a state")
+    monkeypatch.setattr(equation_error, "state_derivatives", refuse)
+    res = FDEE(s61_4dof.profile).fit(s61_runs(s61_4dof)).result_
+    assert res.info["derivatives"].startswith("not used")
 
 
 def test_fdee_reports_cramer_rao_and_insensitivity_and_flags_an_unexcited_derivative():
@@ -80,8 +97,8 @@ def test_fdee_reports_cramer_rao_and_insensitivity_and_flags_an_unexcited_deriva
     1 % as much as the longitudinal one, its pitch derivative M_theta_c hardly changes the fit
     (insensitivity over 10 %) and is flagged; the well-excited derivatives are not."""
     from identify import parse_profile
-    from identify.estimators.frequency_ee import FDEE
-    from tests.identify.test_frequency import STABLE
+    from identify.estimators.frequency.equation_error import FDEE
+    from tests.identify.estimators.test_frequency_response import STABLE
     truth = LinearModel(parse_profile(STABLE))
     t = np.arange(0, 20, DT)
     runs = [simulate_run(truth, t, np.column_stack([m3211(w, 0.02, "theta_s", delay=1.0)(t),

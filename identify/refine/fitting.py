@@ -1,0 +1,108 @@
+"""What candidates (and the loop) ask while scoring and fitting: :class:`Fitting`.
+
+One object per refinement holds the estimator instance, the data sets, the nuisance and segments
+every fit shares, and the cache of predictions: a candidate is handed this, never the loop, and
+asks it for ``refit``, ``residuals``, ``prediction`` and ``input_response``. How a model predicts
+the data (output error, one-step-ahead innovations) is the estimator's
+(:meth:`identify.estimators.base.Estimator.prediction`); the fitting object only caches and counts.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import replace
+
+from ..data.runs import Run
+from ..errors import ConvergenceWarning
+from ..estimators.prediction import ModelFit, feedback_bounds, settle, state_terms
+from ..estimators.result import IdentificationResult
+from ..model.pseudo_inputs import prepare
+from ..model.profile import Profile
+
+
+class Fitting:
+    """Fits and predictions of profiles on refine's data sets.
+
+    ``estimator``: the estimator instance (cloned per fit, :meth:`Estimator.nested`); ``data``:
+    ``{"fit": runs, "choosing": runs, "validation": runs}``; ``zero_shifts``, ``segment`` (s) the
+    nuisance and segments of every fit and prediction; ``tau_max`` (s) the largest delay a
+    candidate searches; ``say`` a progress callable. Records ``unconverged`` (one note per fit that
+    did not converge) and counts ``evaluations`` (predictions computed, each (model, data set) once).
+    """
+
+    def __init__(self, estimator, data: dict[str, list[Run]], declared: Profile, *, zero_shifts: bool = True,
+                 segment: float = math.inf, tau_max: float = 0.5, say=None):
+        self.estimator, self.data, self.declared = estimator, data, declared
+        self.zero_shifts, self.segment, self.tau_max = zero_shifts, segment, tau_max
+        self.say = say or (lambda msg: None)
+        self.cache: dict = {}
+        self.evaluations = 0
+        self.unconverged: list[str] = []
+
+    @property
+    def dt(self) -> float:
+        return self.data["fit"][0].dt
+
+    def prediction(self, p: Profile, data: str = "fit") -> ModelFit:
+        """The profile's prediction of one data set (``fit``, ``choosing``, ``validation``) with the
+        shared segments and nuisance; each (model, data set) pair computed once."""
+        key = (p.to_toml(), data)
+        if key not in self.cache:
+            self.evaluations += 1
+            self.cache[key] = self.estimator.prediction(p, prepare(p, self.data[data]), zero_shifts=self.zero_shifts,
+                                                        segment=self.segment)
+        return self.cache[key]
+
+    def residuals(self, p: Profile, data: str = "fit"):
+        return self.prediction(p, data).residuals
+
+    def sensitivities(self, ext_p: Profile, runs: list[Run], null: ModelFit) -> ModelFit:
+        """The prediction of ``runs`` (holding every candidate's channels) by the extended profile
+        ``ext_p`` at its null values, with its sensitivities: the score tests' columns."""
+        self.evaluations += 1
+        return self.estimator.sensitivities(ext_p, runs, null, zero_shifts=self.zero_shifts, segment=self.segment)
+
+    def input_response(self, p: Profile, input_name: str, transform) -> list:
+        """Per fit run (N_r, ny): the response to ``transform(u, dt)`` of one input (the others zero)."""
+        return self.estimator.input_response(p, prepare(p, self.data["fit"]), segment=self.segment,
+                                             input_name=input_name, transform=transform)
+
+    def estimate(self, profile: Profile, runs: list[Run], bounds: bool = True) -> IdentificationResult:
+        """Fit ``profile`` with the shared nuisance and segments; ``bounds=False`` when only the
+        estimate and its likelihood are used (the fits inside a delay search)."""
+        estimator = self.estimator.nested(profile, zero_shifts=self.zero_shifts, segment=self.segment, bounds=bounds)
+        with warnings.catch_warnings():
+            # recorded below, once per fit, instead of interleaved with the progress lines
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            result = estimator.fit(runs).result_
+        if not result.converged:
+            free = ", ".join(n for n in result.names if n not in self.declared.free) or "declared model"
+            note = f"fit with {free} did not converge ({result.info.get('stop', 'no reason given')})"
+            self.unconverged.append(note)
+            self.say(f"  warning: {note}")
+        return result
+
+    def refit(self, ext_p: Profile, p: Profile, bounds: bool = True) -> tuple[Profile, IdentificationResult]:
+        """Fit of an extended profile: the fitted profile (named as ``p``) and the result.
+        State-built terms come from the predicted states of the model being fitted (:func:`settle`)."""
+        def fit(prof: Profile):
+            runs = self.prediction(prof).runs if state_terms(prof) else prepare(prof, self.data["fit"])
+            result = self.estimate(prof, runs, bounds=bounds)
+            return _keep_meta(result.identified_profile(p.name), ext_p), result
+
+        if not state_terms(ext_p):
+            return fit(ext_p)
+        fitted, result = settle(fit, ext_p)
+        if bounds:
+            # the loop evaluates the fitted model anyway: its cached prediction is the bounds' base
+            result = feedback_bounds(result, fitted, prepare(fitted, self.data["fit"]), self.zero_shifts,
+                                     self.segment, base=self.prediction(fitted))
+        return fitted, result
+
+
+def _keep_meta(p: Profile, template: Profile) -> Profile:
+    """Identified profile with the template's meta (delays, pseudo-inputs, periodic frequencies)."""
+    return replace(p, meta={**dict(p.meta), **dict(template.meta)})
+
+
+__all__ = ["Fitting"]
