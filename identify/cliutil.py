@@ -128,7 +128,12 @@ def add_threads_option(parser: argparse.ArgumentParser) -> None:
 
 
 class Parser(argparse.ArgumentParser):
-    """ArgumentParser whose usage errors are one line on stderr and exit status 2."""
+    """ArgumentParser whose usage errors are one line on stderr and exit status 2, with
+    ``--version`` on the command and on every subcommand (argparse makes them of this class)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.add_argument("--version", action="version", version=f"{self.prog.split()[0]} (pseudostep) {__version__}")
 
     def parse_known_args(self, args=None, namespace=None):
         self._argv = list(sys.argv[1:] if args is None else args)
@@ -154,7 +159,6 @@ class Parser(argparse.ArgumentParser):
 def run(parser: argparse.ArgumentParser, argv=None) -> int:
     """Parse ``argv`` and call ``args.func(args)``; map input errors to one line, status 2.
     Returns the exit status (also for usage errors and ``--help``, which argparse exits on)."""
-    _add_version(parser)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:
@@ -185,14 +189,6 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
-
-
-def _add_version(parser: argparse.ArgumentParser) -> None:
-    """``--version`` on the command and on each of its subcommands."""
-    subparsers = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    for p in [parser] + [c for s in subparsers for c in s.choices.values()]:
-        if "--version" not in p._option_string_actions:
-            p.add_argument("--version", action="version", version=f"{parser.prog} (pseudostep) {__version__}")
 
 
 def _stdout_to_devnull() -> None:

@@ -76,7 +76,7 @@ def expand_held(reduced: IdentificationResult, full: Profile, unflown: dict[str,
     theta[idx], std[idx] = reduced.theta, reduced.std
     cov = np.zeros((len(names), len(names)))
     np.fill_diagonal(cov, np.inf)
-    cov[np.ix_(idx, idx)] = reduced._cov()
+    cov[np.ix_(idx, idx)] = reduced.covariance if reduced.covariance is not None else np.diag(reduced.std ** 2)
     info = {**reduced.info, "held": unflown, "held_note": line}
     if "not_excited" in info:  # ML's list of parameters without influence: the held ones have none
         info["not_excited"] = [n for n in names if n in set(info["not_excited"]) | set(full.free) - set(reduced.names)]
