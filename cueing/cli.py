@@ -64,12 +64,47 @@ def _fly_options(args) -> dict:
     if args.profile:
         from identify import LinearModel, load_profile
         model = LinearModel(load_profile(args.profile))
-    return dict(simulate=args.simulate, noise_fraction=args.noise, seed=args.seed, model=model, fast=args.fast,
+    aircraft = _aircraft(args)
+    if aircraft is not None and model is None and args.simulate:
+        from .response import aircraft_model
+        model = aircraft_model(args.simulate)  # the a priori scores the flight, not the truth
+    return dict(simulate=aircraft, noise_fraction=args.noise, seed=args.seed, model=model, fast=args.fast,
                 rate=args.rate, countdown=args.countdown, lead_in=args.lead_in, record=args.record, tail=args.tail,
                 preview=args.preview, display="headless" if args.headless else "window",
                 fullscreen=args.fullscreen, audio=not args.no_audio,
                 screenshot_dir=args.screenshots, screenshot_every=args.screenshot_every,
                 end_screen=0.0 if args.headless else 5.0)
+
+
+def _aircraft(args):
+    """The aircraft that responds to the stick: ``--truth`` (else ``--simulate``), with every free
+    derivative scaled by its own factor in 1 -/+ ``--perturb`` (seeded by ``--seed``) when given;
+    a perturbed aircraft's profile is written beside the run (``<out>.truth.toml``) and said."""
+    base = getattr(args, "truth", None) or args.simulate
+    spread = getattr(args, "perturb", None)
+    if base is None:
+        if spread:
+            raise CueingError("--perturb needs the aircraft to perturb: --simulate PROFILE or --truth PROFILE")
+        return None
+    if not spread:
+        return base
+    import numpy as np
+
+    from identify import perturbed_model
+
+    from .response import aircraft_model
+    if not 0 < spread < 1:
+        raise CueingError(f"--perturb must be a fraction in (0, 1), got {spread:g}")
+    model = aircraft_model(base)
+    truth = perturbed_model(model, spread, np.random.default_rng(args.seed))
+    truth_profile = truth.to_profile(f"{model.profile.name} - perturbed by up to {100 * spread:g} % (seed {args.seed})")
+    out = getattr(args, "out", None)
+    if out:
+        path = Path(out).with_suffix(".truth.toml")
+        truth_profile.save(path)
+        print(f"flying a perturbed aircraft (every derivative x U(1 -/+ {spread:g}), seed {args.seed}): "
+              f"its profile is {path}")
+    return truth
 
 
 def _source(args, skill: float, seed):
@@ -198,7 +233,13 @@ def _add_fly_arguments(p) -> None:
                    help="show the next SECONDS of the sequence (default 3 when given)")
     p.add_argument("--headless", action="store_true", help="off-screen display (no window)")
     p.add_argument("--fullscreen", action="store_true", help="fill the screen (the window is resizable otherwise)")
-    p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input")
+    p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input "
+                   "(with every effect it declares: delays, pseudo-inputs)")
+    p.add_argument("--truth", metavar="PROFILE", help="the aircraft that responds, when it is not --simulate's "
+                   "(the a priori: --simulate or --profile, which scores the flight)")
+    p.add_argument("--perturb", type=positive_float, metavar="FRACTION",
+                   help="fly an aircraft off the a priori: every derivative of --truth/--simulate scaled by its "
+                        "own factor in 1 -/+ FRACTION (--seed; its profile written to <out>.truth.toml)")
     p.add_argument("--noise", type=nonnegative_float, default=0.02, help="measurement noise fraction for --simulate (0.02)")
     p.add_argument("--profile", metavar="PROFILE", help="model for the information score (default: --simulate's)")
     p.add_argument("--seed", type=int, default=None, help="random seed (simulated pilot, noise)")
