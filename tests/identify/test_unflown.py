@@ -63,3 +63,33 @@ def test_fix_free_outputs_and_unflown_detection(cyclics_only):
     assert narrowed.outputs == ("p", "q", "r") and set(narrowed.limits) <= {"p", "q", "r"}
     with pytest.raises(ProfileError, match="output\\(s\\) nz not in the profile"):
         with_outputs(p, "p,nz")
+
+
+def test_cyclics_only_bo105_refines():
+    """refine on the cyclics-only test: the collective and tail-rotor parameters held (said once),
+    the undeclared 0.08 s delay on theta_s found; the final model keeps the held ones free, at
+    their a priori values, for a test that flies those controls."""
+    from identify.refine import Refine
+    from signaldesign.baselines import doublet
+    p = load_profile("bo105_70kt")
+    m = LinearModel(p)
+    truth = perturbed_model(m, 0.1, np.random.default_rng(5))
+    t = np.arange(0, 10, 0.04)
+
+    def run(signals, seed):
+        u = np.zeros((t.size, m.n_inputs))
+        for s in signals:
+            u[:, p.input_names.index(s.input)] += s(t)
+        return simulate_run(truth, t, u, noise_fraction=0.03, seed=seed, input_delay={"theta_s": 0.08})
+    runs = [run([m3211(0.7, 0.01, "theta_s", 1.0)], 0), run([m3211(0.5, 0.01, "theta_c", 1.0)], 1)]
+    validate = [run([doublet(1.0, 0.01, "theta_s", 1.0), doublet(0.7, 0.01, "theta_c", 5.0)], 2 + k) for k in range(2)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        refine = Refine(p, kinds=("delay", "derivative")).fit(runs, validate=validate)
+    assert sum("REFINE:" in str(w.message) and "no run moves theta_0, theta_TR" in str(w.message) for w in caught) == 1
+    (step,) = refine.steps_
+    tau = step.parameters["tau_theta_s"]
+    assert step.effect == "delay" and abs(tau["value"] - 0.08) < 3 * tau["std"] + 1e-3, tau
+    held = [n for u in UNFLOWN for n in input_parameters(p)[u]]
+    assert all(refine.profile_.free[n] == p.free[n] for n in held)
+    assert all(np.isinf(refine.result_.std[refine.result_.names.index(n)]) for n in held)
