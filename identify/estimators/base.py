@@ -54,7 +54,7 @@ from ..data.runs import Run
 from ..errors import EstimationError
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
-from ..model.subset import fix, held_line, unflown_parameters
+from ..model.subset import check_some_input_flown, fix, held_line, unflown_parameters
 from .result import IdentificationResult
 
 MIN_SAMPLES = 10
@@ -103,6 +103,7 @@ class Estimator:
             self.result_ = self._fit(runs)
             return self
         # controls no run moves: their parameters carry no information; hold them (said, recorded)
+        check_some_input_flown(self.profile_, unflown)
         line = held_line(self.method, unflown)
         warnings.warn(line, HeldWarning, stacklevel=2)
         full, held = self.profile_, [n for params in unflown.values() for n in params]

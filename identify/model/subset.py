@@ -102,6 +102,17 @@ def unflown_parameters(profile: Profile, runs) -> dict[str, list[str]]:
     return out
 
 
+def check_some_input_flown(profile: Profile, unflown: dict[str, list[str]]) -> None:
+    """Raise when no run moves any input: nothing is excited, nothing can be held apart."""
+    acting = [u for u, params in input_parameters(profile).items() if params
+              and u not in dict(profile.meta.get("pseudo_inputs", {}))]
+    if acting and set(acting) <= set(unflown):
+        from ..errors import EstimationError
+        names = [n for params in unflown.values() for n in params]
+        raise EstimationError(f"not identifiable from these runs: no run moves any input ({', '.join(acting)}), "
+                              f"so nothing is excited ({', '.join(names)} and every derivative they drive)")
+
+
 def held_line(method: str, unflown: dict[str, list[str]]) -> str:
     """The one line that says which parameters are held and why."""
     names = [n for params in unflown.values() for n in params]
@@ -109,4 +120,5 @@ def held_line(method: str, unflown: dict[str, list[str]]) -> str:
             f"{', '.join(unflown)} (free them again with runs that do)")
 
 
-__all__ = ["fix", "free", "with_outputs", "input_parameters", "unflown_parameters", "held_line"]
+__all__ = ["fix", "free", "with_outputs", "input_parameters", "unflown_parameters", "check_some_input_flown",
+           "held_line"]

@@ -47,7 +47,7 @@ from ..estimators.base import HeldWarning, expand_held
 from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
-from ..model.subset import fix, free, held_line, unflown_parameters
+from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
 from .candidates import KIND_CLASSES, KINDS
 from .evaluation import MIN_SAMPLES, check_identifiable, errors, split_validation
@@ -234,6 +234,7 @@ class Refine:
         """Fix the parameters of inputs no fitting run moves at their a priori values (said once):
         no fit, test or candidate can learn anything about them from these runs."""
         self.held_ = unflown_parameters(self.declared_, prepare(self.declared_, runs))
+        check_some_input_flown(self.declared_, self.held_)
         self.held_note_ = held_line("refine", self.held_) if self.held_ else ""
         if self.held_:
             self._say(self.held_note_)
