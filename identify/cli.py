@@ -78,7 +78,7 @@ def cmd_estimate(args) -> int:
     from .data.preprocess import slice_run, smooth
     from .estimators.plots import save_plots
 
-    profile = load_profile(args.profile)
+    profile = _profile(args)
     runs = []
     for r in _read_runs(args.runs, args.channel_map, profile):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
@@ -182,6 +182,22 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
                         'as a file or inline JSON (required for .mat data matrices)')
+    p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
+    p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
+    p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+
+
+def _profile(args):
+    """The a priori profile, with ``--free``, ``--fix`` and ``--outputs`` applied (each said)."""
+    from .model import subset
+
+    profile = load_profile(args.profile)
+    for option, change in (("free", subset.free), ("fix", subset.fix), ("outputs", subset.with_outputs)):
+        if getattr(args, option):
+            profile = change(profile, getattr(args, option))
+            print(f"--{option} {getattr(args, option)}: {len(profile.free)} free parameters, "
+                  f"outputs {', '.join(profile.outputs)}", file=sys.stderr)
+    return profile
 
 
 def cmd_refine(args) -> int:
@@ -193,7 +209,7 @@ def cmd_refine(args) -> int:
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
-    profile = load_profile(args.profile)
+    profile = _profile(args)
     refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
                      kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
                      frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)

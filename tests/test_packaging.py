@@ -73,3 +73,15 @@ def test_model_prints_declared_delays():
     assert "delay on theta_s: 0.08 s" in proc.stdout and "delay on theta_c: 0.08 s" in proc.stdout
     plain = _run([sys.executable, "-m", "identify", "model", "examples/profile.toml"])
     assert "declared effects (every command applies them to the runs): none" in plain.stdout
+
+
+def test_fix_and_outputs_options(tmp_path):
+    proc = _run([sys.executable, "-m", "identify", "estimate", "--profile", "examples/profile.toml", "--method", "ls",
+                 "examples/run_lon.csv", "examples/run_lat.csv", "--fix", "M_q,L_p", "--out", str(tmp_path)])
+    assert proc.returncode == 0, proc.stderr
+    assert "--fix M_q,L_p: 18 free parameters" in proc.stderr
+    summary = (tmp_path / "summary.txt").read_text()
+    assert "\nM_q " not in summary and "\nM_p " in summary
+    bad = _run([sys.executable, "-m", "identify", "refine", "--profile", "examples/profile.toml", "examples/run_lon.csv",
+                "--outputs", "p,nz", "--out", str(tmp_path / "r")])
+    assert bad.returncode == 2 and "output(s) nz not in the profile" in bad.stderr

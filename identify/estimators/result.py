@@ -118,7 +118,11 @@ class IdentificationResult:
     def identifiability(self) -> dict:
         """Correlated pairs, poorly determined parameters and modes whose stability these runs do
         not determine (:func:`identify.identifiability.assess`)."""
-        return identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+        check = identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+        held = {n for names in self.info.get("held", {}).values() for n in names}
+        if held:  # held at the a priori, said on their own line: not "poorly determined"
+            check["poorly_determined"] = [n for n in check["poorly_determined"] if n not in held]
+        return check
 
     @property
     def insensitivity(self) -> np.ndarray:
