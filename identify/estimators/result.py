@@ -200,14 +200,18 @@ class IdentificationResult:
                 f"convergence: converged after {it} iterations"
         return f"convergence: NOT CONVERGED after {it} iterations ({stop}): the estimates are not final"
 
-    def markdown(self, truth: dict[str, float] | None = None) -> str:
-        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes."""
-        cols = ["parameter", "estimate", "std error", "rel. std %", "a priori"] + (["truth"] if truth else [])
+    def markdown(self, truth: dict[str, float] | None = None, start: dict[str, float] | None = None,
+                 start_label: str = "a priori") -> str:
+        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes. The
+        ``start_label`` column holds ``start`` values where given (``-`` for a parameter it lacks),
+        else the profile's values, the fit's starting point (the a priori for a first fit)."""
+        cols = ["parameter", "estimate", "std error", "rel. std %", start_label] + (["truth"] if truth else [])
         lines = [f"{self.method.upper()} identification of `{self.profile.name}` from "
                  f"{len(self.runs) or 1} run(s).", "", "| " + " | ".join(cols) + " |",
                  "| --- |" + " ---: |" * (len(cols) - 1)]
         for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
-            cells = [f"`{name}`", f"{v:.6g}", f"{s:.4g}", f"{r:.2f}", f"{a:.5g}"]
+            a = a if start is None else start.get(name)
+            cells = [f"`{name}`", f"{v:.6g}", f"{s:.4g}", f"{r:.2f}", "-" if a is None else f"{a:.5g}"]
             if truth:
                 cells.append(f"{truth.get(name, float('nan')):.5g}")
             lines.append("| " + " | ".join(cells) + " |")

@@ -159,7 +159,10 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
                      f"{a[y]['peak_hz']:.3g} / {a[y]['peak_p']:.2g} |")
     if figures:
         lines += ["", "## Plots", ""] + [f"![{f}]({f})" for f in figures]
-    lines += ["", "## Final identification", "", r.result_.markdown()]
+    # the final fit starts from the previous step's estimates; the column shows the declared a priori
+    # values (an effect refine added has none)
+    declared = {**r.declared_.fixed, **r.declared_.free}
+    lines += ["", "## Final identification", "", r.result_.markdown(start=declared, start_label="a priori (declared)")]
     lines += ["", "## Final model", "", "Written to `final_profile.toml`:", "", "```toml",
               r.profile_.to_toml().rstrip(), "```", ""]
     return "\n".join(lines)
