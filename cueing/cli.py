@@ -76,6 +76,16 @@ def _fly_options(args) -> dict:
                 end_screen=0.0 if args.headless else 5.0)
 
 
+def _check_amplitudes(signals, model) -> None:
+    """Say (stderr) when a signal's amplitude is implausible for a test input on that control."""
+    if model is None:
+        return
+    from signaldesign.design import implausible_amplitudes
+    for s in signals:
+        for line in implausible_amplitudes(model.profile, [s.input], [s.amplitude]):
+            print(f"cueing: warning: {line}", file=sys.stderr)
+
+
 def _aircraft(args):
     """The aircraft that responds to the stick: ``--truth`` (else ``--simulate``), with every free
     derivative scaled by its own factor in 1 -/+ ``--perturb`` (seeded by ``--seed``) when given;
@@ -124,6 +134,7 @@ def cmd_fly(args) -> int:
     from .session import fly
     signals = _signals(args.signal)
     options = _fly_options(args)
+    _check_amplitudes(signals, options["model"])
     source = _source(args, args.skill, args.seed)
     try:
         if args.live:

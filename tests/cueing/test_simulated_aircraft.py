@@ -89,3 +89,13 @@ def test_perturb_flies_another_aircraft_and_says_which(tmp_path):
         res = fitted.fit([run]).result_
     i = res.names.index("M_theta_s")  # flown on theta_s: its control derivative is the truth's, not the a priori
     assert abs(res.theta[i] - truth.free["M_theta_s"]) < 3 * res.std[i]
+
+
+def test_implausible_amplitude_is_said_before_flying(tmp_path):
+    from signaldesign.signal import save_signals
+    save_signals(m3211(0.5, 1.38, "theta_c", 1.0), tmp_path / "big.json")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy")
+    proc = subprocess.run([sys.executable, "-m", "cueing", "fly", "--signal", str(tmp_path / "big.json"), "--source",
+                           "pilot", "--headless", "--fast", "--simulate", "bo105_70kt", "--record", "6",
+                           "--out", str(tmp_path / "big.csv")], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0 and "amplitude 79.1 deg on theta_c is implausible" in proc.stderr
