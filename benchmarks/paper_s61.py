@@ -9,9 +9,8 @@ Signals (every one starts at t = DELAY s, all with the same amplitude AMP on the
 A-D doublets lasting 2, 4, 6, 8 s (pulse width 1, 2, 3, 4 s); E an arbitrary, not optimised,
 three-level step sequence (0.5 s steps, 7 s); F pseudostep's D-optimal three-level sequence for the
 a priori 8-state model on the axis flown (``signaldesign.design.SequenceDesign``, criterion
-"nominal", step widths 0.5..1.5 s searched); G the worst-case (robust) design over 8 models with
-every derivative scaled by 1 -/+ 0.3 (step widths 0.3..0.6 s: with F's widths the lateral design came
-out identical to F). F and G: 7 s, every output's peak response capped at that of a 3211 with 1 s
+"nominal", holds of at least 0.5 s on a 0.1 s grid); G the worst-case (robust) design over the a
+priori and 8 models with every derivative scaled by 1 -/+ 0.3 (holds of at least 0.3 s). F and G: 7 s, every output's peak response capped at that of a 3211 with 1 s
 pulses (without a cap, the D-optimal input for an unstable model over a 20 s record is one long
 pulse that lets the divergence grow). Runs: A-G on longitudinal cyclic theta_s (7), on lateral
 cyclic theta_c (7), and two combined runs: E on theta_s with F on theta_c, and F on theta_s with E
@@ -120,8 +119,10 @@ def make_signals(model: LinearModel) -> dict[str, dict[str, object]]:
 
 
 def describe(s) -> str:
-    lv = " ".join(f"{int(v):+d}" for v in s.levels)
-    return f"{s.kind}, {s.levels.size} x {s.dt:g} s: {lv}"
+    """Levels with their holds: ``+1 (2.4 s) 0 (1.6 s) ...`` (a design on a fine grid reads as steps)."""
+    edges = np.flatnonzero(np.diff(s.levels)) + 1
+    holds = [(int(seg[0]), seg.size * s.dt) for seg in np.split(s.levels, edges)]
+    return f"{s.kind}, {s.levels.size * s.dt:g} s: " + " ".join(f"{v:+d} ({h:.3g} s)" for v, h in holds)
 
 
 # -- runs -------------------------------------------------------------------------------------
