@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from identify.cliutil import Parser, add_threads_option, output_dir, run
 
+from . import commands
+
 
 def cmd_demo(args) -> int:
     from .demo import DEFAULT_PROFILE, run_demo  # the pipeline's libraries load only when it runs
@@ -26,6 +28,8 @@ def add_demo(sub) -> None:
 
 
 COMMANDS = {"demo": add_demo}  # subcommand -> adds its parser
+COMMANDS.update(design=commands.add_design, identify=commands.add_identify,  # the test campaign
+                stitch=commands.add_stitch, report=commands.add_report, synthetic=commands.add_synthetic)
 
 
 def build_parser() -> Parser:

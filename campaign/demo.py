@@ -100,8 +100,11 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
     write_refine(refiner, out / "refine")
     report += _refine_section(refiner, truth, out)
 
+    say("5/5 the frequency view: responses, FR fit, handling qualities ...")
+    report += _frequency_section(fit_runs, apriori, results["ML"], refiner.result_.model, out)
+
     report += ["", f"Total run time: {time.perf_counter() - t0:.0f} s."]
-    say("5/5 writing the report ...")
+    say("writing the report ...")
     path = out / "report.md"
     path.write_text("\n".join(report) + "\n")
     return path
@@ -252,6 +255,42 @@ def _why_ml(results: dict, truth: LinearModel) -> str:
                  "states at each instant, where the missing delay only mis-times the control term. ")
     return text + ("Section 4 finds the delay in ML's residuals and adds it: the refined ML is the "
                    "estimate to use.")
+
+
+def _frequency_section(runs: list[Run], apriori: LinearModel, ml, refined: LinearModel, out: Path) -> list[str]:
+    """Section 5: the runs' frequency responses with the a priori, ML, refined and FR-fitted models
+    (FR with an equivalent delay per cyclic, as a frequency-domain analyst would fit the unknown
+    control delay), J, and the handling-qualities point of the flown aircraft beside the a priori
+    model's."""
+    from identify.estimators.frequency.bode import plot_bode
+    from identify.estimators.frequency.hq import hq_of_model, hq_of_response
+    from identify.estimators.frequency.response import cost_report, frequency_response
+    from identify.estimators.frequency.response_fit import FR
+
+    p = apriori.profile
+    lines = ["", "## 5. The frequency view", ""]
+    try:
+        fr_result = FR(p, prune=True, delays=tuple(p.input_names)).fit(runs).result_
+    except Exception as exc:  # said in the report, never silent
+        fr_result = None
+        lines.append(f"FR fit: not done ({exc}).")
+    models = {"a priori": apriori, "ML": ml.model, "refined ML": refined,
+              **({"FR": fr_result.model} if fr_result else {})}
+    fr = frequency_response(runs, p.input_names, list(p.outputs))
+    plots = plot_bode(fr, models, out / "frequency")
+    text, _ = cost_report(runs, models)
+    hq = hq_of_response(fr)
+    hq_model = hq_of_model(apriori)
+    hq.save(out / "frequency", hq_model)
+    lines += ["Frequency responses of the flown runs (composite windows, coherence), Tischler's J of each "
+              "model, and the FR fit (the model fitted to the responses, CIFER's gates with pruning, an "
+              "equivalent delay per cyclic: the truth's control delay is " + f"{DELAY:g} s):", "",
+              "```", text, *(fr_result.info["report_lines"][1:] if fr_result else []), "```", ""]
+    lines += [f"![Bode {path.stem}](frequency/{path.name})" for path in plots]
+    lines += ["", "Handling qualities (ADS-33, from the flown runs; the a priori model's point beside):", "",
+              "```", *hq.lines(), "```", "", "![ADS-33 roll](frequency/hq_roll.png)",
+              "", "Definitions and limits: docs/frequency.md."]
+    return lines
 
 
 def _rel_err(estimate: np.ndarray, truth: np.ndarray) -> float:

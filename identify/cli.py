@@ -13,6 +13,8 @@ from .model.profile import load_profile
 def cmd_model(args) -> int:
     """Print a profile's parameters and modes; optionally its residualised reduction."""
     profile = load_profile(args.profile)
+    if args.at:
+        profile = _at_condition(profile, args.at)
     model = LinearModel(profile)
     _print_model(model)
     if args.reduce:
@@ -24,21 +26,40 @@ def cmd_model(args) -> int:
     return 0
 
 
+def _at_condition(profile, text: str):
+    """A scheduled profile (``[meta.schedule]``, e.g. from ``campaign stitch``) at ``NAME=VALUE``."""
+    from .errors import ProfileError
+    from .model.schedule import at_condition, parse_condition, schedule_of
+
+    name, value = parse_condition(text)
+    schedule = schedule_of(profile)
+    if schedule is None:
+        raise ProfileError(f"{profile.source}: --at needs a scheduled profile ([meta.schedule]); this one has none")
+    if name != schedule["condition"]:
+        raise ProfileError(f"{profile.source}: scheduled over '{schedule['condition']}', not '{name}'")
+    return at_condition(profile, value)
+
+
 def _print_model(model: LinearModel) -> None:
     p = model.profile
     print(f"{p.name}\n  states:  {', '.join(f'{s} [{u}]' for s, u in p.states.items())}"
           f"\n  inputs:  {', '.join(f'{s} [{u}]' for s, u in p.inputs.items())}"
           f"\n  outputs: {', '.join(p.outputs)}"
           f"\n  {len(p.free)} free, {len(p.fixed)} fixed parameters")
+    std = p.meta.get("std", {}) if isinstance(p.meta.get("std"), dict) else {}
     for kind, values in (("free", p.free), ("fixed", p.fixed)):
         if values:
-            print(f"\n{kind} parameters:")
-            print("\n".join(f"  {name:<16}{value:13.6g}" for name, value in values.items()))
+            print(f"\n{kind} parameters:" + ("  (value, std)" if std and kind == "free" else ""))
+            print("\n".join(f"  {name:<16}{value:13.6g}" + (f"{std[name]:12.4g}" if name in std else "")
+                             for name, value in values.items()))
+    trim = p.meta.get("trim")
+    if isinstance(trim, dict) and trim:
+        print("\ntrim:\n" + "\n".join(f"  {name:<16}{value:13.6g}" for name, value in trim.items()))
     effects = _declared_effects(p)
     print("\ndeclared effects (every command applies them to the runs):" + ("" if effects else " none"))
     if effects:
         print("\n".join(f"  {line}" for line in effects))
-    notes = [f"{key}: {value}" for key, value in p.meta.items() if key not in ("delays", "pseudo_inputs")]
+    notes = [f"{key}: {value}" for key, value in p.meta.items() if key not in ("delays", "pseudo_inputs", "std", "trim")]
     if notes:
         print("notes ([meta]):\n" + "\n".join(f"  {line}" for line in notes))
     if p.limits:
@@ -64,10 +85,13 @@ def build_parser() -> Parser:
     p.add_argument("profile", help="profile TOML path or bundled profile name")
     p.add_argument("--reduce", metavar="STATES", help="comma-separated states to make instantaneous")
     p.add_argument("--save-reduced", metavar="TOML", type=output_file, help="write the reduced profile here")
+    p.add_argument("--at", metavar="NAME=VALUE", help="a scheduled profile (campaign stitch) at this condition")
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
     _add_freq_parser(sub)
+    _add_compat_parser(sub)
+    _add_hq_parsers(sub)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser
@@ -76,35 +100,48 @@ def build_parser() -> Parser:
 def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     from .data.preprocess import slice_run, smooth
-    from .estimators.plots import save_plots
 
     profile = _profile(args)
     runs = []
-    for r in _read_runs(args.runs, args.channel_map, profile):
+    for r in _read_runs(args.runs, args.channel_map, profile, args):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
             r = smooth(r, args.smooth)
         if args.t_start is not None or args.t_end is not None:
-            if "segment" in r.meta and not _overlaps(r, args.t_start, args.t_end):
+            if ("segment" in r.meta or "dropped_samples" in r.meta) and not _overlaps(r, args.t_start, args.t_end):
                 print(f"note: {r.source} lies outside --t-start/--t-end: not used", file=sys.stderr)
                 continue
             r = slice_run(r, args.t_start, args.t_end)
-        runs.append(r)
+        runs.append(_trimmed(r, args.trim, profile))
     if not runs:
         raise EstimationError("no run has samples between --t-start and --t-end")
 
     estimator = _estimator(args, profile)
     result = _fit(estimator, runs)
     print(result.summary(), flush=True)  # on screen before anything is written
+    if "report_lines" in result.info:  # the frequency-response fit's J, pruning and delays
+        print("\n" + "\n".join(result.info["report_lines"]), flush=True)
     from .estimators.frequency.response import cost_report
     text, result.info["frequency_cost_J"] = cost_report(runs, {"identified": result.model,
                                                               "a priori": LinearModel(profile)})
     print("\n" + text, flush=True)
+    verification = None
+    if args.verify:  # VERIFY: the identified model predicts runs that took no part
+        from .estimators.frequency.verify import verify
+        verification = verify(result.model, _read_runs(args.verify, args.channel_map, result.profile))
+        result.info["verify"] = verification.to_dict()
+        print("\n" + "\n".join(verification.lines()), flush=True)
     out = result.save(args.out)
     with open(out / "summary.txt", "a") as f:  # the frequency-domain cost printed above, too
         f.write("\n" + text + "\n")
-    plots = save_plots(result, out)
-    print(f"\nwritten to {out}: result.json, summary.txt, identified_profile.toml, time_histories.npz, "
-          f"{', '.join(p.name for p in plots)}")
+    written = ["result.json", "summary.txt", "identified_profile.toml"] + (["time_histories.npz"] if result.time else [])
+    if args.plots:  # on request: drawing them costs three times the fit itself (benchmarks/ml_speed.py)
+        from .estimators.plots import save_plots
+        written += [p.name for p in save_plots(result, out)]
+    if verification is not None:  # asked for with --verify: its plot comes with it
+        from .estimators.frequency.verify import plot_verification
+        from .model.profile import output_units
+        written.append(plot_verification(verification, out / "verify.png", output_units(result.profile)).name)
+    print(f"\nwritten to {out}: {', '.join(written)}" + ("" if args.plots else " (plots: add --plots)"))
     return 0
 
 
@@ -118,8 +155,11 @@ def _estimator(args, profile, show_progress: bool = True):
               file=sys.stderr, flush=True)
 
     estimator = build(args.method, profile, progress=show if show_progress else None,
-                      names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff"},
-                      max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None))
+                      names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays",
+                             "prune": "--prune"},
+                      max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
+                      delays=_names(getattr(args, "fr_delays", None)) or None,
+                      prune=getattr(args, "prune", None) or None)
     return estimator
 
 
@@ -141,7 +181,7 @@ def _fit(estimator, runs):
 
 
 def _add_estimate_parser(sub) -> None:
-    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV or ML)")
+    p = sub.add_parser("estimate", help="identify a profile's parameters from runs (LS, IV, ML, FDEE or FR)")
     _add_common_options(p, "run files", default_method="iv")
     p.add_argument("--smooth", type=positive_float, metavar="HZ", help="zero-phase low-pass cut-off for every channel")
     p.add_argument("--diff-cutoff", type=positive_float, metavar="HZ",
@@ -150,16 +190,54 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--t-end", type=finite_float, metavar="S", help="use samples up to this time")
     p.add_argument("--max-iter", type=positive_int, metavar="N",
                    help="iterations at most for iv (default 30) and ml (default 100)")
+    p.add_argument("--plots", action="store_true",
+                   help="also draw time_history_run<k>.png and residuals.png (slower than the fit)")
+    p.add_argument("--verify", nargs="+", metavar="RUN", help="held-out runs the identified model must predict "
+                   "(VERIFY: initial state and zero shifts fitted; Theil coefficient and J_rms reported)")
+    p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")
+    p.add_argument("--prune", action="store_true", help="fr: fix parameters that fail CIFER's gates "
+                   "(insensitivity <= 10 %%, Cramér-Rao <= 20 %%) at their a priori values, one at a time")
     p.set_defaults(func=cmd_estimate)
 
 
-def _read_runs(paths, channel_map, profile):
+def _names(text: str | None) -> tuple[str, ...]:
+    return tuple(n.strip() for n in (text or "").split(",") if n.strip())
+
+
+def _read_runs(paths, channel_map, profile, args=None):
     """Every run of the files (CSV or .mat; a file split by time gaps gives several), in SI units,
-    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt."""
-    from .data.io import load_channel_map, read_run_files
+    as the profile needs them: a refined profile's delays applied and pseudo-inputs rebuilt.
+    ``args`` brings the NaN policy (``--nan``) and the window (``--t-start``/``--t-end``)."""
     from .model.pseudo_inputs import prepare
 
-    return prepare(profile, read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile))
+    return prepare(profile, _recorded_runs(paths, channel_map, profile, args))
+
+
+def _recorded_runs(paths, channel_map, profile, args=None):
+    """The runs as recorded (the pilot's inputs, no declared delay applied): handling qualities
+    and LOES judge the aircraft from the stick, its delays included."""
+    from .data.ingest import ReadOptions
+    from .data.io import load_channel_map, read_run_files
+
+    options = ReadOptions(getattr(args, "nan", "refuse"), getattr(args, "t_start", None), getattr(args, "t_end", None))
+    return read_run_files(paths, load_channel_map(channel_map) if channel_map else None, profile, options)
+
+
+def _trimmed(run, trim: str, profile):
+    """``run`` minus its trim values (``--trim``), the profile's pseudo-inputs (a constant, the
+    time, ...) left as they are; said once per run."""
+    from .data.preprocess import remove_trim
+    from .model.pseudo_inputs import specs
+
+    if trim is None:
+        return run
+    if trim == "none":
+        return remove_trim(run, "none")  # recorded: the data were taken as perturbations already
+    pseudo = set(specs(profile))
+    out = remove_trim(run, trim, [n for n in run.channels if n not in pseudo])
+    print(f"note: {run.source}: trim removed ({trim}) from {len(run.channels) - len(pseudo & set(run.channels))} "
+          f"channel(s)", file=sys.stderr)
+    return out
 
 
 def _overlaps(run, t_start, t_end) -> bool:
@@ -178,6 +256,12 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--method", choices=METHOD_NAMES, default=default_method,
                    help=f"estimator (default {default_method})")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--nan", choices=("refuse", "drop", "interpolate"), default="refuse",
+                   help="missing values inside the analysed window: refuse the file (default), drop their samples "
+                        "(the hole splits the run) or interpolate them; outside the window the run is cut to it")
+    p.add_argument("--trim", default=None, type=_trim_option, metavar="first:1s|mean|none",
+                   help="remove each channel's trim value: its mean over the first seconds, over the whole run, "
+                        "or none; recorded in result.json (not given: the data are used as they are)")
     p.add_argument("--channel-map", metavar="JSON",
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
@@ -200,6 +284,20 @@ def _profile(args):
     return profile
 
 
+def _trim_option(text: str) -> str:
+    """argparse type of --trim (checked without loading numpy-heavy modules)."""
+    import argparse
+
+    from .data.preprocess import parse_trim
+    from .errors import RunError
+
+    try:
+        parse_trim(text)
+    except RunError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text.strip().lower()
+
+
 def cmd_refine(args) -> int:
     """Fit, find what the residuals say the model lacks, add it, re-identify; write the evidence."""
     from .refine.candidates import KINDS
@@ -213,8 +311,9 @@ def cmd_refine(args) -> int:
     refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
                      kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
                      frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)
-    refiner.fit(_read_runs(args.runs, args.channel_map, profile),
-                validate=_read_runs(args.validate or [], args.channel_map, profile))
+    fit_runs = [_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)]
+    held_out = [_trimmed(r, args.trim, profile) for r in _read_runs(args.validate or [], args.channel_map, profile, args)]
+    refiner.fit(fit_runs, validate=held_out)
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
     for i, s in enumerate(refiner.steps_, start=1):
@@ -229,8 +328,27 @@ def cmd_refine(args) -> int:
         print(f"{where} error (overall): {refiner.error_before_[where]['overall']:.4g} -> "
               f"{refiner.error_after_[where]['overall']:.4g}", flush=True)
     out = write(refiner, args.out)  # after the screen output: a failing write loses nothing shown
+    _add_provenance(out, fit_runs + held_out)
     print(f"written to {out}: refine.json, report.md, final_profile.toml")
     return 0
+
+
+def _add_provenance(out, runs) -> None:
+    """The runs' provenance into refine.json and report.md (refine's writer knows the fits, the
+    readers know the files)."""
+    import json
+    from pathlib import Path
+
+    from .data.provenance import provenance, provenance_lines
+    from .estimators.result import dumps
+
+    prov = provenance(runs)
+    path = Path(out) / "refine.json"
+    data = json.loads(path.read_text())
+    data["provenance"] = prov
+    path.write_text(dumps(data))
+    with open(Path(out) / "report.md", "a") as f:
+        f.write("\n## Data provenance\n\n```\n" + "\n".join(provenance_lines(prov)) + "\n```\n")
 
 
 def _add_refine_parser(sub) -> None:
@@ -254,19 +372,28 @@ def cmd_freq(args) -> int:
     """Frequency responses and coherence of runs; Bode plots with the a priori model, CSV, J."""
     from pathlib import Path
 
+    import numpy as np
+
     from .data.csvfile import read_run
     from .estimators.frequency.bode import plot_bode
     from .estimators.frequency.response import cost_report, frequency_response
 
     profile = load_profile(args.profile)
     runs = [read_run(f) for f in args.runs]
+    inputs, skipped = _moved_inputs(runs, profile.input_names)
+    runs = [r.with_channels({u: np.zeros(len(r)) for u in profile.input_names if u not in r.channels})
+            for r in runs]  # an input a run lacks was held at trim
     f_range = None if args.f_min is None and args.f_max is None else (args.f_min or 0.05, args.f_max or 5.0)
-    fr = frequency_response(runs, profile.input_names, list(profile.outputs), f_range=f_range)
+    fr = frequency_response(runs, inputs, list(profile.outputs), f_range=f_range)
+    if skipped:  # said once the responses exist (a missing output is the one error line otherwise)
+        print(f"note: skipped input(s) {', '.join(skipped)}: no run moves them (absent or constant); "
+              f"responses to {', '.join(inputs)} only", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models = {"a priori": LinearModel(profile)}
-    if args.identified:  # e.g. identified_profile.toml from identify estimate
-        models["identified"] = LinearModel(load_profile(args.identified))
+    for k, path in enumerate(args.identified or []):  # e.g. identified_profile.toml from identify estimate
+        label = "identified" if len(args.identified) == 1 else f"identified {k + 1} ({Path(path).parent.name})"
+        models[label] = LinearModel(load_profile(path))
     plots = plot_bode(fr, models, out)
     fr.to_csv(out / "frequency_response.csv")
     print(f"windows {', '.join(f'{w:.3g}' for w in fr.windows)} s over {len(runs)} run(s)")
@@ -276,15 +403,164 @@ def cmd_freq(args) -> int:
     return 0
 
 
+def _moved_inputs(runs, inputs) -> tuple[list[str], list[str]]:
+    """The profile inputs some run moves (present and not constant), and those none does: a
+    response to an input never moved is not estimable (its cross-spectra are empty), and keeping
+    it would make every other input's response singular. A moved input absent from some run is
+    taken at trim (zero) there."""
+    import numpy as np
+
+    def moved(u):
+        return any(u in r.channels and np.ptp(r[u]) > 0 for r in runs)
+
+    used = [u for u in inputs if moved(u)]
+    if not used:
+        raise EstimationError(f"no run moves any input of the profile ({', '.join(inputs)})")
+    return used, [u for u in inputs if u not in used]
+
+
 def _add_freq_parser(sub) -> None:
     p = sub.add_parser("freq", help="frequency responses with coherence (Bode plots, CSV, fit cost J)")
     p.add_argument("runs", nargs="+", help="run files (.csv)")
     p.add_argument("--profile", required=True, help="profile (inputs, outputs and the a priori model overlaid)")
     p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
-    p.add_argument("--identified", metavar="TOML", help="an identified profile to overlay and judge (J) too")
+    p.add_argument("--identified", metavar="TOML", action="append",
+                   help="an identified profile to overlay and judge (J) too; repeat for several (e.g. ML and FR)")
     p.add_argument("--f-min", type=positive_float, metavar="HZ", help="lowest frequency (default: from the windows)")
     p.add_argument("--f-max", type=positive_float, metavar="HZ", help="highest frequency (default 0.4 x sample rate, <= 5)")
     p.set_defaults(func=cmd_freq)
+
+
+def cmd_compat(args) -> int:
+    """Flight-path reconstruction: sensor biases, scale factors and time skews; corrected runs."""
+    from .compat import Compat
+    from .compat.report import write
+    from .data.ingest import ReadOptions
+    from .data.io import load_channel_map, read_run_files
+
+    runs = read_run_files(args.runs, load_channel_map(args.channel_map) if args.channel_map else None, None,
+                          ReadOptions(args.nan))
+    errors = None if args.errors is None else [e.strip() for e in args.errors.split(",") if e.strip()]
+    compat = Compat(errors, alpha=args.alpha, max_steps=args.max_steps, segment=args.segment,
+                    progress=lambda text: print(text, file=sys.stderr, flush=True)).fit(runs)
+    print(compat.result_.summary(), flush=True)
+    written = write(compat.result_, runs, args.out, plots=args.plots)
+    print(f"written to {args.out}: {', '.join(written)}")
+    return 0
+
+
+def _add_compat_parser(sub) -> None:
+    p = sub.add_parser("compat", help="flight-path reconstruction: sensor biases, scale factors, time skews; "
+                                      "corrected runs")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat) with a_x, a_y, a_z, p, q, r and any of "
+                                           "V, alpha, beta, phi, theta, psi, h")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map (file or inline JSON), as for estimate")
+    p.add_argument("--nan", choices=("refuse", "drop", "interpolate"), default="refuse",
+                   help="missing values: refuse the file (default), drop their samples or interpolate them")
+    p.add_argument("--errors", metavar="LIST", help="estimate exactly these sensor errors (e.g. b_q,b_alpha,"
+                   "K_alpha,tau_alpha) instead of selecting them by score tests")
+    p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    p.add_argument("--max-steps", type=nonnegative_int, default=12, help="sensor errors added at most (default 12)")
+    p.add_argument("--segment", type=positive_float, default=3.0, metavar="S",
+                   help="integration segment length, each from its own initial state (default 3 s)")
+    p.add_argument("--plots", action="store_true", help="also draw residuals_before_after.png")
+    p.set_defaults(func=cmd_compat)
+
+
+def cmd_hq(args) -> int:
+    """ADS-33 bandwidth and phase delay, the chart, short-period LOES: of runs or of a model."""
+    from .estimators.frequency.hq import hq_of_model, hq_of_response
+
+    profile = load_profile(args.profile)
+    options = dict(task=args.task, pitch=args.pitch, roll=args.roll, category=args.category)
+    if args.runs:
+        from .estimators.frequency.response import frequency_response
+
+        runs = _recorded_runs(args.runs, args.channel_map, profile)
+        fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
+        report = hq_of_response(fr, **options)
+        model = hq_of_model(LinearModel(profile), **options) if args.with_model else None
+    else:
+        report, model = hq_of_model(LinearModel(profile), **options), None
+    print("\n".join(report.lines() + (["model:"] + model.lines() if model else [])), flush=True)
+    paths = report.save(args.out, model)
+    print(f"written to {args.out}: {', '.join(p.name for p in paths)}")
+    return 0
+
+
+def cmd_loes(args) -> int:
+    """A transfer function (chosen orders, equivalent delay, bounds) fitted to one measured response."""
+    from pathlib import Path
+
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from .estimators.frequency.loes import fit_transfer_function, plot_fit, short_period
+    from .estimators.frequency.response import frequency_response
+
+    profile = load_profile(args.profile)
+    output, _, input_ = args.pair.partition("/")
+    if output not in profile.outputs or input_ not in profile.input_names:
+        raise EstimationError(f"--pair {args.pair}: give OUTPUT/INPUT of the profile (outputs "
+                              f"{', '.join(profile.outputs)}; inputs {', '.join(profile.input_names)})")
+    runs = _recorded_runs(args.runs, args.channel_map, profile)
+    fr = frequency_response(runs, profile.input_names, list(profile.outputs), n_freq=args.n_freq)
+    j, i = fr.pair(output, input_)
+    band = None if args.w_min is None and args.w_max is None else (args.w_min or 0.0, args.w_max or np.inf)
+    coh = np.where(fr.resolved[:, j, i], fr.coherence[:, j, i], 0.0)
+    try:
+        fit = fit_transfer_function(fr.omega, fr.H[:, j, i], coh, n_num=args.num, n_den=args.den,
+                                    delay=not args.no_delay, tau_bounds=(0.0, args.tau_max), omega_range=band)
+    except ValueError as exc:
+        raise EstimationError(f"loes {args.pair}: {exc}") from None
+    text = [f"{args.pair}: numerator order {args.num}, denominator order {args.den}"
+            + ("" if args.no_delay else f", equivalent delay in [0, {args.tau_max:g}] s"), fit.summary()]
+    if args.den == 2 and not args.no_delay:
+        text += short_period(fit, args.category).lines()
+    print("\n".join(text), flush=True)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "loes.md").write_text("```\n" + "\n".join(text) + "\n```\n")
+    fig = plot_fit(fr.omega, fr.H[:, j, i], coh, fit, f"{args.pair}: transfer-function fit")
+    FigureCanvasAgg(fig)
+    fig.savefig(out / "loes.png", dpi=90)
+    print(f"written to {out}: loes.md, loes.png")
+    return 0
+
+
+def _add_hq_parsers(sub) -> None:
+    p = sub.add_parser("hq", help="handling qualities: ADS-33 bandwidth/phase delay chart, short-period LOES")
+    p.add_argument("runs", nargs="*", help="run files (.csv or .mat); none: the profile's model itself")
+    p.add_argument("--profile", required=True, help="profile (or identified profile) TOML path or bundled name")
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.add_argument("--task", choices=("tracking", "other"), default="tracking",
+                   help="ADS-33 task category (default tracking: target acquisition and tracking)")
+    p.add_argument("--pitch", metavar="INPUT", help="pitch control (default theta_s or delta_e)")
+    p.add_argument("--roll", metavar="INPUT", help="roll control (default theta_c or delta_a)")
+    _add_response_options(p)
+    p.add_argument("--with-model", action="store_true", help="with runs: also the profile's model, on the same charts")
+    p.set_defaults(func=cmd_hq)
+    p = sub.add_parser("loes", help="transfer function (LOES) with an equivalent delay fitted to one response")
+    p.add_argument("runs", nargs="+", help="run files (.csv or .mat)")
+    p.add_argument("--profile", required=True, help="profile naming the inputs and outputs")
+    p.add_argument("--pair", required=True, metavar="OUTPUT/INPUT", help="the response fitted, e.g. q/theta_s")
+    p.add_argument("--num", type=nonnegative_int, default=1, help="numerator order (default 1)")
+    p.add_argument("--den", type=positive_int, default=2, help="denominator order (default 2)")
+    p.add_argument("--no-delay", action="store_true", help="no equivalent time delay")
+    p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay (default 0.5)")
+    p.add_argument("--w-min", type=positive_float, metavar="RAD_S", help="lowest frequency fitted")
+    p.add_argument("--w-max", type=positive_float, metavar="RAD_S", help="highest frequency fitted")
+    _add_response_options(p)
+    p.add_argument("--out", required=True, metavar="DIR", type=output_dir, help="output folder")
+    p.set_defaults(func=cmd_loes)
+
+
+def _add_response_options(p) -> None:
+    """Options hq and loes share: the LOES level's category, the response grid, the channel map."""
+    p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
+    p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
 
 
 def main(argv=None) -> int:

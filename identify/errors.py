@@ -47,6 +47,11 @@ class CueingError(PseudostepError):
     """Bad cueing input: unknown source, missing device, unreadable flight log, bad option."""
 
 
+# -- campaign -------------------------------------------------------------------------------------
+class CampaignError(PseudostepError):
+    """A campaign manifest, test matrix or campaign option is invalid."""
+
+
 def read_text(path, error: type[PseudostepError], what: str) -> str:
     """The text of the file ``path``; an unreadable or binary file raises one ``error`` naming
     ``what`` the file should have been (``"profile"``, ``"frame log"``)."""

@@ -22,13 +22,29 @@ def report_path(out) -> Path:
     return out.with_name(out.stem + ".live.md")
 
 
-def add_response(run, live: LiveIdentification):
-    """The run file's grid with the measured states the live estimator saw (linear interpolation
-    between frames: on a fast clock the frames are the grid)."""
+def add_response(run, live: LiveIdentification, model=None):
+    """The run file a flight without the live estimate writes, from what the live estimator saw:
+    every input of the aircraft's profile (``model``'s, default the live profile; an input not
+    flown at its trim value, zero), the measured states (linear interpolation between frames: on a
+    fast clock the frames are the grid), their derivatives ``<state>_dot`` (smoothed
+    differentiation of the measured states, recorded in the run's processing) and the profile's
+    outputs (``C x + D u`` of the measured states)."""
+    from identify import LinearModel, add_derivatives
+
     _, cols = read_live_log(live.log_path)
     t = cols["time"]
-    channels = {s: np.interp(run.time, t, cols[s]) for s in live.profile.state_names}
-    return run.with_channels(channels, source_of_response=live.response.describe())
+    model = model if model is not None else LinearModel(live.profile)
+    p = model.profile
+    states = {s: np.interp(run.time, t, cols[s]) for s in p.state_names}
+    inputs = {u: run.channels.get(u, np.zeros(len(run))) for u in p.input_names}
+    x = np.column_stack([states[s] for s in p.state_names])
+    u = np.column_stack([inputs[n] for n in p.input_names])
+    y = x @ model.C.T + u @ model.D.T
+    outputs = {n: y[:, j] for j, n in enumerate(p.outputs) if n not in states}
+    out = run.with_channels({**inputs, **states, **outputs}, source_of_response=live.response.describe(),
+                            unflown_inputs=", ".join(n for n in p.input_names if n not in run.channels) or "none")
+    cutoff = min(6.25, 0.4 / out.dt)  # the project's default, below Nyquist at any frame rate
+    return add_derivatives(out, list(p.state_names), cutoff_hz=cutoff)
 
 
 def fly_live(signals, source, out, profile, *, simulate=None, response=None, targets=None,
@@ -58,7 +74,7 @@ def fly_live(signals, source, out, profile, *, simulate=None, response=None, tar
         live.close(f"aborted ({exc or type(exc).__name__})")
         raise
     live.close(flight.log.status)
-    flight.run = add_response(flight.run, live)
+    flight.run = add_response(flight.run, live, getattr(response, "model", None))
     flight.run.to_csv(out)
     if not ml or live.latest is None:
         return flight, live, None

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import RunError
 from . import units as U
-from .ingest import Raw, build_runs
+from .ingest import Raw, build_runs, zero_based
 from .runs import TIME, Run
 
 
@@ -38,17 +38,19 @@ def read_run_segments(path: str | Path, channel_map: dict | None = None, profile
     return csv_runs(path, channel_map, profile).all()
 
 
-def csv_runs(path, channel_map=None, profile=None):
-    """A CSV file's runs with the notes and warnings of reading it, not yet said
-    (an :class:`~identify.data.ingest.Ingested`)."""
+def csv_runs(path, channel_map=None, profile=None, options=None):
+    """A CSV (or other delimited text) file's runs with the notes and warnings of reading it, not
+    yet said (an :class:`~identify.data.ingest.Ingested`); ``options`` a
+    :class:`~identify.data.ingest.ReadOptions` (NaN policy and window)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        data = path.read_bytes()
+        text = data.decode("utf-8-sig")
     except OSError as exc:
         raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
         raise RunError(f"{path}: not a text (CSV) file") from None
-    return _parse(text, str(path), channel_map, profile)
+    return _parse(text, str(path), channel_map, profile, options)
 
 
 def read_runs(paths, require: list[str] | None = None, *, channel_map: dict | None = None,
@@ -65,9 +67,9 @@ def parse_run(text: str, source: str = "<run>") -> Run:
     return _parse(text, source, None, None).one("read_runs")
 
 
-def _parse(text: str, source: str, channel_map, profile):
+def _parse(text: str, source: str, channel_map, profile, options=None):
     raw = csv_raw(text, source, channel_map)
-    return build_runs(raw, csv_channels(raw, channel_map), profile)
+    return build_runs(raw, csv_channels(raw, channel_map), profile, options)
 
 
 # -- a CSV file's raw content (identify.data.ingest makes runs of it) ---------------------------
@@ -78,7 +80,13 @@ _HEADER_UNIT = re.compile(r"^(?P<name>.*?)\s*(?:\[(?P<u1>[^\]]*)\]|\((?P<u2>[^)]
 def csv_raw(text: str, source: str, channel_map: dict | None = None):
     """A CSV run file's content: ``# key: value`` metadata lines on top (``# units: q=deg/s, ...``
     declares units), a header of column names (``q [deg/s]`` / ``q (deg/s)`` declares a unit),
-    one row per sample, delimited by commas (or tabs, semicolons or blanks, as the header is)."""
+    one row per sample, delimited by commas (or tabs, semicolons or blanks, as the header is).
+
+    A file without a header (numbers from the first line on, as a whitespace ``.asc`` export) is
+    read only with the channel map's ``"columns"`` list naming its columns (else refused, saying
+    so: its first row must not silently become the header). Time is the ``time`` (or ``t``)
+    column, the map's ``"time"`` column, or ``"dt"`` (s) when the file has no time column."""
+    cmap = channel_map or {}
     lines = text.lstrip("\ufeff").splitlines()
     meta, header, header_line = {}, None, 0
     for lineno, line in enumerate(lines, start=1):
@@ -96,36 +104,74 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
     delim = next((d for d in (",", "\t", ";") if d in header), None)  # None: blanks (units in brackets kept)
     cells = next(csv.reader([header], delimiter=delim)) if delim else _BLANKS.split(header.strip())
     trailing = len(cells) > 1 and not cells[-1].strip()  # "time,q," as spreadsheets write it
+    declared = cmap.get("columns")
+    numeric = all(_is_number(c) for c in (cells[:-1] if trailing else cells))
+    if declared is None and numeric:
+        raise RunError(f"{source}: line {header_line}: the file has no header (the first row is numbers: "
+                       f"{', '.join(c.strip() for c in cells[:6])}{' ...' if len(cells) > 6 else ''}); name its "
+                       f"{len(cells) - trailing} columns in the channel map: \"columns\": [\"time\", ...]")
+    if declared is not None:
+        if not numeric:
+            raise RunError(f"{source}: line {header_line}: the channel map declares \"columns\" but the file has a "
+                           f"header ({', '.join(c.strip() for c in cells[:6])}): drop \"columns\" or the header")
+        if len(declared) != len(cells) - trailing:
+            raise RunError(f"{source}: the channel map's \"columns\" names {len(declared)} columns, line "
+                           f"{header_line} has {len(cells) - trailing}")
+        cells, header_line = [str(c) for c in declared] + ([""] if trailing else []), header_line - 1
+        meta["header"] = "none in the file: columns named by the channel map"
     names, units = _header(cells[:-1] if trailing else cells, source, header_line)
     _merge_units(units, U.parse_units_spec(meta["units"], f"{source}: metadata 'units'") if "units" in meta else {},
                  source)
-    _merge_units(units, (channel_map or {}).get("units", {}), source)
-    time_name = (channel_map or {}).get("time")
+    _merge_units(units, cmap.get("units", {}), source)
+    specs, time_name = zero_based(cmap.get("channels", {}), cmap.get("time"), cmap.get("index_base"),
+                                  len(names), source)
+    dt = cmap.get("dt")
     if time_name is None:  # 'time' in any case, else a column 't'
         time_name = next((n for n in names if n.lower() == TIME), next((n for n in names if n.lower() == "t"), None))
     if isinstance(time_name, int):
         time_name = names[time_name] if -len(names) <= time_name < len(names) else None
-    if time_name not in names:
-        raise RunError(f"{source}: line {header_line}: no '{TIME}' column in header")
+    if time_name not in names and dt is None:
+        raise RunError(f"{source}: no '{TIME}' column (columns: {', '.join(names)}) and no sample interval: "
+                       f"name the time column (\"time\") or give \"dt\" in the channel map")
     values, line_of = _csv_values(lines, header_line, names, delim, trailing, source)
 
     def column(where, channel):
         if isinstance(where, int) and not isinstance(where, bool):
             if not -len(names) <= where < len(names):
-                raise RunError(f"{source}: channel '{channel}': column {where} out of range ({len(names)} columns)")
+                raise RunError(f"{source}: channel '{channel}': column {where} out of range ({len(names)} columns, "
+                               f"0-based: {', '.join(f'{i} {n}' for i, n in enumerate(names))})")
             return values[:, where]
         if where not in names:
-            raise RunError(f"{source}: channel '{channel}': no column '{where}' in the header")
+            raise RunError(f"{source}: channel '{channel}': no column '{where}' (columns: {', '.join(names)})")
         return values[:, names.index(where)]
 
-    return Raw(source, column(time_name, TIME), column, names, units, meta, lambda i: f"line {line_of[i]}",
-               time_name)
+    if time_name in names:
+        t = column(time_name, TIME)
+        if dt is not None:
+            step = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+            if not abs(step - float(dt)) <= 1e-6 * float(dt):
+                raise RunError(f"{source}: the channel map's dt {dt} s disagrees with the time column "
+                               f"'{time_name}' (step {step:.6g} s): drop one")
+    else:
+        t = np.arange(len(values)) * float(dt)
+        time_name = TIME
+        meta["time_from"] = f"dt = {float(dt):g} s from the channel map (the file has no time column)"
+    return Raw(source, t, column, names, units, meta, lambda i: f"line {line_of[i]}", time_name, "csv", specs)
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
 
 
 def csv_channels(raw, channel_map: dict | None) -> dict[str, object]:
-    """A CSV file's run channels: every column but time, plus (or replaced by) the map's channels."""
+    """A CSV file's run channels: every column but time, plus (or replaced by) the map's channels
+    (column numbers made 0-based, see :func:`~identify.data.ingest.zero_based`)."""
     specs = {n: n for n in raw.names if n != raw.time_name}
-    specs.update((channel_map or {}).get("channels", {}))
+    specs.update(raw.specs if raw.specs is not None else (channel_map or {}).get("channels", {}))
     return specs
 
 

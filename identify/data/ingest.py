@@ -8,10 +8,16 @@ steps every format shares happen here, in this order:
 2. **Channels.** The channel map names each run channel's source: a file column or variable, a
    data-matrix column (int), or an expression of them (``"da": "(dar - dal)/2"``), evaluated by a
    safe arithmetic evaluator (``+ - * /``, unary minus, parentheses, numbers, names; nothing else).
-3. **Checks.** Missing or non-finite values name the channel and row (a column the profile does
-   not use is left out instead, and said); an angular channel taken as radians
-   (declared ``rad`` or, undeclared, ``rad`` in the profile) whose values exceed what radians can
-   physically reach gives a warning (:data:`identify.data.units.DEGREE_LIMITS`).
+3. **Checks.** Missing or non-finite values (NaN) follow a policy (:class:`ReadOptions`): outside
+   the analysis window the run is cut to the window; inside it they are refused (naming the
+   channel and row), or their samples dropped (the hole splits the run) or interpolated, as
+   asked, said and recorded. A column the profile does not use is left out instead, and said.
+   A declared unit of another kind than the profile's (a speed for an angle) is an error. An
+   angular channel taken as radians (declared ``rad`` or, undeclared, ``rad`` in the profile)
+   whose values exceed what radians can physically reach gives a warning
+   (:data:`identify.data.units.DEGREE_LIMITS`), and so does a pair of channels whose kinematics
+   disagree by the degree factor (the integral of ``q`` against ``theta``, ``p`` against ``phi``,
+   ``r`` against ``psi``), naming the unit to declare and where.
 4. **Time.** A step longer than :data:`GAP_FACTOR` times the median step is a gap: the file splits
    into several runs. Within a run, time stamps off the uniform grid by up to :data:`JITTER_MAX` of
    a step are accepted and every channel is resampled onto the grid by linear interpolation (the
@@ -24,7 +30,7 @@ from __future__ import annotations
 import ast
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -35,6 +41,11 @@ from .runs import TIME, Run, check_time, uneven_steps
 
 GAP_FACTOR = 1.5
 JITTER_MAX = 0.05
+NAN_POLICIES = ("refuse", "drop", "interpolate")
+# (rate, angle) pairs whose kinematics agree in consistent units: d angle/dt ~ rate at small angles
+KINEMATIC_PAIRS = (("q", "theta"), ("p", "phi"), ("r", "psi"))
+KINEMATIC_R2 = 0.9  # the integral of the rate must explain this share of the angle's variance
+DEGREE_FACTOR_BAND = 1.5  # a ratio within 57.3 / 1.5 .. 57.3 x 1.5 is the degree factor
 _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
                   "speed": "acceleration"}
 
@@ -57,11 +68,69 @@ class Raw:
     meta: dict[str, str] = field(default_factory=dict)
     row: Callable[[int], str] = lambda i: f"sample {i + 1}"
     time_name: str = TIME
+    file_format: str = "csv"  # or "mat": where a unit is declared (hints name the right place)
+    specs: dict | None = None  # the channel map's channels, column numbers made 0-based
 
 
-def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested":
+def is_index(v) -> bool:
+    """Whether a channel map entry is a column number (an int, not a bool)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def zero_based(channels: dict, time, base, n_columns: int, source: str):
+    """The channel map's ``channels`` and ``time`` with column numbers made 0-based.
+
+    ``base`` is the map's ``"index_base"``: 0 (Python) or 1 (MATLAB). Undeclared, numbers are
+    0-based, but a map that uses numbers and never column 0, or names column ``n_columns`` (one
+    past the last 0-based), reads like MATLAB's 1-based numbering and is refused: read 0-based,
+    every channel would be the column next to the one meant, without a word."""
+    where = f"{source}: channel map"
+    numbers = {k: v for k, v in channels.items() if is_index(v)}
+    if is_index(time):
+        numbers[TIME] = time
+    if base not in (None, 0, 1):
+        raise RunError(f"{where}: \"index_base\" must be 0 (Python) or 1 (MATLAB), got {base!r}")
+    if not numbers:
+        return dict(channels), time
+    if base is None:
+        used = sorted(set(numbers.values()))
+        if 0 not in used or n_columns in used:
+            why = "none of them is 0" if 0 not in used else f"column {n_columns} is one past the last of {n_columns}"
+            raise RunError(f"{where}: column numbers {', '.join(map(str, used))} look 1-based (MATLAB): {why}; "
+                           f"declare \"index_base\": 1 (MATLAB numbering) or 0 (Python numbering)")
+        return dict(channels), time
+    if base == 1:
+        bad = {k: v for k, v in numbers.items() if not 1 <= v <= n_columns}
+        if bad:
+            raise RunError(f"{where}: 1-based column numbers must lie in 1..{n_columns}: "
+                           + ", ".join(f"'{k}' = {v}" for k, v in bad.items()))
+    shift = {k: v - base for k, v in numbers.items()}
+    return {k: shift.get(k, v) for k, v in channels.items()}, shift.get(TIME, time)
+
+
+@dataclass
+class ReadOptions:
+    """How reading treats missing values: ``nan`` one of :data:`NAN_POLICIES` for NaN inside the
+    window ``t_start .. t_end`` (s; None: open); NaN outside the window cut the run to it."""
+
+    nan: str = "refuse"
+    t_start: float | None = None
+    t_end: float | None = None
+
+    def __post_init__(self):
+        if self.nan not in NAN_POLICIES:
+            raise RunError(f"NaN policy must be one of {', '.join(NAN_POLICIES)}, got {self.nan!r}")
+
+    def inside(self, t: np.ndarray) -> np.ndarray:
+        lo = -np.inf if self.t_start is None else self.t_start - 1e-9
+        hi = np.inf if self.t_end is None else self.t_end + 1e-9
+        return (t >= lo) & (t <= hi)
+
+
+def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: ReadOptions | None = None) -> "Ingested":
     """Runs from ``raw``: ``channels`` maps each run channel to its source (a column name or index,
-    or an expression string). One run, or several when time gaps split the file."""
+    or an expression string). One run, or several when time gaps (or dropped samples) split the file."""
+    options = options or ReadOptions()
     notes, warnings = [], []
     t = _si_time(raw)
     values, described = {}, {}
@@ -74,10 +143,13 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested
             notes.append(f"{raw.source}: channel '{name}' has {bad} missing or non-finite value(s): left out "
                          "(the profile does not use it)")
             continue
-        _finite(v, raw, name)
         values[name], described[name] = v, how
-    warnings += _unit_checks(raw.source, values, described, profile)
     meta = _meta(raw, described, resolver.derived)
+    t, values, lines, rows = _missing(t, values, raw, options, meta)
+    notes += lines
+    if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
+        raw = replace(raw, row=lambda i, rows=rows, row=raw.row: row(int(rows[i])))
+    warnings += _unit_checks(raw, t, values, described, profile)
     segments = _split_gaps(t, raw, meta, notes)
     runs = []
     for k, (lo, hi) in enumerate(segments):
@@ -97,11 +169,65 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None) -> "Ingested
     return Ingested(runs, [f"note: {n}" for n in notes] + [f"warning: {w}" for w in warnings])
 
 
+def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
+    """Time, channels, the notes and the file rows (indices) kept, after the NaN policy."""
+    rows = np.arange(len(t))
+    if not values:
+        return t, values, [], rows
+    bad = np.zeros(t.shape, bool)
+    for v in values.values():
+        bad |= ~np.isfinite(v)
+    if not bad.any():
+        return t, values, [], rows
+    notes = []
+    inside = options.inside(t)
+    if (bad & ~inside).any():
+        n_out = int((bad & ~inside).sum())
+        text = (f"{n_out} sample(s) with missing values outside the window t = {options.t_start}..{options.t_end} s: "
+                f"the run is cut to the window")
+        notes.append(f"{raw.source}: {text}")
+        meta["missing_outside_window"] = text
+        if inside.sum() < 2:
+            raise RunError(f"{raw.source}: fewer than two samples between {options.t_start} and {options.t_end} s")
+        t, rows, bad = t[inside], rows[inside], bad[inside]
+        values = {n: v[inside] for n, v in values.items()}
+    if not bad.any():
+        return t, values, notes, rows
+    if options.nan == "refuse":
+        name = next(n for n, v in values.items() if not np.all(np.isfinite(v)))
+        v = values[name]
+        first = np.flatnonzero(~np.isfinite(v))
+        raise RunError(f"{raw.source}: {raw.row(rows[first[0]])}, channel '{name}': {v[first[0]]} value "
+                       f"({first.size} missing or non-finite value(s) in the window; --nan drop or --nan "
+                       f"interpolate reads them)")
+    where = ", ".join(raw.row(i) for i in rows[bad][:5]) + (f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else "")
+    good = ~bad
+    if options.nan == "interpolate":
+        lo, hi = np.flatnonzero(good)[[0, -1]] if good.any() else (0, -1)
+        ends = bad & ((np.arange(len(t)) < lo) | (np.arange(len(t)) > hi))
+        fixed = {}
+        for n, v in values.items():
+            ok = np.isfinite(v)
+            fixed[n] = np.where(ok, v, np.interp(t, t[ok], v[ok]) if ok.sum() >= 2 else np.nan)
+        values = fixed
+        text = (f"{int((bad & ~ends).sum())} sample(s) with missing values interpolated linearly in time ({where})"
+                + (f"; {int(ends.sum())} at the ends dropped" if ends.any() else ""))
+        meta["interpolated_samples"] = text
+        good = ~ends
+    else:
+        text = f"{int(bad.sum())} sample(s) with missing values dropped ({where}); the hole splits the run"
+        meta["dropped_samples"] = text
+    notes.append(f"{raw.source}: {text}")
+    if good.sum() < 2:
+        raise RunError(f"{raw.source}: fewer than two samples without missing values")
+    return t[good], {n: v[good] for n, v in values.items()}, notes, rows[good]
+
+
 def _meta(raw: Raw, described: dict, derived: dict) -> dict[str, str]:
     """The file's metadata, ``units`` replaced by what was converted (the run is SI now: written
     again, it must not be converted twice) and the derived channels' expressions."""
     meta = {k: v for k, v in raw.meta.items() if k != "units"}
-    converted = [f"{n} from {u}" for n, (how, u) in described.items()
+    converted = [f"{n} from {u} (x {U.UNITS[U.canonical(u)][0]:.10g})" for n, (how, u) in described.items()
                  if how == "declared" and u != "SI" and U.UNITS[U.canonical(u)][0] != 1.0]
     if converted:
         meta["converted_to_si"] = ", ".join(converted)
@@ -308,13 +434,6 @@ def evaluate(expr: str, lookup: Callable[[str], np.ndarray], where: str):
     return walk(tree)
 
 
-def _finite(values: np.ndarray, raw: Raw, name: str) -> None:
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        raise RunError(f"{raw.source}: {raw.row(bad[0])}, channel '{name}': {values[bad[0]]} value "
-                       f"({bad.size} missing or non-finite value(s))")
-
-
 # -- plausibility ----------------------------------------------------------------------------------
 def profile_channels(profile) -> set[str]:
     """Every channel a profile can use: inputs, states, their derivatives and outputs."""
@@ -335,19 +454,21 @@ def profile_quantities(profile) -> dict[str, str]:
     return out
 
 
-def _unit_checks(source: str, values: dict, described: dict, profile) -> list[str]:
-    """Warnings: radian channels holding degree-like values; declared units of another quantity
-    than the profile's."""
+def _unit_checks(raw: Raw, t: np.ndarray, values: dict, described: dict, profile) -> list[str]:
+    """Warnings: radian channels holding degree-like values (by magnitude and by kinematics).
+    A declared unit of another quantity than the profile's is an error."""
+    source = raw.source
     expected = profile_quantities(profile) if profile is not None else {}
     controls = set(profile.inputs) if profile is not None else set()
-    out = []
+    out = _kinematic_checks(raw, t, values, described)
+    flagged = {w.split("'")[1] for w in out}
     for name, v in values.items():
         how, unit = described[name]
         if how == "declared" and unit != "SI":
             kind = U.quantity(unit)
             if name in expected and kind != expected[name]:
-                out.append(f"{source}: channel '{name}' is declared in {unit} ({kind}) but the profile "
-                           f"expects {expected[name]}")
+                raise RunError(f"{source}: channel '{name}' is declared in {unit} ({kind}) but the profile "
+                               f"expects {expected[name]} (a unit of the wrong kind: check the unit or the channel)")
             if U.canonical(unit) not in ("rad", "rad/s", "rad/s^2"):
                 continue
             how = f"declared {unit}"
@@ -357,6 +478,43 @@ def _unit_checks(source: str, values: dict, described: dict, profile) -> list[st
             continue
         kind = "control angle" if kind == "angle" and name in controls else kind
         peak = U.looks_like_degrees(v, kind)
-        if peak is not None:
-            out.append(U.degree_warning(source, name, peak, kind, how))
+        if peak is not None and name not in flagged:
+            out.append(U.degree_warning(source, name, peak, kind, how, raw.file_format))
+    return out
+
+
+def _taken_as_radians(described: dict, name: str) -> bool:
+    how, unit = described[name]
+    return how == "undeclared" or U.canonical(unit) in ("rad", "rad/s")
+
+
+def _kinematic_checks(raw: Raw, t: np.ndarray, values: dict, described: dict) -> list[str]:
+    """Warnings for (rate, angle) pairs whose kinematics disagree by the degree factor: the angle's
+    change regressed on the rate's integral (a rate bias and the start absorbed by a line in
+    time) gives a factor near 180/pi (the angle is in degrees) or pi/180 (the rate is)."""
+    out = []
+    for rate, angle in KINEMATIC_PAIRS:
+        if rate not in values or angle not in values or len(t) < 10:
+            continue
+        x = np.concatenate([[0.0], np.cumsum(0.5 * (values[rate][1:] + values[rate][:-1]) * np.diff(t))])
+        y = values[angle] - values[angle][0]
+        X = np.column_stack([x, t - t[0], np.ones_like(t)])
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        # the share of the angle's motion (after the line) the rate's integral explains
+        line = np.column_stack([t - t[0], np.ones_like(t)])
+        rest = y - line @ np.linalg.lstsq(line, y, rcond=None)[0]
+        explained = 1 - np.sum((y - X @ coef) ** 2) / max(np.sum(rest ** 2), 1e-300)
+        k = coef[0]
+        if not (explained >= KINEMATIC_R2 and k > 0):
+            continue
+        factor = 180 / np.pi
+        if factor / DEGREE_FACTOR_BAND < k < factor * DEGREE_FACTOR_BAND and _taken_as_radians(described, angle):
+            suspect, unit = angle, "deg"
+        elif 1 / (factor * DEGREE_FACTOR_BAND) < k < DEGREE_FACTOR_BAND / factor and _taken_as_radians(described, rate):
+            suspect, unit = rate, "deg/s"
+        else:
+            continue
+        out.append(f"{raw.source}: channel '{suspect}' looks like {unit}: '{angle}' changes {k:.4g} times the "
+                   f"integral of '{rate}' (1 in consistent units, 57.3 or 1/57.3 when one is in degrees); declare "
+                   f"its unit ({U.declare_hint(suspect, unit, raw.file_format)})")
     return out

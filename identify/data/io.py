@@ -23,8 +23,9 @@ def load_channel_map(spec: str | Path) -> dict:
     """A channel map from a JSON file or JSON text.
 
     Form: ``{"channels": {channel: variable, column or expression}, "units": {name: unit},
-    "time": variable or column, "matrix": name, "dt": seconds}``; a flat ``{channel: variable or
-    column}`` is read as ``{"channels": ...}``.
+    "time": variable or column, "matrix": name or pattern ("{stem}": the file's name), "dt":
+    seconds, "columns": [names of a headerless text file's columns], "index_base": 0 or 1}``; a
+    flat ``{channel: variable or column}`` is read as ``{"channels": ...}``.
     """
     text = str(spec)
     path = Path(text)
@@ -39,7 +40,7 @@ def load_channel_map(spec: str | Path) -> dict:
         raise RunError(f"{source}: channel map must be a JSON object")
     if "channels" not in data:
         data = {"channels": data}
-    unknown = set(data) - {"channels", "time", "matrix", "dt", "units"}
+    unknown = set(data) - {"channels", "time", "matrix", "dt", "units", "columns", "index_base"}
     if unknown:
         raise RunError(f"{source}: channel map has unknown key(s) {', '.join(sorted(unknown))}")
     if not isinstance(data["channels"], dict) or not data["channels"]:
@@ -49,31 +50,55 @@ def load_channel_map(spec: str | Path) -> dict:
         raise RunError(f"{source}: channel map 'units' must be an object of {{name: unit}} strings")
     for name, unit in units.items():
         unit_info(unit, f"{source}: channel map: units of '{name}'")
+    columns = data.get("columns")
+    if columns is not None and (not isinstance(columns, list) or not all(isinstance(c, str) and c for c in columns)):
+        raise RunError(f"{source}: channel map 'columns' must be a list of column names")
     return data
 
 
-def read_run_file(path: str | Path, channel_map: dict | None = None, profile=None) -> Run:
+def read_run_file(path: str | Path, channel_map: dict | None = None, profile=None, options=None) -> Run:
     """The run of a CSV run file or, with ``.mat`` suffix, a MATLAB file (v5 or v7.3) read through
     ``channel_map`` (without one every vector variable is read). ``profile`` lets channels without
     a declared unit be checked against the profile's. A file that time gaps split is an error
     here: use :func:`read_run_files`."""
-    return _ingest(path, channel_map, profile).one("read_run_files")
+    return _ingest(path, channel_map, profile, options).one("read_run_files")
 
 
-def read_file_runs(path: str | Path, channel_map: dict | None = None, profile=None) -> list[Run]:
+def read_file_runs(path: str | Path, channel_map: dict | None = None, profile=None, options=None) -> list[Run]:
     """Every run of one CSV or ``.mat`` file (several when time gaps split it)."""
-    return _ingest(path, channel_map, profile).all()
+    return _ingest(path, channel_map, profile, options).all()
 
 
-def read_run_files(paths, channel_map: dict | None = None, profile=None) -> list[Run]:
-    """Runs from several files (CSV or ``.mat``), in order, each file's segments in turn."""
-    return [r for p in paths for r in read_file_runs(p, channel_map, profile)]
+def read_run_files(paths, channel_map: dict | None = None, profile=None, options=None) -> list[Run]:
+    """Runs from several files (CSV or ``.mat``), in order, each file's segments in turn;
+    ``options`` a :class:`~identify.data.ingest.ReadOptions` (NaN policy and window)."""
+    return [r for p in paths for r in read_file_runs(p, channel_map, profile, options)]
 
 
-def _ingest(path, channel_map, profile):
+def _ingest(path, channel_map, profile, options=None):
     path = Path(path)
     if path.suffix.lower() != ".mat":
-        return csv_runs(path, channel_map, profile)
-    cmap = channel_map or {}
-    return mat_runs(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
-                    dt=cmap.get("dt"), units=cmap.get("units"), meta=None, profile=profile)
+        got = csv_runs(path, channel_map, profile, options)
+    else:
+        cmap = channel_map or {}
+        got = mat_runs(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
+                       dt=cmap.get("dt"), units=cmap.get("units"), meta=None, profile=profile,
+                       index_base=cmap.get("index_base"), options=options)
+    digest = file_sha256(path)
+    for run in got.runs:  # provenance: which bytes these numbers came from
+        if run.meta.get("sha256", digest) != digest:  # a file written from another (compat's corrected runs)
+            run.meta["upstream_sha256"] = run.meta["sha256"]
+        run.meta["sha256"] = digest
+        if channel_map and "channel_map" not in run.meta:
+            run.meta["channel_map"] = json.dumps(channel_map, separators=(",", ":"))
+    return got
+
+
+def file_sha256(path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -4,8 +4,15 @@ Two layouts are read (the SIDPAC / FVSysID conventions):
 
 * named variables — one vector per channel (``t``, ``q``, ``theta_s`` ...); the channel map is
   ``{channel: variable name}``;
-* a data matrix — one variable (``data``, ``Z`` or ``fdata``) with one column per channel; the map
-  is ``{channel: column index}``, 0-based as in Python (MATLAB column 1 is index 0).
+* a data matrix — one variable with one column per channel: ``data``, ``Z`` or ``fdata``, the map's
+  ``"matrix"`` (a name, or a pattern such as ``"{stem}"``: the file's name without suffix, so one
+  map reads every file of a data set whose matrices are named after their files), or the only
+  2-D numeric variable the file holds; the map is ``{channel: column index}``, 0-based as in Python
+  unless the map declares ``"index_base": 1`` (MATLAB numbering; numbers that look 1-based
+  undeclared are refused).
+
+A struct array (``flight(1).t``, ``flight(2).t`` in a 1x2 ``flight``) gives one run per element
+when the map names its fields as ``flight.t``; ``flight(2).t`` names one element's field.
 
 Time comes from a named variable or matrix column (``time=``), else from the variables ``t`` /
 ``time`` if present, else from a sample interval ``dt`` in s. Every problem (unreadable file, missing
@@ -15,13 +22,14 @@ variable or column.
 from __future__ import annotations
 
 import json
+import re
 import zlib
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import RunError
-from .ingest import Raw, build_runs
+from .ingest import Ingested, Raw, build_runs, is_index, zero_based
 from .runs import Run
 
 MATRIX_NAMES = ("data", "Z", "fdata")
@@ -52,16 +60,33 @@ def read_mat_runs(path: str | Path, channels: dict[str, str | int] | None = None
     return mat_runs(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta, profile=profile).all()
 
 
-def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None, meta=None, profile=None):
+def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None, meta=None, profile=None,
+             index_base=None, options=None):
     """A ``.mat`` file's runs with the notes and warnings of reading it, not yet said
-    (an :class:`~identify.data.ingest.Ingested`); arguments as :func:`read_mat`."""
+    (an :class:`~identify.data.ingest.Ingested`); arguments as :func:`read_mat`, ``index_base``
+    the map's column numbering, ``options`` a :class:`~identify.data.ingest.ReadOptions`."""
     path = Path(path)
-    source = str(path)
     variables, version = _load(path)
+    elements = _struct_elements(variables, channels, time)
+    if elements:
+        parts = [_mat_file_runs(path, _element(variables, s, k), version, channels, time, matrix, dt, units,
+                                dict(meta or {}, struct_element=f"{s}({k})"), profile, index_base, options,
+                                f"{path} [{s}({k})]")
+                 for s, k in elements]
+        return Ingested([r for p in parts for r in p.runs], [m for p in parts for m in p.messages])
+    return _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, meta, profile, index_base,
+                          options, str(path))
+
+
+def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, meta, profile, index_base,
+                   options, source):
     channels = dict(channels) if channels is not None else None
-    uses_columns = any(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-                       for v in (channels or {}).values()) or isinstance(time, int)
-    data = _matrix(variables, matrix, source) if uses_columns or matrix else None
+    uses_columns = any(is_index(v) for v in (channels or {}).values()) or is_index(time)
+    data_name = [None]
+    data = _matrix(variables, matrix.replace("{stem}", path.stem) if matrix else None, source, data_name) \
+        if uses_columns or matrix else None
+    if data is not None:
+        channels, time = zero_based(channels or {}, time, index_base, data.shape[1], source)
 
     t = _time(variables, data, time, dt, source)
     n = len(t)
@@ -80,10 +105,44 @@ def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None
         return values
 
     info = {"source_format": f"MATLAB .mat {version}", "channel_map": json.dumps(channels, separators=(",", ":"))}
+    if data is not None:
+        info["matrix"] = data_name[0]
     info.update(meta or {})
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
-              time_name=time_name)
-    return build_runs(raw, channels, profile)
+              time_name=time_name, file_format="mat")
+    return build_runs(raw, channels, profile, options)
+
+
+_ELEMENT = re.compile(r"^(?P<struct>[A-Za-z]\w*)\((?P<k>\d+)\)\.")
+
+
+def _struct_elements(variables: dict, channels, time) -> list[tuple[str, int]]:
+    """``[(struct, k), ...]`` when the map names fields of a struct array as ``struct.field``
+    (one run per element), else []."""
+    arrays = {}
+    for key in variables:
+        m = _ELEMENT.match(key)
+        if m:
+            arrays.setdefault(m.group("struct"), set()).add(int(m.group("k")))
+    if not arrays:
+        return []
+    refs = [v for v in (channels or {}).values() if isinstance(v, str)] + ([time] if isinstance(time, str) else [])
+    refs += [n for v in refs for n in re.findall(r"[A-Za-z_]\w*(?:\.\w+)+", v)]
+    named = {r.split(".")[0] for r in refs if "." in r and r.split(".")[0] in arrays and r not in variables}
+    if channels is None and len(arrays) == 1 and not any(not _ELEMENT.match(k) for k in variables):
+        named = set(arrays)
+    if len(named) > 1:
+        raise RunError(f"channel map names fields of several struct arrays ({', '.join(sorted(named))}): "
+                       "name one element's fields, e.g. 'flight(1).t'")
+    return [(s, k) for s in named for k in sorted(arrays[s])]
+
+
+def _element(variables: dict, struct: str, k: int) -> dict:
+    """The variables with element ``k`` of the struct array ``struct`` readable as ``struct.field``."""
+    prefix = f"{struct}({k})."
+    out = {key: v for key, v in variables.items() if not key.startswith(f"{struct}(")}
+    out.update({f"{struct}.{key[len(prefix):]}": v for key, v in variables.items() if key.startswith(prefix)})
+    return out
 
 
 def _load(path: Path) -> tuple[dict, str]:
@@ -145,13 +204,25 @@ def _is_hdf5(path: Path) -> bool:
 
 
 def _flatten(variables: dict, prefix: str = "") -> dict:
+    """Struct fields as ``struct.field``, a struct array's as ``struct(k).field`` (1-based k, as
+    MATLAB names them); cells are no channels."""
     out = {}
     for key, value in variables.items():
         if isinstance(value, dict):
             out.update(_flatten(value, f"{prefix}{key}."))
-        elif isinstance(value, (np.ndarray, int, float)):  # cells and struct arrays are no channels
+        elif _is_struct_array(value):
+            for k, element in enumerate(np.ravel(np.asarray(value, dtype=object)) if not isinstance(value, list)
+                                        else value, start=1):
+                out.update(_flatten(element, f"{prefix}{key}({k})."))
+        elif isinstance(value, (np.ndarray, int, float)) and np.asarray(value).dtype != object:
             out[f"{prefix}{key}"] = value
     return out
+
+
+def _is_struct_array(value) -> bool:
+    items = value if isinstance(value, list) else (list(np.ravel(value)) if isinstance(value, np.ndarray)
+                                                    and value.dtype == object else None)
+    return bool(items) and all(isinstance(v, dict) for v in items)
 
 
 def _is_vector(v) -> bool:
@@ -159,11 +230,21 @@ def _is_vector(v) -> bool:
     return a.dtype.kind in "fiu" and a.ndim <= 2 and sum(s > 1 for s in a.shape) == 1
 
 
-def _matrix(variables: dict, name: str | None, source: str) -> np.ndarray:
+def _matrix(variables: dict, name: str | None, source: str, found: list | None = None) -> np.ndarray:
+    """The data matrix: ``name``, else the first of MATRIX_NAMES, else the file's only 2-D numeric
+    non-vector variable (its name in ``found[0]``)."""
     names = [name] if name else [m for m in MATRIX_NAMES if m in variables]
+    if not names:
+        names = [k for k, v in variables.items() if np.asarray(v).ndim == 2 and np.asarray(v).dtype.kind in "fiu"
+                 and not _is_vector(v)]
+        if len(names) > 1:
+            raise RunError(f"{source}: several data matrices ({', '.join(names)}) and none named: give \"matrix\" "
+                           "in the channel map (a name, or a pattern such as \"{stem}\" for the file's name)")
     if not names or names[0] not in variables:
         wanted = name or " / ".join(MATRIX_NAMES)
-        raise RunError(f"{source}: no data-matrix variable '{wanted}' (variables: {', '.join(sorted(variables))})")
+        raise RunError(f"{source}: no data-matrix variable '{wanted}' (variables: {_listing(variables)})")
+    if found is not None:
+        found[0] = names[0]
     m = np.asarray(variables[names[0]])
     m = m[:, None] if m.ndim == 1 else m  # one column, squeezed on loading
     if m.dtype.kind not in "fiu" or m.ndim != 2:
@@ -182,7 +263,7 @@ def _column(variables: dict, data, where, source: str, what: str) -> np.ndarray:
     if not isinstance(where, str):
         raise RunError(f"{source}: {what}: expected a variable name or a column index, got {where!r}")
     if where not in variables:
-        raise RunError(f"{source}: {what}: no variable '{where}' in the file")
+        raise RunError(f"{source}: {what}: no variable '{where}' in the file (variables: {_listing(variables)})")
     v = variables[where]
     if not _is_vector(v):
         raise RunError(f"{source}: {what}: variable '{where}' is not a numeric vector "
@@ -205,7 +286,8 @@ def _time(variables: dict, data, time, dt, source: str) -> np.ndarray:
         _finite(t, source, f"time ({_describe(time)})")
         return t
     if dt is None:
-        raise RunError(f"{source}: no time variable ('t' or 'time') and no sample interval (dt) given")
+        raise RunError(f"{source}: no time variable ('t' or 'time') and no sample interval (dt) given "
+                       f"(variables: {_listing(variables)})")
     if not (np.isfinite(dt) and dt > 0):
         raise RunError(f"{source}: sample interval dt must be positive, got {dt}")
     if data is not None:
@@ -223,6 +305,11 @@ def _finite(values: np.ndarray, source: str, what: str) -> None:
     if bad.size:
         raise RunError(f"{source}: {what}: {values[bad[0]]} value at sample {bad[0] + 1} "
                        f"({bad.size} non-finite value(s))")
+
+
+def _listing(variables: dict) -> str:
+    """The file's variables with their shapes, for 'not found' errors."""
+    return ", ".join(f"{k} {'x'.join(map(str, np.shape(v))) or 'scalar'}" for k, v in sorted(variables.items())) or "none"
 
 
 def _describe(where) -> str:

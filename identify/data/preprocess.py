@@ -53,9 +53,9 @@ def _record(run: Run, channels: dict[str, np.ndarray], step: dict) -> Run:
 def replay(run: Run, steps: list[dict]) -> Run:
     """Apply recorded processing ``steps`` (from :func:`processing_steps`) to ``run`` in order."""
     ops = {"smooth": smooth, "differentiate": add_derivatives, "cg_correction": cg_correction,
-           "slice": _slice_step}
+           "slice": _slice_step, "trim": remove_trim}
     for step in steps:
-        options = {k: v for k, v in step.items() if k not in ("step", "filter")}
+        options = {k: v for k, v in step.items() if k not in ("step", "filter", "values")}
         try:
             op = ops[step["step"]]
         except KeyError:
@@ -72,6 +72,40 @@ def slice_run(run: Run, t_start: float | None = None, t_end: float | None = None
 def _slice_step(run: Run, t_start=None, t_end=None) -> Run:
     out = run.slice(t_start, t_end)
     return _record(out, {}, {"step": "slice", "t_start": t_start, "t_end": t_end})
+
+
+def parse_trim(text: str) -> tuple[str, float]:
+    """``first:1s`` -> ("first", 1.0), ``mean`` -> ("mean", 0), ``none`` -> ("none", 0)."""
+    text = str(text).strip().lower()
+    if text in ("mean", "none"):
+        return text, 0.0
+    kind, sep, span = text.partition(":")
+    if kind == "first" and sep:
+        try:
+            seconds = float(span[:-1] if span.endswith("s") else span)
+        except ValueError:
+            seconds = float("nan")
+        if np.isfinite(seconds) and seconds > 0:
+            return "first", seconds
+    raise RunError(f"trim must be 'first:<seconds>s' (e.g. first:1s), 'mean' or 'none', got {text!r}")
+
+
+def remove_trim(run: Run, how: str = "first:1s", channels: list[str] | None = None) -> Run:
+    """Every channel (or ``channels``) minus its trim value: the mean over the first seconds
+    (``first:1s``, the steady flight before the input), the mean of the whole run (``mean``), or
+    nothing (``none``). A linear model describes perturbations from trim; the values removed are
+    recorded in the processing step, so the result can be traced and replayed."""
+    kind, seconds = parse_trim(how)
+    names = _channels(run, channels, list(run.channels))
+    if kind == "none" or not names:
+        return _record(run, {}, {"step": "trim", "how": "none"})
+    keep = run.time <= run.time[0] + seconds + 1e-9 if kind == "first" else np.ones(len(run), bool)
+    if kind == "first" and keep.sum() < 2:
+        raise RunError(f"{run.source}: trim over the first {seconds:g} s holds fewer than two samples "
+                       f"(sample interval {run.dt:g} s)")
+    trim = {n: float(np.mean(run[n][keep])) for n in names}
+    return _record(run, {n: run[n] - v for n, v in trim.items()},
+                   {"step": "trim", "how": how, "channels": names, "values": trim})
 
 
 # -- filters on arrays ------------------------------------------------------------------------

@@ -60,10 +60,13 @@ class Run:
             raise RunError(f"{self.source}: no channel '{name}'") from None
 
     def require(self, names, purpose: str = "the profile") -> None:
-        """Raise one RunError listing every channel ``purpose`` needs that the run lacks."""
+        """Raise one RunError listing every channel ``purpose`` needs that the run lacks, and the
+        channels it holds (a misnamed one is then seen at once)."""
         missing = [n for n in names if n not in self.channels]
         if missing:
-            raise RunError(f"{self.source}: missing channel(s) {', '.join(missing)} needed by {purpose}")
+            held = ", ".join(list(self.channels)[:30]) + (" ..." if len(self.channels) > 30 else "")
+            raise RunError(f"{self.source}: missing channel(s) {', '.join(missing)} needed by {purpose} "
+                           f"(the run holds: {held or 'no channel'})")
 
     def matrix(self, names) -> np.ndarray:
         """Channels stacked as columns: shape (N, len(names))."""

@@ -4,7 +4,10 @@ an angle channel taken as radians does not hold degrees.
 Every run channel is used in SI units and radians. A file may declare other units per channel
 (``deg``, ``deg/s``, ``ft``, ``kt``, ``g`` ...); :func:`to_si` converts them on read. The table is
 deliberately small and exact (only multiplicative factors, no offsets such as degrees Celsius):
-that is all flight-test channels need, and it keeps the dependency list short.
+that is all flight-test channels need. ``pint`` was considered and not used: it does not know the
+flight-test spellings (``rps`` and ``dps`` for rad/s and deg/s, ``KTAS``, ``lbs`` for force), so a
+table of aliases would be needed anyway, and its import (about 0.3 s) would cost a fifth of the
+whole ``identify estimate`` process.
 """
 from __future__ import annotations
 
@@ -39,8 +42,10 @@ UNITS: dict[str, tuple[float, str]] = {
     "m/s^2": (1.0, "acceleration"), "ft/s^2": (FT, "acceleration"), "g": (G0, "acceleration"),
     # time
     "s": (1.0, "time"), "ms": (1e-3, "time"), "min": (60.0, "time"),
-    # forces
+    # forces, pressures
     "n": (1.0, "force"), "lbf": (4.4482216152605, "force"),
+    "pa": (1.0, "pressure"), "kpa": (1e3, "pressure"), "hpa": (100.0, "pressure"), "mbar": (100.0, "pressure"),
+    "psf": (4.4482216152605 / FT ** 2, "pressure"), "psi": (4.4482216152605 / 0.0254 ** 2, "pressure"),
     # dimensionless (stick travel in % becomes a fraction)
     "1": (1.0, "dimensionless"), "%": (0.01, "dimensionless"),
 }
@@ -51,6 +56,12 @@ _ALIASES = {
     "kph": "km/h", "kmh": "km/h", "fpm": "ft/min", "feet": "ft", "foot": "ft", "inch": "in",
     "meter": "m", "metre": "m", "meters": "m", "metres": "m", "sec": "s", "second": "s", "seconds": "s",
     "-": "1", "": "1", "none": "1", "nd": "1", "percent": "%", "g's": "g", "gs": "g", "lb": "lbf",
+    # as flight-test data (NASA's SIDPAC among them) writes them: rps and dps are radians and degrees
+    # per second, KTAS/KIAS/KCAS knots of true/indicated/calibrated airspeed, lbs pound-force
+    "rps": "rad/s", "1/s": "rad/s", "1/sec": "rad/s", "ktas": "kt", "kias": "kt", "kcas": "kt", "keas": "kt",
+    "lbs": "lbf", "pound": "lbf", "pounds": "lbf", "lb/ft^2": "psf", "lbf/ft^2": "psf", "lb/in^2": "psi",
+    "rad/s/s": "rad/s^2", "deg/s/s": "deg/s^2", "m/s/s": "m/s^2", "ft/s/s": "ft/s^2", "dps2": "deg/s^2",
+    "rps2": "rad/s^2", "fps2": "ft/s^2",
 }
 
 # The largest magnitude a channel truly in SI can reach in a flight-test run, per angular quantity.
@@ -73,8 +84,11 @@ def canonical(unit: str) -> str | None:
     """The table's spelling of ``unit`` (case, spaces, ``sec``, ``s2``, ``²`` forgiven), or None."""
     u = str(unit).strip().lower().replace(" ", "").replace("²", "^2").replace("**", "^")
     u = _ALIASES.get(u, u)
+    u = re.sub(r"/sec(?=/)", "/s", u)
     u = re.sub(r"/sec(\^?2)?$", lambda m: "/s" + ("^2" if m.group(1) else ""), u)
     u = re.sub(r"/s2$", "/s^2", u)
+    u = re.sub(r"/s/s$", "/s^2", u)
+    u = _ALIASES.get(u, u)
     u = re.sub(r"^(degrees|degree|°)/", "deg/", u)
     u = re.sub(r"^(radians|radian)/", "rad/", u)
     u = re.sub(r"^(feet|foot)/", "ft/", u)
@@ -124,7 +138,17 @@ def looks_like_degrees(values: np.ndarray, kind: str) -> float | None:
     return peak if peak > limit else None
 
 
-def degree_warning(source: str, channel: str, peak: float, kind: str, how: str) -> str:
+DEGREE_UNIT = {"angle": "deg", "control angle": "deg", "angular rate": "deg/s", "angular acceleration": "deg/s^2"}
+
+
+def declare_hint(channel: str, unit: str, file_format: str) -> str:
+    """How to declare ``channel``'s unit in a file of ``file_format`` (``csv`` or ``mat``)."""
+    if file_format == "mat":
+        return f'the channel map\'s "units": {{"{channel}": "{unit}"}}'
+    return f"'# units: {channel}={unit}' on top of the file, a header '{channel} [{unit}]' or the channel map's \"units\""
+
+
+def degree_warning(source: str, channel: str, peak: float, kind: str, how: str, file_format: str = "csv") -> str:
     """The one-line warning for a channel whose radian values look like degrees."""
     return (f"{source}: channel '{channel}' ({how}) reaches |{peak:.4g}|, beyond {_LIMIT_TEXT[kind]}: "
-            f"it looks like degrees; declare its unit (e.g. '# units: {channel}=deg')")
+            f"it looks like {DEGREE_UNIT[kind]}; declare its unit ({declare_hint(channel, DEGREE_UNIT[kind], file_format)})")

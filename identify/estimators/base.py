@@ -99,13 +99,21 @@ class Estimator:
         self._validate()
         runs = self.check_runs(runs)
         unflown = unflown_parameters(self.profile_, runs)
-        if not unflown:
+        if unflown:
+            self.result_ = self._fit_holding(runs, unflown)
+        else:
             self.result_ = self._fit(runs)
-            return self
-        # controls no run moves: their parameters carry no information; hold them (said, recorded)
+        from ..data.provenance import provenance
+
+        self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
+        return self
+
+    def _fit_holding(self, runs: list[Run], unflown: dict[str, list[str]]) -> IdentificationResult:
+        """Controls no run moves: their parameters carry no information; fit with them held at
+        their a priori values (said, recorded) and return the result on the whole profile."""
         check_some_input_flown(self.profile_, unflown)
         line = held_line(self.method, unflown)
-        warnings.warn(line, HeldWarning, stacklevel=2)
+        warnings.warn(line, HeldWarning, stacklevel=3)
         full, held = self.profile_, [n for params in unflown.values() for n in params]
         if len(held) == len(full.free):
             raise EstimationError(f"{line}: no free parameter is left to estimate")
@@ -116,8 +124,7 @@ class Estimator:
         reduced = sub._fit(runs)
         self.__dict__.update({k: v for k, v in sub.__dict__.items() if k.endswith("_")})
         self._validate()
-        self.result_ = expand_held(reduced, full, unflown, line)
-        return self
+        return expand_held(reduced, full, unflown, line)
 
     def _validate(self) -> None:
         """Load the profile (``profile_``) and check the options; subclasses add theirs."""

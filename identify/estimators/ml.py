@@ -441,8 +441,11 @@ class _Solver:
 
 # -- helpers ---------------------------------------------------------------------------------------
 def _std(cov, active: np.ndarray) -> np.ndarray:
-    """Standard errors from a :class:`~identify.estimators.information.BlockCovariance`; inf where held."""
-    std = np.sqrt(np.clip(cov.diag(), 0, None))
+    """Standard errors from a :class:`~identify.estimators.information.BlockCovariance`; inf where held,
+    NaN where the variance is not positive (not determined: never a printed 0)."""
+    var = cov.diag()
+    std = np.full(var.shape, np.nan)
+    np.sqrt(var, out=std, where=var > 0)
     std[~active] = np.inf
     return std
 

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 from ..errors import EstimationError
 
-METHOD_NAMES = ("ml", "ls", "iv", "fdee")
+METHOD_NAMES = ("ml", "ls", "iv", "fdee", "fr")
 
 
 def estimator_classes() -> dict[str, type]:
     """``{method name: class}``; imports every estimator."""
     from .equation_error import IV, LS
     from .frequency.equation_error import FDEE
+    from .frequency.response_fit import FR
     from .ml import ML
 
-    classes = {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE}
+    classes = {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE, "fr": FR}
     assert tuple(classes) == METHOD_NAMES
     return classes
 

@@ -83,6 +83,33 @@ class IdentificationResult:
     measured: list[np.ndarray] = field(default_factory=list, repr=False)
     modelled: list[np.ndarray] = field(default_factory=list, repr=False)
 
+    def __post_init__(self):
+        """A standard error that is not a positive number (a variance clipped at zero or negative:
+        the covariance is not positive definite, e.g. after a fit stopped short of the minimum),
+        a parameter that duplicates the zero shift fitted per run and the members of an exactly
+        redundant set are not determined: NaN, with the reason in ``info["not_determined"]``."""
+        self.theta = np.asarray(self.theta, dtype=float)
+        self.std = np.array(self.std, dtype=float)
+        reasons = dict(self.info.get("not_determined") or {})
+        for i, s in enumerate(self.std):
+            if not (s > 0):  # 0, negative or NaN (inf stays: a parameter no input excites)
+                reasons.setdefault(self.names[i], "variance not positive (the covariance is not positive definite: "
+                                   "a fit stopped before its minimum or a singular information matrix)")
+        if self.info.get("zero_shift_std") is not None:  # per-run zero shifts were estimated
+            for name, y in identifiability.zero_shift_duplicates(self.model).items():
+                reasons[name] = (f"a declared output bias on '{y}' duplicating the zero shift fitted per run "
+                                 f"(only their sum is determined: drop the bias or fit without zero shifts)")
+        if self.covariance is not None and len(self.names) > 1:
+            for r in identifiability.redundant(self.names, self.theta, self.covariance):
+                for name in r["parameters"] if r["exact"] else ():
+                    reasons.setdefault(name, f"exactly redundant with {', '.join(n for n in r['parameters'] if n != name)}"
+                                       + (f" (determined: {r['determined']})" if r["determined"] else ""))
+        for name in reasons:
+            if name in self.names:
+                self.std[self.names.index(name)] = np.nan
+        if reasons:
+            self.info["not_determined"] = reasons
+
     def residuals(self) -> list[np.ndarray]:
         """Measured minus modelled outputs, (N, ny) per run."""
         return [z - y for z, y in zip(self.measured, self.modelled)]
@@ -172,13 +199,18 @@ class IdentificationResult:
         lines = [f"{self.method.upper()} identification of '{self.profile.name}' from "
                  f"{len(self.runs) or 1} run(s)", head, "-" * len(head)]
         for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
-            row = f"{name:<18}{v:13.6g}{s:12.4g}{r:11.2f}{a:12.5g}"
+            spread = f"{s:12.4g}{r:11.2f}" if not np.isnan(s) else f"{'not determined':>23}"
+            row = f"{name:<18}{v:13.6g}{spread}{a:12.5g}"
             if truth:
                 row += f"{truth.get(name, float('nan')):12.5g}"
             lines.append(row)
         lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
         if self.info.get("held_note"):
             lines.append(f"held (std inf): {self.info['held_note']}")
+        lines += [f"not determined: {n}: {why}" for n, why in self.info.get("not_determined", {}).items()]
+        if self.info.get("ill_conditioned"):
+            lines.append("warning: the information matrix is ill-conditioned (rank deficient to rounding): "
+                         "some parameter or combination is not determined by these runs")
         lines.append(self._convergence_line())
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
@@ -211,11 +243,13 @@ class IdentificationResult:
                  "| --- |" + " ---: |" * (len(cols) - 1)]
         for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
             a = a if start is None else start.get(name)
-            cells = [f"`{name}`", f"{v:.6g}", f"{s:.4g}", f"{r:.2f}", "-" if a is None else f"{a:.5g}"]
+            cells = [f"`{name}`", f"{v:.6g}"] + ([f"{s:.4g}", f"{r:.2f}"] if not np.isnan(s) else
+                                                ["not determined", "-"]) + ["-" if a is None else f"{a:.5g}"]
             if truth:
                 cells.append(f"{truth.get(name, float('nan')):.5g}")
             lines.append("| " + " | ".join(cells) + " |")
         lines += ["", f"Standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}."]
+        lines += [f"Not determined: `{n}`: {why}." for n, why in self.info.get("not_determined", {}).items()]
         if self.fit:
             lines += ["", "| output | RMS error | Theil U |", "| --- | ---: | ---: |"]
             lines += [f"| {k} | {v['rms']:.4g} | {v['theil']:.4f} |" for k, v in self.fit.items()]
@@ -298,7 +332,8 @@ class IdentificationResult:
 
 HISTORIES = "time_histories.npz"  # the runs' time, measured and modelled outputs beside result.json
 CR_GUIDELINE, INSENSITIVITY_GUIDELINE = 20.0, 10.0  # %: Tischler & Remple's marks of a parameter worth keeping
-NULL_NOTE = "null stands for a value that is not finite: an infinite standard error (a parameter no input excites) or NaN"
+NULL_NOTE = ("null stands for a value that is not finite: an infinite standard error (a parameter no input excites) "
+             "or NaN (not determined: the reason in info.not_determined)")
 MAX_LAGS = 200  # noise autocorrelation lags kept in result.json
 MAX_LISTED = 100  # per-segment entries kept in result.json
 

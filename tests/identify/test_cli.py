@@ -42,7 +42,7 @@ def _in_process(argv, capsys):
 def test_ls_writes_result_json_profile_and_plots(runs, tmp_path, s61):
     out = tmp_path / "ls"
     proc = run_cli("identify", "estimate", "--profile", "s61_hover_8state", "--method", "ls", runs[0],
-                   "--out", out)
+                   "--out", out, "--plots")
     assert proc.returncode == 0, proc.stderr
     assert "LS identification" in proc.stdout and "M_theta_R" in proc.stdout and "Theil" in proc.stdout
     result = json.loads((out / "result.json").read_text())
@@ -63,6 +63,9 @@ def test_iv_on_two_runs_with_smoothing_and_slicing_shows_progress(runs, tmp_path
     proc = _in_process(["estimate", "--profile", "s61_hover_8state", "--method", "iv", *runs, "--out", out,
                         "--smooth", "10", "--t-start", "0.5", "--t-end", "9.5"], capsys)
     assert proc.returncode == 0, proc.stderr
+    assert not list(out.glob("*.png")) and "(plots: add --plots)" in proc.stdout  # plots on request only
+    proc = _in_process(["estimate", "--profile", "s61_hover_8state", "--method", "iv", *runs, "--out", out,
+                        "--smooth", "10", "--t-start", "0.5", "--t-end", "9.5", "--plots"], capsys)
     assert "IV iteration 1: max rel. change" in proc.stderr
     result = json.loads((out / "result.json").read_text())
     assert result["method"] == "iv" and len(result["runs"]) == 2 and result["info"]["converged"]

@@ -32,7 +32,8 @@ window: 15 % in |H| at 3 cycles). Each window's estimate is corrected by this fi
 ``H'`` taken from the window's own estimate (its derivative in frequency), and a window is not used
 at a frequency where the term exceeds MAX_LEAKAGE random errors (the higher-order rest is then
 small against the random error). A window is also used only at frequencies where it holds
-MIN_CYCLES cycles and has enough averages; where no window is valid nothing is estimated (H nan,
+MIN_CYCLES cycles (the longest window MIN_CYCLES_LONGEST: it alone sets the lowest frequency) and
+has enough averages; where no window is valid nothing is estimated (H nan,
 coherence 0, :attr:`FrequencyResponse.resolved` False, shaded grey in the plots).
 The composite estimate combines the windows per frequency and pair with weights ``1 / eps_k^2``
 (the most accurate window dominates); because all windows see the same data their errors are
@@ -40,29 +41,42 @@ correlated, so the composite error is the weighted mean of the windows' errors, 
 (``var(sum w_k H_k) <= (sum w_k sigma_k)^2``), not the smaller independent-average value.
 
 Fit cost (:func:`fit_cost`): Tischler's ``J = 20 / n_w * sum W_g (dB error)^2 + W_p (deg error)^2``
-weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies where the coherence is at
-least 0.6; ``J <= 100`` per pair (mean ``<= 50``) is the usual mark of a model that fits.
+weighted by ``W_gamma = (1.58 (1 - exp(-g^2)))^2``, over the frequencies with a valid estimate, a
+coherence of at least 0.6 and a random error of at most MAX_RANDOM_ERROR (nothing is judged where
+nothing is resolved), and only for pairs with MIN_POINTS such points and an input some run moves
+(``g^2`` is the coherence as stored here, the squared coherence function); a mean ``J <= 100`` with no
+pair above 200 is the usual mark of a model that fits (Tischler & Remple). The report states the
+lowest resolved frequency against the slowest mode the inputs excite: below it no model is judged.
 """
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import detrend
 
 from ...data.runs import Run
 from ...errors import EstimationError
 from ...model.linear import LinearModel
+from ...model.pseudo_inputs import APPLIED
 from .base import fourier_sum
 
 MIN_COHERENCE = 0.6  # frequencies below it carry too little information for J and plots' judgement
 OVERLAP_VARIANCE_FACTOR = 1 + 2 * 0.167 ** 2  # Hann at 50 % overlap: correlation of adjacent segments
 MAX_LEAKAGE = 2.0  # a window's leakage bias (corrected to first order) may be at most this many random errors
-MIN_CYCLES = 3.0  # a window must hold this many periods of a frequency (fewer: leakage bias)
+MIN_CYCLES = 3.0  # a window must hold this many periods of a frequency (fewer: leakage bias) ...
+MIN_CYCLES_LONGEST = 2.0  # ... except the longest, which sets the lowest frequency (Tischler & Remple:
+# w_min = 2 (2 pi / T_max)); a shorter window at 2-3 cycles would only add a worse estimate where a
+# longer one already holds 3
 N_WINDOWS = 5
 W_GAIN, W_PHASE = 1.0, 0.01745  # Tischler's weights on dB and deg errors
+MIN_POINTS = 5  # resolved coherent points a pair needs before its J says anything about a model
+# a point judges models only if its random error is at most this: with few averages a coherence of
+# 0.6 still leaves 30 % errors, more than the difference between a good and a 30 %-off model
+MAX_RANDOM_ERROR = 0.2
+J_MEAN_FITS, J_PAIR_MAX = 100.0, 200.0  # Tischler & Remple: mean J <= 100 and no pair above 200
 
 
 @dataclass
@@ -85,6 +99,10 @@ class FrequencyResponse:
     outputs: list[str]
     windows: list[float] = field(default_factory=list)
     runs: list[str] = field(default_factory=list)
+    unmoved: list[str] = field(default_factory=list)  # inputs no run moves: their pairs say nothing
+    # (nf, ny, nu) window length (s) behind each composite point, weighted as the estimate: its
+    # resolution ~1.5/window Hz says how many neighbouring grid points share its errors
+    window: np.ndarray | None = None
 
     @property
     def magnitude_db(self) -> np.ndarray:
@@ -111,14 +129,49 @@ class FrequencyResponse:
         """Per pair the frequency range (Hz) with a valid estimate and its coherent share, for reports."""
         f = self.omega / (2 * np.pi)
         lines = [f"resolved frequencies (a valid window; coherence >= {MIN_COHERENCE} of them):"]
+        if self.unmoved:
+            lines.append(f"  inputs no run moves (their pairs left out): {', '.join(self.unmoved)}")
         for j, y in enumerate(self.outputs):
             for i, u in enumerate(self.inputs):
+                if u in self.unmoved:
+                    continue
                 ok = self.resolved[:, j, i]
                 coherent = int((ok & (self.coherence[:, j, i] >= MIN_COHERENCE)).sum())
                 span = f"{f[ok].min():.3g}..{f[ok].max():.3g} Hz, {ok.sum()} of {f.size} frequencies" if ok.any() \
                     else "none"
                 lines.append(f"  {y + '/' + u:<22}{span} ({coherent} coherent)")
         return lines
+
+    @property
+    def lowest_resolved(self) -> float:
+        """Lowest frequency (rad/s) with a valid estimate for some pair of a moved input (nan if none)."""
+        moved = [i for i, u in enumerate(self.inputs) if u not in self.unmoved]
+        ok = self.resolved[:, :, moved].any(axis=(1, 2)) if moved else np.zeros(len(self.omega), bool)
+        return float(self.omega[ok].min()) if ok.any() else float("nan")
+
+    def resolution_line(self, model: LinearModel | None = None) -> str:
+        """The lowest resolved frequency against the model's slowest mode that the inputs excite,
+        and what record would resolve it when the data do not reach it."""
+        lo = self.lowest_resolved
+        head = f"lowest resolved frequency {lo / (2 * np.pi):.3g} Hz ({lo:.3g} rad/s; longest window " \
+               f"{max(self.windows):.3g} s holding at least {MIN_CYCLES_LONGEST:g} cycles)"
+        if model is None or not np.isfinite(lo):
+            return head
+        slow = excited_modes(model, [u for u in self.inputs if u not in self.unmoved])
+        if not slow:
+            return head + "; the inputs excite no mode of the model"
+        w = slow[0]
+        if w >= lo:
+            return head + f": reaches the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz)"
+        T = MIN_CYCLES_LONGEST * 2 * np.pi / w
+        miss = f": does NOT reach the slowest input-excited mode ({w / (2 * np.pi):.3g} Hz, {w:.3g} rad/s): "
+        if T > max(self.windows):
+            why = (f"that needs windows of {T:.3g} s, i.e. records of at least {2 * T:.3g} s "
+                   f"(the windows here allow records of {2 * max(self.windows):.3g} s)")
+        else:  # long enough, but the input's power there sits in too few segments
+            why = ("the longest window holds it, but too few segments carry input at that frequency "
+                   "(fewer than 2 averages: a single sweep passes it once); repeat the low end or fly more runs")
+        return head + miss + why + f"; below {lo / (2 * np.pi):.3g} Hz the models are not judged"
 
     def pair(self, output: str, input: str) -> tuple[int, int]:
         return self.outputs.index(output), self.inputs.index(input)
@@ -169,16 +222,20 @@ def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[s
     nu = len(inputs)
     windows = sorted(windows or default_windows([r.duration for r in runs], nu, overlap), reverse=True)
     if omega is None:
-        lo, hi = f_range or (MIN_CYCLES / windows[0], min(0.4 / dt, 5.0))
+        lo, hi = f_range or (MIN_CYCLES_LONGEST / windows[0], min(0.4 / dt, 5.0))
         if not 0 < lo < hi:
             raise EstimationError(f"frequency range {lo:g}..{hi:g} Hz is empty")
         omega = 2 * np.pi * np.geomspace(lo, hi, n_freq)
     omega = np.asarray(omega, dtype=float)
     data = [r.matrix(names) for r in runs]
-    per_window = [_window_estimate(data, dt, T, omega, nu, overlap) for T in windows]
-    H, coh, mult, err = _composite(per_window)
+    # an input no run moves (held at trim, or absent from every record) has no response to estimate
+    unmoved = [u for i, u in enumerate(inputs) if all(np.ptp(x[:, i]) <= 1e-12 * (1 + np.abs(x[:, i]).max())
+                                                        for x in data)]
+    per_window = [_window_estimate(data, dt, T, omega, nu, overlap, MIN_CYCLES_LONGEST if k == 0 else MIN_CYCLES)
+                  for k, T in enumerate(windows)]
+    H, coh, mult, err, window = _composite(per_window, windows)
     return FrequencyResponse(omega, H, coh, mult, err, list(inputs), list(outputs), list(windows),
-                             [r.source for r in runs])
+                             [r.source for r in runs], unmoved, window)
 
 
 def default_windows(durations: list[float], n_inputs: int, overlap: float = 0.5) -> list[float]:
@@ -203,7 +260,18 @@ def _segments(x: np.ndarray, L: int, step: int) -> np.ndarray:
     return np.stack([x[s:s + L] for s in starts]) if len(x) >= L else np.zeros((0, L, x.shape[1]))
 
 
-def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndarray, nu: int, overlap: float):
+def _detrend(seg: np.ndarray) -> np.ndarray:
+    """Each segment (K, L, nch) minus its least-squares line in time (axis 1), as
+    ``scipy.signal.detrend`` does; numpy alone: scipy.signal takes 0.4 s to import, a third of an
+    ``identify estimate`` process."""
+    L = seg.shape[1]
+    t = np.arange(L) - (L - 1) / 2
+    slope = np.einsum("l,klc->kc", t, seg) / max(float(t @ t), 1e-300)
+    return seg - seg.mean(axis=1, keepdims=True) - t[None, :, None] * slope[:, None, :]
+
+
+def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndarray, nu: int, overlap: float,
+                     min_cycles: float = MIN_CYCLES):
     """For one window length: H corrected for leakage, partial and multiple coherence, and the
     random error (inf where this window's estimate is not valid)."""
     L = max(int(round(T / dt)), 4)
@@ -211,8 +279,8 @@ def _window_estimate(data: list[np.ndarray], dt: float, T: float, omega: np.ndar
     seg = np.concatenate([_segments(x, L, step) for x in data])  # (K, L, nch)
     if len(seg) == 0:
         return None
-    valid = (omega * L * dt >= 2 * np.pi * MIN_CYCLES) & (omega < np.pi / dt)
-    tr = _Transforms(detrend(seg, axis=1), dt, omega, nu)
+    valid = (omega * L * dt >= 2 * np.pi * min_cycles) & (omega < np.pi / dt)
+    tr = _Transforms(_detrend(seg), dt, omega, nu)
     F, G = tr.F, tr.G
     # averages that count: segments whose input power at a frequency is small add nothing, so a
     # 3211 (power in one or two segments) or a sweep (each frequency in a few) has few per frequency
@@ -299,8 +367,10 @@ def _ridge(M: np.ndarray) -> np.ndarray:
     return np.einsum("fi,ij->fij", np.broadcast_to(scale, d.shape), np.eye(M.shape[1]))
 
 
-def _composite(per_window):
-    """Combine window estimates with weights 1/eps^2 (see the module notes)."""
+def _composite(per_window, windows):
+    """Combine window estimates with weights 1/eps^2 (see the module notes); also the weighted
+    window length behind each point."""
+    lengths = np.array([T for w, T in zip(per_window, windows) if w is not None])
     est = [w for w in per_window if w is not None]
     if not est:
         raise EstimationError("frequency response: no window fits in the runs")
@@ -318,48 +388,102 @@ def _composite(per_window):
     err_c = np.where(has, (wn * np.where(np.isfinite(err), err, 0.0)).sum(axis=0), np.inf)
     w_out = wn.mean(axis=3)  # output-level weights for the multiple coherence
     mult_c = (w_out * mult).sum(axis=0)
-    return H_c, coh_c, mult_c, err_c
+    window_c = np.where(has, np.tensordot(lengths, wn, axes=1), np.nan)
+    return H_c, coh_c, mult_c, err_c, window_c
 
 
 # -- models against the estimate -----------------------------------------------------------------
-def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE) -> dict:
+def model_response(model: LinearModel, omega: np.ndarray, inputs: list[str] | None = None,
+                   outputs: list[str] | None = None, applied: dict[str, float] | None = None) -> np.ndarray:
+    """The model's response (nf, ny, nu) as flown: :meth:`LinearModel.frequency_response` times
+    ``e^{-jw tau}`` for the profile's declared input delays (``meta.delays``: refine's, a control
+    system's), less those ``applied`` already to the runs' inputs (prepared runs carry them)."""
+    p = model.profile
+    H = model.frequency_response(omega, inputs, outputs)
+    delays = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
+    applied = applied or {}
+    tau = np.array([delays.get(u, 0.0) - float(applied.get(u, 0.0)) for u in (inputs or p.input_names)])
+    s = 1j * np.atleast_1d(np.asarray(omega, dtype=float))
+    return H * np.exp(-s[:, None] * tau[None, :])[:, None, :] if tau.any() else H
+
+
+def excited_modes(model: LinearModel, inputs: list[str]) -> list[float]:
+    """Natural frequencies (rad/s, ascending) of the model's modes that ``inputs`` excite (nonzero
+    controllability through the input matrix and observability in the outputs); zero eigenvalues
+    (pure integrations) left out."""
+    p = model.profile
+    ui = [p.input_names.index(u) for u in inputs if u in p.input_names]
+    if not ui:
+        return []
+    lam, V = np.linalg.eig(model.A)
+    try:
+        W = np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        return sorted({float(abs(v)) for v in lam if abs(v) > 1e-9})
+    gain = np.abs(W @ model.B[:, ui]).max(axis=1) * np.abs(model.C @ V).max(axis=0)
+    keep = (gain > 1e-9 * max(gain.max(), 1e-300)) & (np.abs(lam) > 1e-6)
+    return sorted({round(float(abs(v)), 12) for v in lam[keep]})
+
+
+def fit_cost(fr: FrequencyResponse, model: LinearModel, min_coherence: float = MIN_COHERENCE,
+             applied: dict[str, float] | None = None) -> dict:
     """Tischler's J per input-output pair of ``fr`` (for pairs the model has) and their mean.
 
-    Returns ``{"pairs": {"y/u": J or None}, "mean": J, "n_frequencies": {"y/u": n}}``; a pair with
-    fewer than 3 frequencies of coherence >= ``min_coherence`` gets None (not judged).
+    Only points that are resolved (a valid window), coherent (>= ``min_coherence``) and accurate
+    (random error <= MAX_RANDOM_ERROR) count; a pair with fewer than MIN_POINTS of them is not
+    judged, and pairs of inputs no run moves are left out.
+    Returns ``{"pairs": {"y/u": J}, "mean": J or None, "n_frequencies": {"y/u": n}, "not_judged":
+    {"y/u": n}, "left_out": [inputs], "worst": "y/u" or None, "fits": bool or None}``.
     """
     p = model.profile
     outs = [y for y in fr.outputs if y in p.outputs]
-    ins = [u for u in fr.inputs if u in p.input_names]
-    Hm = model.frequency_response(fr.omega, ins, outs)
-    pairs, counts = {}, {}
+    ins = [u for u in fr.inputs if u in p.input_names and u not in fr.unmoved]
+    Hm = model_response(model, fr.omega, ins, outs, applied)
+    pairs, counts, not_judged = {}, {}, {}
     for jm, y in enumerate(outs):
         for im, u in enumerate(ins):
             j, i = fr.pair(y, u)
             g2 = fr.coherence[:, j, i]
-            use = (g2 >= min_coherence) & np.isfinite(fr.H[:, j, i]) & (np.abs(Hm[:, jm, im]) > 0)
+            use = fr.resolved[:, j, i] & (g2 >= min_coherence) & np.isfinite(fr.H[:, j, i]) & \
+                (fr.random_error[:, j, i] <= MAX_RANDOM_ERROR) & (np.abs(Hm[:, jm, im]) > 0)
             key = f"{y}/{u}"
             counts[key] = int(use.sum())
-            if use.sum() < 3:
-                pairs[key] = None
+            if use.sum() < MIN_POINTS:
+                not_judged[key] = int(use.sum())
                 continue
             Hd, Hc = fr.H[use, j, i], Hm[use, jm, im]
             mag = 20 * np.log10(np.abs(Hc) / np.abs(Hd))
             phase = np.degrees(np.angle(Hc / Hd))  # wrapped difference: no unwrapping ambiguity
             w = (1.58 * (1 - np.exp(-g2[use]))) ** 2
             pairs[key] = float(20 / use.sum() * np.sum(w * (W_GAIN * mag ** 2 + W_PHASE * phase ** 2)))
-    judged = [v for v in pairs.values() if v is not None]
-    return {"pairs": pairs, "mean": float(np.mean(judged)) if judged else None, "n_frequencies": counts}
+    mean = float(np.mean(list(pairs.values()))) if pairs else None
+    worst = max(pairs, key=pairs.get) if pairs else None
+    fits = None if mean is None else bool(mean <= J_MEAN_FITS and pairs[worst] <= J_PAIR_MAX)
+    return {"pairs": pairs, "mean": mean, "n_frequencies": counts, "not_judged": not_judged,
+            "left_out": [u for u in fr.inputs if u in fr.unmoved and u in p.input_names], "worst": worst,
+            "fits": fits}
 
 
-def format_cost(cost: dict, label: str = "model") -> str:
-    """Lines of J per pair and the mean, for reports."""
-    lines = [f"frequency-domain fit cost J of the {label} (Tischler; coherence >= {MIN_COHERENCE}; "
-             f"J <= 100 per pair fits):"]
-    for key, value in cost["pairs"].items():
-        lines.append(f"  {key:<22}" + (f"{value:10.1f}" if value is not None else
-                                       f"{'-':>10}  (fewer than 3 coherent frequencies)"))
-    lines.append(f"  {'mean':<22}" + (f"{cost['mean']:10.1f}" if cost["mean"] is not None else f"{'-':>10}"))
+def format_cost(cost: dict, label: str = "model", details: bool = True) -> str:
+    """One verdict line per model, then J per judged pair on one line; with ``details`` the pairs
+    not judged and the inputs left out on one line each (the data's, the same for every model)."""
+    if cost.get("mean") is None:
+        lines = [f"fit cost J of the {label}: not judged (no pair has {MIN_POINTS} resolved points of coherence "
+                 f">= {MIN_COHERENCE} and random error <= {MAX_RANDOM_ERROR:g})"]
+    else:
+        w = cost["worst"]
+        verdict = "fits" if cost["fits"] else "does NOT fit"
+        lines = [f"fit cost J of the {label}: mean {cost['mean']:.1f} over {len(cost['pairs'])} pair(s), worst {w} "
+                 f"{cost['pairs'][w]:.1f}: {verdict} (Tischler: mean <= {J_MEAN_FITS:g}, no pair > {J_PAIR_MAX:g})",
+                 "  " + ", ".join(f"{k} {v:.1f}" for k, v in cost["pairs"].items())]
+    if not details:
+        return "\n".join(lines)
+    if cost.get("not_judged"):
+        lines.append(f"  not judged (fewer than {MIN_POINTS} resolved points of coherence >= {MIN_COHERENCE}, "
+                     f"random error <= {MAX_RANDOM_ERROR:g}): "
+                     + ", ".join(cost["not_judged"]))
+    if cost.get("left_out"):
+        lines.append(f"  left out: the pairs of {', '.join(cost['left_out'])} (no run moves it)")
     return "\n".join(lines)
 
 
@@ -371,5 +495,13 @@ def cost_report(runs: list[Run], models: dict[str, LinearModel]) -> tuple[str, d
         fr = frequency_response(runs, p.input_names, list(p.outputs))
     except EstimationError as exc:
         return f"frequency-domain fit cost J: not computed ({exc})", {"not_computed": str(exc)}
-    costs = {label: fit_cost(fr, m) for label, m in models.items()}
-    return "\n".join(format_cost(c, label) for label, c in costs.items()), costs
+    # runs prepared for a profile carry its delays in their inputs already (their metadata says so)
+    applied = {k: float(v) for k, v in json.loads(runs[0].meta.get(APPLIED, "{}")).items()} if runs else {}
+    costs = {label: fit_cost(fr, m, applied=applied) for label, m in models.items()}
+    line = fr.resolution_line(next(iter(models.values())))
+    labels = list(costs)
+    text = "\n".join([f"frequency-domain fit cost J (Tischler), {line}"] +
+                     [format_cost(costs[k], k, details=k == labels[-1]) for k in labels])
+    for c in costs.values():  # the data's resolution, with each model's verdict (reports iterate models)
+        c["resolution"] = line
+    return text, costs

@@ -148,7 +148,8 @@ def test_undeclared_degrees_warn_on_stderr_and_in_metadata(truth_run, tmp_path, 
     for name in ("eta", "q", "theta", "q_dot"):
         assert f"channel '{name}' (no unit declared; the profile's unit is SI)" in run.meta["warnings"]
         assert f"warning: {path}: channel '{name}'" in err
-    assert "looks like degrees; declare its unit (e.g. '# units: theta=deg')" in err
+    assert "looks like deg; declare its unit ('# units: theta=deg'" in err
+    assert "looks like deg/s; declare its unit ('# units: q=deg/s'" in err  # a rate: deg/s, not deg
     # u in ft/s and u_dot in g are not angles: no warning for them
     assert "channel 'u'" not in err and "channel 'u_dot'" not in err
     # declared rad but holding degrees: also a warning
@@ -199,10 +200,11 @@ def test_missing_values_in_an_unused_column_are_left_out_and_said(truth_run, tmp
         read_run(path, profile=PROFILE)
 
 
-def test_unit_of_another_quantity_than_the_profile_warns(truth_run, tmp_path):
+def test_unit_of_another_quantity_than_the_profile_is_an_error(truth_run, tmp_path):
     path = write_csv(tmp_path / "odd.csv", truth_run.time, {"q": truth_run["q"]}, header_units={"q": "ft/s"})
-    assert "declared in ft/s (speed) but the profile expects angular rate" in \
-        read_run(path, profile=PROFILE).meta["warnings"]
+    with pytest.raises(RunError, match=r"odd.csv: channel 'q' is declared in ft/s \(speed\) but the profile "
+                                       r"expects angular rate \(a unit of the wrong kind"):
+        read_run(path, profile=PROFILE)
 
 
 def test_conflicting_and_unknown_units_are_one_clear_line(truth_run, tmp_path):

@@ -6,6 +6,7 @@ import pytest
 
 from identify import IV, LS, ML, EstimationError, ProfileError, simulate_run
 from identify.estimators.frequency.equation_error import FDEE
+from identify.estimators.frequency.response_fit import FR
 from identify.estimators.registry import METHODS, estimator_class
 
 
@@ -36,7 +37,7 @@ def test_estimators_store_in_init_and_validate_in_fit(s61, run):
 
 
 def test_one_registry_names_the_methods():
-    assert METHODS == {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE}
+    assert METHODS == {"ml": ML, "ls": LS, "iv": IV, "fdee": FDEE, "fr": FR}
     assert estimator_class("iv") is IV
     with pytest.raises(EstimationError, match="unknown method 'ekf'.*ml, ls, iv"):
         estimator_class("ekf")

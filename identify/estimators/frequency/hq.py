@@ -1,0 +1,197 @@
+"""``identify hq``: handling-qualities figures of runs or of a model, as markdown and PNG.
+
+Per attitude axis (pitch: the longitudinal control, roll: the lateral one) the attitude response is
+read from the rate response, ``theta/delta = (q/delta) / (jw)`` (hover and low speed: the attitude
+rate is the body rate to first order), the rate being measured with less drift than the attitude
+(an attitude channel carries the unstable modes' slow divergence, which no window removes); without
+a rate output the attitude output itself is used. From it :func:`.handling.bandwidth` gives the
+ADS-33 bandwidth and phase delay, plotted on the chart of the chosen task category. The pitch-rate
+response is also fitted by a short-period LOES ``K (s + 1/T_theta2) e^{-tau s} / (s^2 + 2 zeta omega s +
+omega^2)`` over 1-10 rad/s (MIL-STD-1797A's 0.1-10 rad/s above the phugoid, which this form has
+not) with its level; a LOES that does not fit
+(J > 100: no short-period-like response, as in hover) is reported as such.
+
+From runs the responses are the composite estimates (points with coherence >= 0.6 only); from a
+model, its exact response on a dense grid (declared delays included).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import EstimationError
+from ...model.linear import LinearModel
+from .handling import TASK_NAMES, Bandwidth, ads33_chart, bandwidth
+from .loes import ShortPeriod, fit_transfer_function, short_period
+
+AXES = {"pitch": (("theta_s", "delta_e"), "q", "theta"), "roll": (("theta_c", "delta_a"), "p", "phi")}
+LOES_RANGE = (1.0, 10.0)  # rad/s: MIL-STD-1797A's 0.1-10 above the phugoid, which the 2nd-order form lacks
+
+
+@dataclass
+class AxisHQ:
+    axis: str
+    input: str
+    response: str  # how the attitude response was had
+    bandwidth: Bandwidth
+    loes: ShortPeriod | None = None
+    loes_note: str = ""
+
+
+@dataclass
+class HQReport:
+    """Handling-qualities figures per axis, the task category and the source."""
+
+    source: str
+    task: str
+    axes: list[AxisHQ] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def markdown(self) -> str:
+        lines = [f"# Handling qualities: {self.source}", "",
+                 f"ADS-33 task category: {TASK_NAMES.get(self.task, self.task)} (hover and low speed; "
+                 "simplified corner boundaries, see docs/frequency.md).", "",
+                 "| axis | response | omega_180 [rad/s] | BW phase [rad/s] | BW gain [rad/s] | bandwidth [rad/s] "
+                 "| phase delay [s] | ADS-33 level |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+        for a in self.axes:
+            b = a.bandwidth
+            lvl = b.level(a.axis, self.task)
+            lines.append(f"| {a.axis} | {a.response} | {_f(b.omega_180)} | {_f(b.omega_bw_phase)} | "
+                         f"{_f(b.omega_bw_gain)} | "
+                         f"{_f(b.bandwidth) if not np.isfinite(b.bandwidth_below) else f'< {b.bandwidth_below:.3g}'} | "
+                         f"{_f(b.phase_delay, 4)} | "
+                         f"{lvl if lvl else 'not determined'} |")
+        for a in self.axes:
+            for n in a.bandwidth.notes:
+                lines.append(f"- {a.axis}: {n}")
+        lines += ["", "## Short-period LOES (pitch rate)", ""]
+        for a in self.axes:
+            if a.axis != "pitch":
+                continue
+            if a.loes is None:
+                lines.append(f"not fitted: {a.loes_note}")
+            else:
+                lines += ["```", a.loes.fit.summary(), *a.loes.lines(), "```"]
+                if a.loes_note:
+                    lines.append(a.loes_note)
+        lines += [f"- {n}" for n in self.notes]
+        return "\n".join(lines) + "\n"
+
+    def lines(self) -> list[str]:
+        out = [f"handling qualities ({TASK_NAMES.get(self.task, self.task)}):"]
+        for a in self.axes:
+            b = a.bandwidth
+            lvl = b.level(a.axis, self.task)
+            bw = _f(b.bandwidth, unit="rad/s") if not np.isfinite(b.bandwidth_below) else \
+                f"< {b.bandwidth_below:.3g} rad/s"
+            out.append(f"  {a.axis} ({a.response}): bandwidth {bw}, phase delay "
+                       f"{_f(b.phase_delay, 4, 's')}: ADS-33 level {lvl if lvl else 'not determined'}"
+                       + (f" ({'; '.join(b.notes)})" if b.notes else ""))
+            if a.loes is not None:
+                out += ["  " + s for s in a.loes.lines()] + ([f"  {a.loes_note}"] if a.loes_note else [])
+            elif a.axis == "pitch":
+                out.append(f"  short-period LOES not fitted: {a.loes_note}")
+        return out + [f"  {n}" for n in self.notes]
+
+    def save(self, outdir: str | Path, model: "HQReport | None" = None) -> list[Path]:
+        """hq.md and one chart PNG per axis (``hq_<axis>.png``); ``model``: a model's report whose
+        points are drawn beside these (flight data against the model)."""
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        paths = [outdir / "hq.md"]
+        paths[0].write_text(self.markdown() + ("\n" + model.markdown() if model else ""))
+        others = {a.axis: a for a in (model.axes if model else [])}
+        for a in self.axes:
+            points = {f"{'flight data' if model else a.axis} ({a.response})": a.bandwidth}
+            if a.axis in others:
+                points[f"model ({others[a.axis].response})"] = others[a.axis].bandwidth
+            fig = ads33_chart(points, a.axis, self.task)
+            FigureCanvasAgg(fig)
+            path = outdir / f"hq_{a.axis}.png"
+            fig.savefig(path, dpi=90)
+            paths.append(path)
+        return paths
+
+
+def _f(x: float, digits: int = 3, unit: str = "") -> str:
+    return (f"{x:.{digits}g}" + (f" {unit}" if unit else "")) if np.isfinite(x) else "not determined"
+
+
+def axis_inputs(inputs: list[str], pitch: str | None = None, roll: str | None = None) -> dict[str, str]:
+    """{axis: input} from explicit choices or the usual names (theta_s / delta_e, theta_c / delta_a)."""
+    out = {}
+    for axis, chosen in (("pitch", pitch), ("roll", roll)):
+        if chosen is not None:
+            if chosen not in inputs:
+                raise EstimationError(f"--{axis} {chosen}: not an input (inputs: {', '.join(inputs)})")
+            out[axis] = chosen
+            continue
+        found = [u for u in AXES[axis][0] if u in inputs]
+        if found:
+            out[axis] = found[0]
+    if not out:
+        raise EstimationError(f"no pitch or roll control among the inputs ({', '.join(inputs)}): name them "
+                              "with --pitch / --roll")
+    return out
+
+
+def _attitude(omega, H, coherence, outputs, inputs, axis, u):
+    """(attitude response, its coherence or None, description) of ``axis`` to input ``u``."""
+    _, rate, attitude = AXES[axis]
+    i = inputs.index(u)
+    if rate in outputs:
+        j = outputs.index(rate)
+        return H[:, j, i] / (1j * omega), None if coherence is None else coherence[:, j, i], f"{rate}/{u} / (jw)"
+    if attitude in outputs:
+        j = outputs.index(attitude)
+        return H[:, j, i], None if coherence is None else coherence[:, j, i], f"{attitude}/{u}"
+    raise EstimationError(f"{axis}: neither the rate {rate} nor the attitude {attitude} is an output")
+
+
+def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: str = "tracking",
+                       pitch: str | None = None, roll: str | None = None, category: str = "A") -> HQReport:
+    """The report from responses ``H`` (nf, ny, nu) at ``omega`` (rad/s), ``coherence`` (nf, ny, nu) or None."""
+    if task not in TASK_NAMES:
+        raise EstimationError(f"task must be one of {', '.join(TASK_NAMES)}, got '{task}'")
+    report = HQReport(source, task)
+    for axis, u in axis_inputs(list(inputs), pitch, roll).items():
+        h, coh, how = _attitude(omega, H, coherence, list(outputs), list(inputs), axis, u)
+        ax = AxisHQ(axis, u, how, bandwidth(omega, h, coh))
+        if axis == "pitch" and AXES["pitch"][1] in outputs:
+            j, i = list(outputs).index(AXES["pitch"][1]), list(inputs).index(u)
+            try:
+                fit = fit_transfer_function(omega, H[:, j, i], None if coherence is None else coherence[:, j, i],
+                                            n_num=1, n_den=2, omega_range=LOES_RANGE)
+                ax.loes = short_period(fit, category)
+                if fit.J > 100:
+                    ax.loes_note = (f"LOES J {fit.J:.0f} > 100: the pitch-rate response is not short-period-like "
+                                    "here (hover; or a mode inside the band the form lacks); its omega, zeta "
+                                    "and level do not describe it")
+            except ValueError as exc:
+                ax.loes_note = str(exc)
+        report.axes.append(ax)
+    return report
+
+
+def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str = "A") -> HQReport:
+    """The report from a model's exact responses (0.05-50 rad/s, 400 points; declared delays included)."""
+    from .response import model_response
+
+    p = model.profile
+    omega = np.geomspace(0.05, 50, 400)
+    H = model_response(model, omega)
+    return handling_qualities(omega, H, None, p.input_names, list(p.outputs), f"model '{p.name}'", task, pitch,
+                              roll, category)
+
+
+def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str = "A") -> HQReport:
+    """The report from a composite frequency response of runs (coherent points only)."""
+    src = f"{len(fr.runs)} run(s): {', '.join(Path(r).name for r in fr.runs[:4])}{' ...' if len(fr.runs) > 4 else ''}"
+    coh = np.where(fr.resolved, fr.coherence, 0.0)
+    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category)
+    report.notes.append(fr.resolution_line())
+    return report

@@ -1,0 +1,320 @@
+"""Transfer-function and low-order equivalent system (LOES) fits to one frequency response (NAVFIT-like).
+
+:func:`fit_transfer_function` fits ``H(s) = (b_m s^m + ... + b_0) / (s^n + a_{n-1} s^{n-1} + ... + a_0)
+e^{-tau s}`` of chosen orders ``m``, ``n`` (an optional equivalent delay ``tau``) to a measured
+response ``H(omega)`` by Tischler's cost::
+
+    J = 20 / n_w sum W_gamma [ (|H_m|dB - |H|dB)^2 + 0.01745 (phase_m - phase)^2 (deg) ],
+    W_gamma = (1.58 (1 - exp(-gamma^2)))^2
+
+over the frequencies with an estimate and coherence >= 0.6 (Tischler & Remple; J <= 100 a good
+fit, <= 50 excellent). Start: Levy's linearised complex least squares (``a`` and ``b`` from
+``H D = N``) for each delay of a grid, then ``scipy.optimize.least_squares`` on J with bounds (the
+delay within ``tau_bounds``, coefficients within ``coef_bounds`` when given).
+
+Standard errors (:attr:`TransferFunctionFit.std`): the Gauss-Newton covariance of the weighted
+residuals scaled by the residual variance (``J`` per degree of freedom), the usual estimate when
+the per-point errors are not known; Cramér-Rao % and insensitivity % per parameter follow
+(CIFER's gates CR <= 20 %, insensitivity <= 10 %). Adjacent frequency points of a composite
+response are correlated (closer than a window's resolution), so these bounds are optimistic by
+roughly the square root of the points per resolution cell.
+
+:func:`short_period` reads a second-order denominator as the short-period mode (omega_sp, zeta_sp)
+with the equivalent delay tau_e, and :func:`mil1797_short_period_level` grades them by
+MIL-STD-1797A (damping ratio and equivalent delay; the frequency requirement needs n/alpha and is
+not graded here).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .statespace import gates
+
+MIN_COHERENCE = 0.6
+W_GAIN, W_PHASE = 1.0, 0.01745
+DB = 20 / np.log(10)
+
+
+def coherence_weight(coherence: np.ndarray) -> np.ndarray:
+    """Tischler's W_gamma = (1.58 (1 - exp(-gamma^2)))^2 (about 1 at coherence 1); ``coherence`` is
+    gamma^2, as every coherence here."""
+    return (1.58 * (1 - np.exp(-np.asarray(coherence)))) ** 2
+
+
+@dataclass
+class TransferFunctionFit:
+    """A fitted ``num/den e^{-tau s}``: ``num`` (m+1,) and ``den`` (n+1,) descending powers of s
+    (``den[0] = 1``), ``tau`` s; ``J`` Tischler's cost over ``n_points`` coherent frequencies;
+    ``names``/``theta``/``std`` the free parameters (coefficients, then tau) with standard errors."""
+
+    num: np.ndarray
+    den: np.ndarray
+    tau: float
+    J: float
+    n_points: int
+    names: list[str]
+    theta: np.ndarray
+    std: np.ndarray
+    insensitivity: np.ndarray
+    at_bound: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def response(self, omega: np.ndarray) -> np.ndarray:
+        s = 1j * np.asarray(omega, dtype=float)
+        return np.polyval(self.num, s) / np.polyval(self.den, s) * np.exp(-self.tau * s)
+
+    @property
+    def poles(self) -> np.ndarray:
+        return np.roots(self.den)
+
+    @property
+    def zeros(self) -> np.ndarray:
+        return np.roots(self.num) if len(self.num) > 1 else np.array([])
+
+    def accuracy(self) -> dict[str, dict]:
+        """Cramér-Rao % and insensitivity % per parameter with the gates each exceeds."""
+        return gates(self.names, self.theta, self.std, self.insensitivity)
+
+    def summary(self) -> str:
+        lines = [f"transfer function: ({_poly(self.num)}) / ({_poly(self.den)})"
+                 + (f" e^(-{self.tau:.4g} s)" if "tau" in self.names else ""),
+                 f"J = {self.J:.1f} over {self.n_points} coherent frequencies ("
+                 + ("fits: J <= 100)" if self.J <= 100 else "does NOT fit: J > 100)"),
+                 f"{'parameter':<10}{'estimate':>12}{'std':>11}{'CR %':>8}{'insens. %':>10}  flag"]
+        for n, v, s in zip(self.names, self.theta, self.std):
+            a = self.accuracy()[n]
+            lines.append(f"{n:<10}{v:12.5g}{s:11.3g}{a['cramer_rao_pct']:8.3g}{a['insensitivity_pct']:10.3g}  "
+                         + ", ".join(a["over_gates"] + (["at its bound"] if n in self.at_bound else [])))
+        for p in _unique_poles(self.poles):
+            if abs(p.imag) > 0:
+                wn = abs(p)
+                lines.append(f"pole pair: omega {wn:.4g} rad/s, zeta {-p.real / wn:.4g}")
+            else:
+                lines.append(f"pole: {p.real:.4g} 1/s")
+        return "\n".join(lines + self.notes)
+
+
+
+def _poly(c: np.ndarray) -> str:
+    n = len(c) - 1
+    return " + ".join(f"{v:.4g}" + (f" s^{n - k}" if n - k > 1 else " s" if n - k == 1 else "")
+                      for k, v in enumerate(c))
+
+
+def _unique_poles(p: np.ndarray) -> list[complex]:
+    return [z for z in p if z.imag >= 0]
+
+
+def tischler_residuals(Hm: np.ndarray, Hd: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Residual vector r with ``sum r^2 = J`` (Tischler's cost): per frequency the weighted dB and
+    deg errors. ``weight`` (n,) is W_gamma; the phase error is wrapped to (-180, 180]."""
+    n = len(Hd)
+    scale = np.sqrt(20 / n * weight)
+    mag = DB * (np.log(np.abs(Hm)) - np.log(np.abs(Hd)))
+    phase = np.degrees(np.angle(Hm / Hd))
+    return np.concatenate([scale * np.sqrt(W_GAIN) * mag, scale * np.sqrt(W_PHASE) * phase])
+
+
+def fit_transfer_function(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None = None, *,
+                          n_num: int = 0, n_den: int = 2, delay: bool = True,
+                          tau_bounds: tuple[float, float] = (0.0, 0.5),
+                          coef_bounds: dict[str, tuple[float, float]] | None = None,
+                          min_coherence: float = MIN_COHERENCE,
+                          omega_range: tuple[float, float] | None = None) -> TransferFunctionFit:
+    """Fit ``num(s)/den(s) e^{-tau s}`` (orders ``n_num``, ``n_den``; ``den`` monic) to ``H`` (nf,)
+    at ``omega`` (nf,) rad/s by Tischler's cost J (see the module notes).
+
+    ``coherence`` (nf,), default 1; ``omega_range`` (rad/s) limits the fitted band (LOES are fitted
+    over 0.1..10 rad/s in MIL-STD-1797A); ``coef_bounds`` {name: (lo, hi)} bounds coefficients named
+    ``b0..b_m`` (numerator, b_k multiplies s^k) and ``a0..a_{n-1}``; the delay lies in ``tau_bounds``.
+    """
+    omega = np.asarray(omega, dtype=float)
+    H = np.asarray(H, dtype=complex)
+    coh = np.ones(omega.shape) if coherence is None else np.asarray(coherence, dtype=float)
+    use = np.isfinite(H) & (np.abs(H) > 0) & (coh >= min_coherence)
+    if omega_range is not None:
+        use &= (omega >= omega_range[0]) & (omega <= omega_range[1])
+    n_par = n_num + 1 + n_den + int(delay)
+    if use.sum() <= n_par / 2:
+        raise ValueError(f"transfer-function fit: {int(use.sum())} coherent frequencies for {n_par} parameters")
+    w, h, wt = omega[use], H[use], coherence_weight(coh[use])
+    names = [f"b{k}" for k in range(n_num, -1, -1)] + [f"a{k}" for k in range(n_den - 1, -1, -1)] + \
+        (["tau"] if delay else [])
+    lo, hi = np.full(n_par, -np.inf), np.full(n_par, np.inf)
+    if delay:
+        lo[-1], hi[-1] = tau_bounds
+    for name, (a, b) in (coef_bounds or {}).items():
+        if name not in names:
+            raise ValueError(f"coef_bounds names no parameter '{name}' (parameters: {', '.join(names)})")
+        lo[names.index(name)], hi[names.index(name)] = a, b
+
+    def unpack(x):
+        num = x[:n_num + 1]
+        den = np.concatenate([[1.0], x[n_num + 1:n_num + 1 + n_den]])
+        return num, den, (x[-1] if delay else 0.0)
+
+    def residuals(x):
+        num, den, tau = unpack(x)
+        s = 1j * w
+        return tischler_residuals(np.polyval(num, s) / np.polyval(den, s) * np.exp(-tau * s), h, wt)
+
+    best = None
+    taus = np.linspace(max(tau_bounds[0], 0.0), tau_bounds[1], 11) if delay else [0.0]
+    for tau0 in taus:
+        x0 = np.concatenate([*_levy(w, h * np.exp(1j * w * tau0), wt, n_num, n_den)] + ([[tau0]] if delay else []))
+        x0 = _inside(x0, lo, hi)
+        try:
+            sol = least_squares(residuals, x0, bounds=(lo, hi), x_scale="jac", method="trf",
+                                xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=2000)
+        except ValueError:
+            continue
+        if best is None or sol.cost < best.cost:
+            best = sol
+    if best is None:
+        raise ValueError("transfer-function fit: no start converged")
+    num, den, tau = unpack(best.x)
+    J = float(2 * best.cost)
+    std, ins = _bounds(best.jac, J, len(best.fun), n_par)
+    at_bound = [n for n, x, a, b in zip(names, best.x, lo, hi) if np.isclose(x, a) or np.isclose(x, b)]
+    notes = [] if best.success else [f"optimiser stopped: {best.message}"]
+    if at_bound:
+        notes.append(f"at a bound: {', '.join(at_bound)} (its standard error assumes the bound is not active)")
+    return TransferFunctionFit(num, den, float(tau), J, int(use.sum()), names, best.x.copy(), std, ins,
+                               at_bound, notes)
+
+
+def _inside(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """x moved strictly inside finite bounds (least_squares needs an interior start)."""
+    margin = 1e-9 * (1 + np.abs(x))
+    x = np.where(np.isfinite(lo), np.maximum(x, np.where(np.isfinite(lo), lo, 0) + margin), x)
+    return np.where(np.isfinite(hi), np.minimum(x, np.where(np.isfinite(hi), hi, 0) - margin), x)
+
+
+def _levy(w: np.ndarray, h: np.ndarray, wt: np.ndarray, n_num: int, n_den: int):
+    """Levy's linearised start: minimise |N(jw) - H D(jw)|^2 (weighted) for b (m+1,) and a (n,)."""
+    s = 1j * w
+    cols = [s ** k for k in range(n_num, -1, -1)] + [-h * s ** k for k in range(n_den - 1, -1, -1)]
+    M = np.column_stack(cols) * np.sqrt(wt)[:, None]
+    rhs = h * s ** n_den * np.sqrt(wt)
+    # rows scaled by |s^n| so high frequencies do not dominate the linearised fit
+    scale = 1 / np.maximum(np.abs(s) ** n_den, 1e-12)
+    A = np.vstack([(M * scale[:, None]).real, (M * scale[:, None]).imag])
+    b = np.concatenate([(rhs * scale).real, (rhs * scale).imag])
+    x = np.linalg.lstsq(A, b, rcond=None)[0]
+    return x[:n_num + 1], x[n_num + 1:]
+
+
+def _bounds(jac: np.ndarray, J: float, n_res: int, n_par: int) -> tuple[np.ndarray, np.ndarray]:
+    """Standard errors and insensitivities of least-squares parameters scaled by the residual variance."""
+    dof = max(n_res - n_par, 1)
+    s2 = J / dof
+    F = jac.T @ jac / s2
+    try:
+        cov = np.linalg.inv(F)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(F)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        ins = 1 / np.sqrt(np.maximum(np.diag(F), 0.0))
+    return std, ins
+
+
+# -- short-period LOES and MIL-STD-1797A ---------------------------------------------------------
+# flight-phase category -> Level -> (zeta_min, zeta_max); equivalent delay limit per Level (s)
+MIL1797_ZETA = {"A": ((0.35, 1.30), (0.25, 2.00), (0.15, np.inf)),
+                "B": ((0.30, 2.00), (0.20, 2.00), (0.15, np.inf)),
+                "C": ((0.35, 1.30), (0.25, 2.00), (0.15, np.inf))}
+MIL1797_TAU = (0.10, 0.20, 0.25)
+
+
+@dataclass
+class ShortPeriod:
+    """Short-period LOES figures: ``omega`` rad/s, ``zeta``, ``tau_e`` s with standard errors,
+    the MIL-STD-1797A level (damping and delay; None if not determined) and the fit."""
+
+    omega: float
+    zeta: float
+    tau_e: float
+    std: dict[str, float]
+    level: int | None
+    level_reasons: list[str]
+    fit: TransferFunctionFit
+
+    def lines(self) -> list[str]:
+        s = self.std
+        if not np.isfinite(self.omega):
+            return [f"short period: not determined (the LOES denominator s^2 + {self.fit.den[1]:.4g} s + "
+                    f"{self.fit.den[2]:.4g} has no stable pair; LOES J {self.fit.J:.1f})"]
+        return [f"short period: omega_sp {self.omega:.4g} ± {s['omega']:.2g} rad/s, zeta_sp {self.zeta:.4g} ± "
+                f"{s['zeta']:.2g}, tau_e {self.tau_e:.4g} ± {s['tau_e']:.2g} s (LOES J {self.fit.J:.1f})",
+                f"MIL-STD-1797A level: {self.level if self.level else 'not determined'} "
+                f"({'; '.join(self.level_reasons)}; omega_sp needs n/alpha: not graded)"]
+
+
+def short_period(fit: TransferFunctionFit, category: str = "A") -> ShortPeriod:
+    """The short-period mode of a LOES fit with a second-order denominator (``s^2 + a1 s + a0``):
+    omega = sqrt(a0), zeta = a1 / (2 omega), their standard errors by first-order propagation."""
+    if len(fit.den) != 3:
+        raise ValueError("short period: the LOES denominator must be of second order")
+    a1, a0 = fit.den[1], fit.den[2]
+    omega = float(np.sqrt(a0)) if a0 > 0 else float("nan")
+    zeta = float(a1 / (2 * omega)) if np.isfinite(omega) else float("nan")
+    i1, i0 = fit.names.index("a1"), fit.names.index("a0")
+    s1, s0 = fit.std[i1], fit.std[i0]
+    std = {"omega": float(s0 / (2 * omega)) if np.isfinite(omega) else float("nan"),
+           "zeta": float(np.hypot(s1 / (2 * omega), a1 * s0 / (4 * omega ** 3)))
+           if np.isfinite(omega) else float("nan"),
+           "tau_e": float(fit.std[fit.names.index("tau")]) if "tau" in fit.names else float("nan")}
+    level, reasons = mil1797_short_period_level(zeta, fit.tau if "tau" in fit.names else float("nan"), category)
+    return ShortPeriod(omega, zeta, fit.tau, std, level, reasons, fit)
+
+
+def mil1797_short_period_level(zeta: float, tau_e: float, category: str = "A") -> tuple[int | None, list[str]]:
+    """MIL-STD-1797A level of the short period's damping ratio and equivalent delay (the worse of
+    the two) and the reasons; None when a figure is not determined."""
+    if category not in MIL1797_ZETA:
+        raise ValueError(f"flight-phase category must be one of {', '.join(MIL1797_ZETA)}, got '{category}'")
+    if not (np.isfinite(zeta) and np.isfinite(tau_e)):
+        return None, ["zeta or tau_e not determined"]
+    lz = next((k for k, (a, b) in enumerate(MIL1797_ZETA[category], start=1) if a <= zeta <= b), 4)
+    lt = next((k for k, t in enumerate(MIL1797_TAU, start=1) if tau_e <= t), 4)
+    reasons = [f"zeta_sp {zeta:.3g}: Level {lz if lz < 4 else 'worse than 3'} (category {category})",
+               f"tau_e {tau_e:.3g} s: Level {lt if lt < 4 else 'worse than 3'}"]
+    return min(max(lz, lt), 3) if max(lz, lt) < 4 else 3, reasons
+
+
+def plot_fit(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None, fit: TransferFunctionFit,
+             title: str, min_coherence: float = MIN_COHERENCE):
+    """Bode plot (magnitude dB, phase deg, coherence against frequency in rad/s, log axis) of the
+    measured response beside the fitted transfer function; an Agg :class:`Figure`."""
+    from matplotlib.figure import Figure
+
+    coh = np.ones(omega.shape) if coherence is None else coherence
+    ok = np.isfinite(H) & (coh >= min_coherence)
+    fig = Figure(figsize=(6.0, 6.5))
+    a_m, a_p, a_c = fig.subplots(3, 1, sharex=True)
+    Hf = fit.response(omega)
+    ph_d = np.full(omega.shape, np.nan)
+    if ok.any():
+        ph_d[ok] = np.degrees(np.unwrap(np.angle(H[ok])))
+    ph_f = np.degrees(np.unwrap(np.angle(Hf)))
+    if ok.any():  # the fit's phase by whole turns near the data's
+        ph_f += 360 * np.round(np.nanmedian(ph_d[ok] - ph_f[ok]) / 360)
+    a_m.semilogx(omega[ok], 20 * np.log10(np.abs(H[ok])), "k.", ms=4, label=f"data (coherence >= {min_coherence})")
+    a_m.semilogx(omega, 20 * np.log10(np.abs(Hf)), "C3-", lw=1.2, label=f"fit (J {fit.J:.1f})")
+    a_p.semilogx(omega[ok], ph_d[ok], "k.", ms=4)
+    a_p.semilogx(omega, ph_f, "C3-", lw=1.2)
+    a_c.semilogx(omega, coh, "k-", lw=1.0)
+    a_c.axhline(min_coherence, color="0.6", ls=":")
+    a_c.set_ylim(0, 1.05)
+    a_m.set_ylabel("magnitude [dB]")
+    a_p.set_ylabel("phase [deg]")
+    a_c.set_ylabel("coherence [-]")
+    a_c.set_xlabel("frequency [rad/s]")
+    a_m.legend(fontsize=7)
+    a_m.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig

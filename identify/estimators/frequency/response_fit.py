@@ -1,0 +1,101 @@
+"""``FR``: the profile's state-space model fitted to the runs' frequency responses (``--method fr``).
+
+CIFER's FRESPID -> COMPOSITE -> DERIVID as one estimator like the others: the composite frequency
+responses of every input/output pair (:mod:`.response`) and the state-space fit to them by
+Tischler's cost J over the resolved, coherent points (:mod:`.statespace`: Cramér-Rao and
+insensitivity %, optional delays per input, optional pruning of what fails CIFER's gates).
+
+What a frequency response cannot see, the initial state and trim offsets of each run, is fitted
+afterwards for the time histories of the result (:func:`.verify.predict`, as in VERIFY), so that
+``result_.modelled``, the plots and the fit table show the identified model's prediction of the
+runs; :func:`.verify.verify` does the same on held-out runs.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from ...data.runs import Run
+from ...errors import EstimationError
+from ...model.linear import LinearModel
+from ..base import Estimator
+from ..result import IdentificationResult, fit_metrics
+from .response import MIN_COHERENCE, frequency_response
+from .statespace import ResponseData, fit_frequency_responses
+from .verify import output_weights, predict
+
+
+class FR(Estimator):
+    """Frequency-response fit of a profile's free parameters.
+
+    Options: ``delays`` inputs that get an equivalent time delay (s, in ``[0, tau_max]``), added to
+    the profile's declared ``meta.delays``; ``prune`` fix, one at a time, the parameters that fail
+    CIFER's gates (insensitivity <= 10 %, Cramér-Rao <= 20 %) at their a priori values and re-fit;
+    ``f_range`` (Hz) and ``n_freq`` the frequency grid of the responses (default from the runs);
+    ``min_coherence`` of the points fitted.
+    """
+
+    method = "fr"
+
+    def __init__(self, profile, *, delays: tuple[str, ...] = (), tau_max: float = 0.3, prune: bool = False,
+                 f_range: tuple[float, float] | None = None, n_freq: int = 80,
+                 min_coherence: float = MIN_COHERENCE):
+        super().__init__(profile)
+        self.delays, self.tau_max, self.prune = delays, tau_max, prune
+        self.f_range, self.n_freq, self.min_coherence = f_range, n_freq, min_coherence
+
+    def _validate(self) -> None:
+        super()._validate()
+        unknown = [u for u in self.delays if u not in self.profile_.input_names]
+        if unknown:
+            raise EstimationError(f"delays: {', '.join(unknown)} not an input of '{self.profile_.name}' "
+                                  f"(inputs: {', '.join(self.profile_.input_names)})")
+        if not self.tau_max > 0:
+            raise EstimationError(f"tau_max must be positive, got {self.tau_max!r}")
+        if not 0 < self.min_coherence < 1:
+            raise EstimationError(f"min_coherence must lie in (0, 1), got {self.min_coherence!r}")
+
+    def nested(self, profile, **_):
+        """Refine's nested fits compare likelihoods of one structure: no pruning inside them."""
+        return self.clone(profile, prune=False)
+
+    def _fit(self, runs: list[Run]) -> IdentificationResult:
+        p = self.profile_
+        fr = frequency_response(runs, p.input_names, list(p.outputs), f_range=self.f_range, n_freq=self.n_freq)
+        delays = tuple(u for u in self.delays if u not in fr.unmoved)
+        try:
+            fit = fit_frequency_responses(p, ResponseData.from_response(fr), delays=delays, tau_max=self.tau_max,
+                                          min_coherence=self.min_coherence, prune=self.prune)
+        except ValueError as exc:
+            raise EstimationError(f"FR: {exc}") from None
+        declared = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
+        profile = fit.profile
+        if fit.tau:
+            meta = dict(profile.meta)
+            meta["delays"] = {**declared, **{u: declared.get(u, 0.0) + t for u, t in fit.tau.items()}}
+            profile = replace(profile, meta=meta)
+        model = LinearModel(profile, fit.theta)
+        scale, unit_notes = output_weights(model)
+        predictions = [predict(model, r, scale) for r in runs]
+        resolution = fr.resolution_line(LinearModel(p))  # against the a priori modes: the ones planned for
+        lines = [resolution] + fit.cost_lines() + fit.notes
+        if fr.unmoved:
+            lines.append(f"inputs no run moves (their pairs and delays left out): {', '.join(fr.unmoved)}")
+        if fit.tau:
+            lines.append("fitted delays: " + ", ".join(f"{u} {t:.4g} ± {fit.tau_std[u]:.2g} s"
+                                                       for u, t in fit.tau.items()))
+        info = {"frequency_domain": True, "converged": fit.converged, "iterations": fit.iterations,
+                "stop": "least-squares tolerance" if fit.converged else "evaluation limit",
+                "J": fit.J, "J_mean": fit.J_mean, "n_points": fit.n_points, "left_out": fit.left_out,
+                "pruned": [{"parameter": n, "reason": r, "J_mean_after": j} for n, r, j in fit.pruned],
+                "delays_fitted": fit.tau, "delays_std": fit.tau_std, "resolution": resolution,
+                "windows_s": list(map(float, fr.windows)), "unmoved_inputs": fr.unmoved,
+                "standard_errors": "Cramér-Rao from the J fit (Gauss-Newton, scaled by the residual variance)",
+                "report_lines": lines, "initial_states": [pr.x0.tolist() for pr in predictions],
+                "zero_shifts": [pr.zero_shifts.tolist() for pr in predictions], "notes": unit_notes}
+        result = IdentificationResult(
+            self.method, profile, fit.theta, fit.std,
+            fit_metrics(list(p.outputs), [pr.measured for pr in predictions], [pr.modelled for pr in predictions]),
+            info, [r.source for r in runs], fit.covariance,
+            [pr.time for pr in predictions], [pr.measured for pr in predictions], [pr.modelled for pr in predictions])
+        result.info["accuracy"] = result.accuracy()
+        return result

@@ -1,0 +1,122 @@
+"""Handling-qualities figures and LOES fits against exact truths: responses measured from simulated
+flight data (sweeps through a known transfer function with a delay) and exact responses."""
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+from scipy.signal import chirp, lsim
+
+from identify.data.runs import Run
+from identify.estimators.frequency.handling import ads33_chart, ads33_level, bandwidth
+from identify.estimators.frequency.loes import fit_transfer_function, mil1797_short_period_level, short_period
+from identify.estimators.frequency.response import frequency_response
+
+DT = 0.01
+
+
+def sweep_runs(num, den, tau, seed=0, noise=0.0, duration=60.0):
+    """Two logarithmic sweeps through num/den e^{-tau s} (tau a whole number of samples), from
+    and back to trim (3 s of rest either side), simulated with inputs interpolated linearly between
+    samples (no hold delay)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, duration + 6, DT)
+    on = (t >= 3) & (t < duration + 3)
+    runs = []
+    for k, (f0, f1) in enumerate([(0.1, 4.0), (0.2, 5.0)]):
+        u = np.where(on, chirp(t - 3, f0, duration, f1, method="logarithmic", phi=-90), 0.0)
+        n = int(round(tau / DT))
+        _, y, _ = lsim((num, den), np.concatenate([np.zeros(n), u[:len(u) - n]]), t)
+        y = y + noise * np.std(y) * rng.standard_normal(len(t))
+        runs.append(Run(t, {"d": u, "y": y}, {}, source=f"<sweep {k}>"))
+    return runs
+
+
+def exact_hq(T, tau):
+    """omega_180, omega_BW_phase, omega_BW_gain, tau_p of K e^{-tau s}/(s(Ts+1)) by scalar root solves."""
+    phase = lambda w: -np.pi / 2 - np.arctan(w * T) - w * tau
+    gain_db = lambda w: -20 * np.log10(w * np.hypot(1, w * T))
+    w180 = brentq(lambda w: phase(w) + np.pi, 1e-3, 1e3)
+    w135 = brentq(lambda w: phase(w) + 0.75 * np.pi, 1e-3, 1e3)
+    w_gain = brentq(lambda w: gain_db(w) - gain_db(w180) - 6, 1e-3, w180)
+    return w180, w135, w_gain, -(phase(2 * w180) + np.pi) / (2 * w180)
+
+
+@pytest.mark.parametrize("T, tau", [(0.2, 0.1), (0.3, 0.05), (0.1, 0.12), (0.15, 0.08)])
+def test_bandwidth_and_phase_delay_from_flight_data_equal_the_exact_values(T, tau):
+    # the aircraft's rate response K e^{-tau s}/(Ts+1) is measured; the attitude response is q/(jw)
+    runs = sweep_runs([2.0], [T, 1.0], tau)
+    fr = frequency_response(runs, ["d"], ["y"], n_freq=150, f_range=(0.1, 5.0))
+    b = bandwidth(fr.omega, fr.H[:, 0, 0] / (1j * fr.omega), fr.coherence[:, 0, 0])
+    got = (b.omega_180, b.omega_bw_phase, b.omega_bw_gain, b.phase_delay)
+    for name, g, e in zip(("omega_180", "omega_BW_phase", "omega_BW_gain", "tau_p"), got, exact_hq(T, tau)):
+        assert abs(g / e - 1) < 0.02, (name, g, e)
+    assert b.bandwidth == min(b.omega_bw_phase, b.omega_bw_gain)
+    assert not b.notes
+
+
+def test_undetermined_figures_are_nan_with_a_reason():
+    w = np.geomspace(0.5, 5, 60)  # phase of 1/(s(0.2s+1)) stays above -180 deg up to 5 rad/s
+    b = bandwidth(w, 1 / (1j * w * (0.2j * w + 1)))
+    assert np.isnan(b.omega_180) and np.isnan(b.phase_delay) and np.isnan(b.omega_bw_gain)
+    assert any("-180" in n for n in b.notes)
+    assert b.level("pitch") is None
+
+
+def test_inverted_sign_is_read_and_said():
+    w = np.geomspace(0.3, 40, 200)
+    H = 2 * np.exp(-0.1j * w) / (1j * w * (0.2j * w + 1))
+    assert np.isclose(bandwidth(w, -H).omega_bw_phase, bandwidth(w, H).omega_bw_phase)
+    assert bandwidth(w, -H).sign_inverted
+
+
+def test_ads33_levels_and_chart():
+    assert ads33_level(3.0, 0.10, "roll", "tracking") == 1
+    assert ads33_level(2.0, 0.10, "roll", "tracking") == 2
+    assert ads33_level(1.0, 0.10, "roll", "tracking") == 3
+    assert ads33_level(3.0, 0.3, "pitch", "tracking") == 3
+    w = np.geomspace(0.3, 40, 200)
+    b = bandwidth(w, 2 * np.exp(-0.1j * w) / (1j * w * (0.2j * w + 1)))
+    fig = ads33_chart({"theta/theta_s": b}, "pitch")
+    ax = fig.axes[0]
+    assert "rad/s" in ax.get_xlabel() and "[s]" in ax.get_ylabel()
+
+
+@pytest.mark.parametrize("omega, zeta, tau", [(3.0, 0.5, 0.08), (5.0, 0.3, 0.12), (2.0, 0.9, 0.05)])
+def test_loes_recovers_second_order_plus_delay(omega, zeta, tau):
+    # exact response: recovered to rounding
+    w = np.geomspace(0.1, 10 * omega, 120)
+    s = 1j * w
+    H = 4.0 * (s + 1.2) * np.exp(-tau * s) / (s ** 2 + 2 * zeta * omega * s + omega ** 2)
+    sp = short_period(fit_transfer_function(w, H, n_num=1, n_den=2))
+    assert np.allclose([sp.omega, sp.zeta, sp.tau_e], [omega, zeta, tau], rtol=1e-6)
+
+
+def test_loes_from_flight_data_recovers_second_order_plus_delay(omega=5.0, zeta=0.3, tau=0.12):
+    # measured from simulated flight data with 5 % noise: within 2 % from 240-s sweeps (the
+    # estimate's sweep-rate bias at a resonance is 1-5 % in zeta from 60-s sweeps, 0.4 % from 240 s)
+    runs = sweep_runs([4.0, 4.8], [1, 2 * zeta * omega, omega ** 2], tau, seed=3, noise=0.05, duration=240.0)
+    fr = frequency_response(runs, ["d"], ["y"], n_freq=120, f_range=(0.1, 5.0))
+    fit = fit_transfer_function(fr.omega, fr.H[:, 0, 0], fr.coherence[:, 0, 0], n_num=1, n_den=2,
+                                omega_range=(0.5, 20.0))
+    sp = short_period(fit)
+    assert fit.J < 50
+    for got, want, std in ((sp.omega, omega, sp.std["omega"]), (sp.zeta, zeta, sp.std["zeta"]),
+                           (sp.tau_e, tau, sp.std["tau_e"])):
+        assert abs(got / want - 1) < 0.02, (got, want)
+        assert 0 < std < 0.1 * want
+
+
+def test_loes_respects_bounds_and_says_so():
+    w = np.geomspace(0.3, 30, 100)
+    s = 1j * w
+    H = 9 * np.exp(-0.15 * s) / (s ** 2 + 3 * s + 9)
+    fit = fit_transfer_function(w, H, n_num=0, n_den=2, tau_bounds=(0.0, 0.1))
+    assert fit.tau <= 0.1 + 1e-12 and "tau" in fit.at_bound
+    assert any("bound" in n for n in fit.notes)
+
+
+def test_mil1797_levels():
+    assert mil1797_short_period_level(0.7, 0.05)[0] == 1
+    assert mil1797_short_period_level(0.3, 0.05)[0] == 2
+    assert mil1797_short_period_level(0.7, 0.15)[0] == 2
+    assert mil1797_short_period_level(0.2, 0.22)[0] == 3
+    assert mil1797_short_period_level(float("nan"), 0.05)[0] is None
