@@ -51,9 +51,10 @@ class LiveIdentification:
         self.signals = list(signals)
         self.inputs = [s.input for s in self.signals]
         self.profile, self.fixed_unflown = flown_profile(profile, self.inputs)
-        # targets named against the whole profile: one on an input the signal does not move is
-        # refused with that reason, not as an unknown parameter
-        self.targets = targets if isinstance(targets, dict) else parse_targets(targets, profile)
+        # named targets against the whole profile: one on an input the signal does not move is
+        # refused with that reason, not as an unknown parameter; the default ones from what is flown
+        self.targets = targets if isinstance(targets, dict) else \
+            parse_targets(targets, profile if targets else self.profile)
         missing = [n for n in self.targets if n not in self.profile.free]
         if missing:
             acting = input_parameters(profile)
