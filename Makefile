@@ -25,7 +25,9 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests
 
 benchmarks: $(STAMP)
-	for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+	@start=$$(date +%s); for b in benchmarks/*.py; do t=$$(date +%s); echo "== $$b"; \
+	  $(BIN)/python $$b || exit 1; echo "== $$b: $$(( $$(date +%s) - t )) s"; done; \
+	echo "make benchmarks: total $$(( $$(date +%s) - start )) s"
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache

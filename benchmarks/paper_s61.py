@@ -9,9 +9,8 @@ Signals (every one starts at t = DELAY s, all with the same amplitude AMP on the
 A-D doublets lasting 2, 4, 6, 8 s (pulse width 1, 2, 3, 4 s); E an arbitrary, not optimised,
 three-level step sequence (0.5 s steps, 7 s); F pseudostep's D-optimal three-level sequence for the
 a priori 8-state model on the axis flown (``signaldesign.design.SequenceDesign``, criterion
-"nominal", step widths 0.5..1.5 s searched); G the worst-case (robust) design over 8 models with
-every derivative scaled by 1 -/+ 0.3 (step widths 0.3..0.6 s: with F's widths the lateral design came
-out identical to F). F and G: 7 s, every output's peak response capped at that of a 3211 with 1 s
+"nominal", holds of at least 0.5 s on a 0.1 s grid); G the worst-case (robust) design over the a
+priori and 8 models with every derivative scaled by 1 -/+ 0.3 (holds of at least 0.3 s). F and G: 7 s, every output's peak response capped at that of a 3211 with 1 s
 pulses (without a cap, the D-optimal input for an unstable model over a 20 s record is one long
 pulse that lets the divergence grow). Runs: A-G on longitudinal cyclic theta_s (7), on lateral
 cyclic theta_c (7), and two combined runs: E on theta_s with F on theta_c, and F on theta_s with E
@@ -62,6 +61,7 @@ sys.path.insert(0, str(ROOT))
 from identify import IV, LS, ML, LinearModel, PseudostepError, load_profile, simulate, simulate_run  # noqa: E402
 from signaldesign.baselines import doublet, m3211, step_sequence  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
+from signaldesign.evaluate import Evaluator, perturbed_models  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "output" / "paper_s61"
 DT, DURATION, SHORT, DELAY, SEED = 0.025, 20.0, 10.0, 1.0, 61
@@ -88,14 +88,17 @@ FIG9_RUN = "F lon"  # Fig. 9: pseudostep's design, evaluated over the first 10 s
 
 # -- signals ----------------------------------------------------------------------------------
 def design(model: LinearModel, axis: str, robust: bool):
-    """Signal F (nominal D-optimal, steps 0.5..1.5 s) or G (worst case over +/-30 % models, steps
-    0.3..0.6 s: the robust design with shorter steps, so F and G differ) on ``axis``."""
-    ref = [m3211(1.0, AMP, axis)]
-    lo, hi = (0.3, 0.6) if robust else (0.5, 1.5)
-    d = SequenceDesign(axis, duration=7.0, record=DURATION, amplitude=AMP, dt=0.05, min_width=lo,
-                       max_width=hi, criterion="worst" if robust else "nominal",
-                       perturbations=8 if robust else 0, spread=0.3, reference=ref, max_peak=1.0,
-                       seed=SEED, n_iter=2000, restarts=2)
+    """Signal F (nominal D-optimal, holds of at least 0.5 s) or G (worst case over the a priori and
+    8 models with every derivative scaled by 1 -/+ 0.3, holds of at least 0.3 s: the robust design
+    with shorter steps, so F and G differ) on ``axis``, at amplitude AMP, every output's peak
+    response over the record capped at that of a 3211 with 1 s pulses."""
+    ref = Evaluator(model, axis, record=DURATION, dt=0.05, limits={})
+    peaks = ref.peaks([m3211(1.0, AMP, axis)])
+    limits = {y: float(pk) for y, pk in zip(model.profile.outputs, peaks) if pk > 0}
+    models = [model] + perturbed_models(model, 8, spread=0.3, seed=SEED) if robust else None
+    d = SequenceDesign(axis, duration=7.0, record=DURATION, amplitude=AMP, dt=0.05, grid=0.1,
+                       min_pulse=0.3 if robust else 0.5, criterion="worst" if robust else "nominal",
+                       models=models, limits=limits, seed=SEED, n_iter=2000, restarts=2, jobs=1)
     d.fit(model)
     s = d.signals_[0]
     s.delay = DELAY
@@ -116,8 +119,10 @@ def make_signals(model: LinearModel) -> dict[str, dict[str, object]]:
 
 
 def describe(s) -> str:
-    lv = " ".join(f"{int(v):+d}" for v in s.levels)
-    return f"{s.kind}, {s.levels.size} x {s.dt:g} s: {lv}"
+    """Levels with their holds: ``+1 (2.4 s) 0 (1.6 s) ...`` (a design on a fine grid reads as steps)."""
+    edges = np.flatnonzero(np.diff(s.levels)) + 1
+    holds = [(int(seg[0]), seg.size * s.dt) for seg in np.split(s.levels, edges)]
+    return f"{s.kind}, {s.levels.size * s.dt:g} s: " + " ".join(f"{v:+d} ({h:.3g} s)" for v, h in holds)
 
 
 # -- runs -------------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ from . import commands
 
 def cmd_demo(args) -> int:
     from .demo import DEFAULT_PROFILE, run_demo  # the pipeline's libraries load only when it runs
-    report = run_demo(args.out, args.profile or DEFAULT_PROFILE, quick=args.quick)
+    report = run_demo(args.out, args.profile or DEFAULT_PROFILE, quick=args.quick, frames=args.frames)
     print(f"demo written to {report.parent}/ (open {report})")
     return 0
 
@@ -22,6 +22,8 @@ def add_demo(sub) -> None:
     p.add_argument("--out", default="demo-output", type=output_dir, help="output folder (default: demo-output)")
     p.add_argument("--profile", help="profile path or bundled name (default: s61_hover_8state)")
     p.add_argument("--quick", action="store_true", help="reduced size (shorter runs, shorter search)")
+    p.add_argument("--frames", action="store_true",
+                   help="keep the display's frames (one a second) in display_frames_<run>/ (default: display.png only)")
     p.set_defaults(func=cmd_demo)
 
 

@@ -49,9 +49,13 @@ FULL, QUICK = Size(), Size(record=12.0, duration=5.0, n_iter=300, frame_rate=30.
 
 
 def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = False, seed: int = 1,
-             say=print) -> Path:
-    """Run the pipeline into ``out``; return the path of its ``report.md``."""
+             say=print, frames: bool = False) -> Path:
+    """Run the pipeline into ``out``; return the path of its ``report.md``. The display's frames
+    (one a second) are kept in ``display_frames_<run>/`` only with ``frames``; otherwise one of
+    them becomes ``display.png`` and the rest are not written to ``out``."""
     import os
+    import shutil
+    import tempfile
 
     for var in ("SDL_VIDEODRIVER", "SDL_AUDIODRIVER"):  # no window, no sound: the display is off-screen
         os.environ.setdefault(var, "dummy")
@@ -69,12 +73,12 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
 
     say("2/5 flying them with the simulated pilot (off-screen display) ...")
     fit_runs, flights = [], []
+    shots = out if frames else Path(tempfile.mkdtemp(prefix="demo-frames-"))
     for i, design in enumerate(designs):
-        frames = out / f"display_frames_{i + 1}"
         flight = fly(design.signals_, PilotSource(skill=0.6, seed=seed + i), out / f"flown_{i + 1}.csv",
                      model=apriori, fast=True, pilot="simulated pilot", display="headless", audio=False,
-                     preview=2.0, rate=size.frame_rate, countdown=1.0,
-                     tail=size.record - design.duration - 1.0, screenshot_dir=frames, screenshot_every=1.0)
+                     preview=2.0, rate=size.frame_rate, countdown=1.0, tail=size.record - design.duration - 1.0,
+                     screenshot_dir=shots / f"display_frames_{i + 1}", screenshot_every=1.0)
         flights.append(flight)
         name = f"testpoint_{i + 1}.csv"
         fit_runs.append(_response(truth, flight.run, seed + 10 + i,
@@ -82,7 +86,9 @@ def run_demo(out: str | Path, profile: str = DEFAULT_PROFILE, quick: bool = Fals
         fit_runs[-1].to_csv(out / name)
     validation = _validation_run(truth, size, seed)
     validation.to_csv(out / "testpoint_validation.csv")
-    report += _fly_section(flights, out, designs[0].signals_[0])
+    report += _fly_section(flights, out, designs[0].signals_[0], shots / "display_frames_1")
+    if not frames:
+        shutil.rmtree(shots, ignore_errors=True)
 
     say("3/5 identifying with LS, IV and ML ...")
     results = {name: est(apriori.profile).fit(fit_runs).result_ for name, est in
@@ -184,12 +190,12 @@ def _design_section(designs: list[SequenceDesign], out: Path) -> list[str]:
     return lines + ["", "![designed signals](signals.png)"]
 
 
-def _fly_section(flights, out: Path, first_signal) -> list[str]:
+def _fly_section(flights, out: Path, first_signal, frames: Path) -> list[str]:
     import shutil
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    shots = sorted((out / "display_frames_1").glob("*.png"))  # one a second from t = -countdown
+    shots = sorted(frames.glob("*.png"))  # one a second from t = -countdown
     if shots:  # the frame a second before the second switch: needles deflected, switch in the preview
         t_shot = first_signal.switch_times()[min(1, first_signal.switch_times().size - 1)] - 1.0
         shutil.copy(shots[int(np.clip(round(t_shot + 1.0), 0, len(shots) - 1))], out / "display.png")
@@ -199,7 +205,8 @@ def _fly_section(flights, out: Path, first_signal) -> list[str]:
     lines = ["", "## 2. Flight (simulated pilot, off-screen two-needle display)", "",
              "![the display during the first run](display.png)", "",
              "| run | RMS tracking error [% of amplitude] | switch timing [ms, mean ± std] | "
-             "information retained (D-efficiency) |", "| --- | --- | --- | --- |"]
+             "information retained [% at the designed peak response] | peak response [% of designed] |",
+             "| --- | --- | --- | --- | --- |"]
     for ax, flight in zip(axes[:, 0], flights):
         name = flight.log.inputs[0]
         ax.plot(flight.run.time, flight.run[name + "_cmd"], label="designed", lw=1.2)
@@ -207,9 +214,10 @@ def _fly_section(flights, out: Path, first_signal) -> list[str]:
         ax.set_ylabel(f"{name} [rad]")
         ax.legend(loc="upper right", fontsize=8)
         sc = flight.score
-        eff = "n/a" if sc.d_efficiency is None else f"{sc.d_efficiency:.3f}"
+        kept = "n/a" if sc.information_retained is None else f"{100 * sc.information_retained:.1f}"
+        peak = "n/a" if sc.peak_ratio is None else f"{100 * sc.peak_ratio:.0f}"
         lines.append(f"| `{flight.path.name}` | {100 * sc.rms:.1f} | {1000 * sc.timing_mean:+.0f} ± "
-                     f"{1000 * sc.timing_std:.0f} | {eff} |")
+                     f"{1000 * sc.timing_std:.0f} | {kept} | {peak} |")
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(out / "flown_vs_designed.png", dpi=80)

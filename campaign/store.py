@@ -22,11 +22,9 @@ FILES = ("runs", "validate")
 
 
 def pseudostep_version() -> str:
-    try:
-        from importlib.metadata import version
-        return version("pseudostep")
-    except Exception:  # running from a source tree that was never installed
-        return "source"
+    from identify import __version__  # identify/_version.py: the one place it is written
+
+    return __version__
 
 
 def file_digest(path: str | Path) -> str:

@@ -6,4 +6,6 @@ pipelines) sits above it.
 """
 import os as _os
 
+from identify._version import __version__  # noqa: F401 (one version for the whole project)
+
 _os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")  # no pygame banner on stdout

@@ -16,6 +16,25 @@ UNATTENDED = ("pilot", "replay", "external")  # sources that need no human: may 
 EXIT_ABORTED = 3  # the pilot ended the run early (Escape, closed window): data kept, marked aborted
 
 
+def cmd_align(args) -> int:
+    from identify.data.io import load_channel_map, read_run_file
+
+    from .align import find_offset, merge
+    display = read_run_file(args.display)
+    recording = read_run_file(args.recording, load_channel_map(args.channel_map) if args.channel_map else None)
+    found = find_offset(display, recording, args.channel, args.max_offset)
+    print(f"clock offset: recording time = display time {found.offset:+.3f} s "
+          f"(cross-correlation of {found.channel}: peak {found.correlation:.3f})")
+    if found.doubtful:
+        print(f"cueing: warning: the correlation peak {found.correlation:.3f} is weak: check that both files "
+              f"hold the same {found.channel} and overlap", file=sys.stderr)
+    merged = merge(display, recording, found)
+    merged.to_csv(args.out)
+    print(f"merged run ({merged.duration:.2f} s, {len(merged)} samples, channels "
+          f"{', '.join(merged.channels)}) written to {args.out}")
+    return 0
+
+
 def _signals(path):
     from signaldesign.signal import load_signals
     signals = load_signals(path)
@@ -45,12 +64,57 @@ def _fly_options(args) -> dict:
     if args.profile:
         from identify import LinearModel, load_profile
         model = LinearModel(load_profile(args.profile))
-    return dict(simulate=args.simulate, noise_fraction=args.noise, seed=args.seed, model=model, fast=args.fast,
+    aircraft = _aircraft(args)
+    if aircraft is not None and model is None and args.simulate:
+        from .response import aircraft_model
+        model = aircraft_model(args.simulate)  # the a priori scores the flight, not the truth
+    return dict(simulate=aircraft, noise_fraction=args.noise, seed=args.seed, model=model, fast=args.fast,
                 rate=args.rate, countdown=args.countdown, lead_in=args.lead_in, record=args.record, tail=args.tail,
                 preview=args.preview, display="headless" if args.headless else "window",
                 fullscreen=args.fullscreen, audio=not args.no_audio,
                 screenshot_dir=args.screenshots, screenshot_every=args.screenshot_every,
                 end_screen=0.0 if args.headless else 5.0)
+
+
+def _check_amplitudes(signals, model) -> None:
+    """Say (stderr) when a signal's amplitude is implausible for a test input on that control."""
+    if model is None:
+        return
+    from signaldesign.design import implausible_amplitudes
+    for s in signals:
+        for line in implausible_amplitudes(model.profile, [s.input], [s.amplitude]):
+            print(f"cueing: warning: {line}", file=sys.stderr)
+
+
+def _aircraft(args):
+    """The aircraft that responds to the stick: ``--truth`` (else ``--simulate``), with every free
+    derivative scaled by its own factor in 1 -/+ ``--perturb`` (seeded by ``--seed``) when given;
+    a perturbed aircraft's profile is written beside the run (``<out>.truth.toml``) and said."""
+    base = getattr(args, "truth", None) or args.simulate
+    spread = getattr(args, "perturb", None)
+    if base is None:
+        if spread:
+            raise CueingError("--perturb needs the aircraft to perturb: --simulate PROFILE or --truth PROFILE")
+        return None
+    if not spread:
+        return base
+    import numpy as np
+
+    from identify import perturbed_model
+
+    from .response import aircraft_model
+    if not 0 < spread < 1:
+        raise CueingError(f"--perturb must be a fraction in (0, 1), got {spread:g}")
+    model = aircraft_model(base)
+    truth = perturbed_model(model, spread, np.random.default_rng(args.seed))
+    truth_profile = truth.to_profile(f"{model.profile.name} - perturbed by up to {100 * spread:g} % (seed {args.seed})")
+    out = getattr(args, "out", None)
+    if out:
+        path = Path(out).with_suffix(".truth.toml")
+        truth_profile.save(path)
+        print(f"flying a perturbed aircraft (every derivative x U(1 -/+ {spread:g}), seed {args.seed}): "
+              f"its profile is {path}")
+    return truth
 
 
 def _source(args, skill: float, seed):
@@ -70,6 +134,7 @@ def cmd_fly(args) -> int:
     from .session import fly
     signals = _signals(args.signal)
     options = _fly_options(args)
+    _check_amplitudes(signals, options["model"])
     source = _source(args, args.skill, args.seed)
     try:
         if args.live:
@@ -179,7 +244,13 @@ def _add_fly_arguments(p) -> None:
                    help="show the next SECONDS of the sequence (default 3 when given)")
     p.add_argument("--headless", action="store_true", help="off-screen display (no window)")
     p.add_argument("--fullscreen", action="store_true", help="fill the screen (the window is resizable otherwise)")
-    p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input")
+    p.add_argument("--simulate", metavar="PROFILE", help="drive this profile's model with the flown input "
+                   "(with every effect it declares: delays, pseudo-inputs)")
+    p.add_argument("--truth", metavar="PROFILE", help="the aircraft that responds, when it is not --simulate's "
+                   "(the a priori: --simulate or --profile, which scores the flight)")
+    p.add_argument("--perturb", type=positive_float, metavar="FRACTION",
+                   help="fly an aircraft off the a priori: every derivative of --truth/--simulate scaled by its "
+                        "own factor in 1 -/+ FRACTION (--seed; its profile written to <out>.truth.toml)")
     p.add_argument("--noise", type=nonnegative_float, default=0.02, help="measurement noise fraction for --simulate (0.02)")
     p.add_argument("--profile", metavar="PROFILE", help="model for the information score (default: --simulate's)")
     p.add_argument("--seed", type=int, default=None, help="random seed (simulated pilot, noise)")
@@ -244,6 +315,14 @@ def build_parser() -> Parser:
     p.add_argument("--noise", type=nonnegative_float, default=0.02)
     p.add_argument("--seed", type=int, default=None)
     p.set_defaults(func=cmd_recover)
+    p = sub.add_parser("align", help="put the display's run file and a separate recording on one clock")
+    p.add_argument("display", help="the display's run file (cueing fly --out)")
+    p.add_argument("recording", help="the aircraft's recording (.csv or .mat) holding the same control input")
+    p.add_argument("--channel", required=True, help="control input both files hold (the offset is found on it)")
+    p.add_argument("--channel-map", metavar="JSON", help="channel map of the recording (file or inline JSON)")
+    p.add_argument("--max-offset", type=positive_float, metavar="S", help="search offsets up to S seconds only")
+    p.add_argument("--out", required=True, type=output_file, help="merged run file to write")
+    p.set_defaults(func=cmd_align)
     for p in sub.choices.values():
         add_threads_option(p)
     return parser

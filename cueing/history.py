@@ -16,8 +16,15 @@ from .errors import CueingError
 ENV = "PSEUDOSTEP_HISTORY"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 SCORES = ("rms", "timing_mean", "timing_std", "lag", "level_error_pos", "level_error_neg", "spectral_fidelity",
-          "d_efficiency")
-OVER_100 = "info % over 100: flown with more energy than designed (overshoot), not better flying"
+          "d_efficiency", "peak_ratio", "information_retained")
+OVER_100 = ("info %: information retained at the designed peak response (raw D-efficiency / peak ratio^2); "
+            "over 100: the flown shape carries more information per unit of peak response than the design")
+
+
+def _info(record: dict) -> float:
+    """Information retained at the designed peak response (older records: the raw D-efficiency)."""
+    value = record.get("information_retained")
+    return _num(record.get("d_efficiency") if value is None or "peak_ratio" not in record else value)
 
 
 def history_dir(directory=None) -> Path:
@@ -75,13 +82,13 @@ def format_history(records: list[dict]) -> str:
     rows = [f"{'#':>3}  {'when':19}  {'RMS %':>6}  {'timing ms':>9}  {'lag ms':>6}  {'level+ %':>8}  {'level- %':>8}  "
             f"{'fidelity':>8}  {'info %':>6}  signal"]
     for i, r in enumerate(records, start=1):
-        d, timing = _num(r.get("d_efficiency")), _num(r.get("timing_mean"))
+        d, timing = _info(r), _num(r.get("timing_mean"))
         rows.append(f"{i:3d}  {str(r.get('when', '')):19}  {100 * _num(r['rms']):6.1f}  "
                     f"{f'{1000 * timing:+9.0f}' if np.isfinite(timing) else 'missed':>9}  "
                     f"{_ms(r.get('lag')):>6}  {100 * _num(r.get('level_error_pos')):+8.1f}  "
                     f"{100 * _num(r.get('level_error_neg')):+8.1f}  {_num(r.get('spectral_fidelity')):8.3f}  "
                     f"{f'{100 * d:6.1f}' if np.isfinite(d) else '':>6}  {r.get('signal', '')}")
-    if any((r.get("d_efficiency") or 0) > 1 for r in records):
+    if any(_info(r) > 1 for r in records):
         rows.append(OVER_100)
     return "\n".join(rows)
 
@@ -106,11 +113,10 @@ def plot_learning_curve(pilot: str, records: list[dict], path) -> Path:
                           fontsize=8)
     axes[1].set_ylabel("timing [ms]")
     axes[1].legend(fontsize=8)
-    d = [_num(r.get("d_efficiency")) for r in records]
-    axes[2].plot(n, [100 * v for v in d], "o-", label="D-efficiency (raw)")
+    d = [_info(r) for r in records]
+    axes[2].plot(n, [100 * v for v in d], "o-", label="at the designed peak response")
     axes[2].axhline(100, color="0.5", ls=":", lw=1)
-    if any(v > 1 for v in d):
-        axes[2].legend(title="over 100 %: more energy than designed", fontsize=8, title_fontsize=8)
+    axes[2].legend(fontsize=8)
     axes[2].set_ylabel("information [%]")
     axes[2].set_xlabel("attempt")
     axes[0].set_title(f"practice history: {pilot}")

@@ -10,16 +10,25 @@ All measures work on a uniform run holding ``<input>_cmd`` (designed) and ``<inp
 - lag (s): the delay of the flown input behind the designed one that lines them up best (the
   peak of their cross-correlation within +/- ``MAX_LAG``): defined even when every switch is missed;
 - level error (fractions of the amplitude): magnitude of the mean flown level over the settled
-  second half of each hold minus the commanded magnitude (positive: overshoot), separately for +
-  and - holds, and their asymmetry (+ error minus - error);
+  second half of each hold, taken the pilot's lag later (the hold as he flew it: a late level is
+  the lag's, not the level's), minus the commanded magnitude (positive: overshoot), separately for
+  + and - holds, and their asymmetry (+ error minus - error);
 - in-band spectral fidelity: 1 - sum(|F_flown| - |F_design|)^2 / sum |F_design|^2 over the band the
   signal was designed for (``params['band']`` in rad/s, else up to 1/(2 dt)): 1 is the designed
   amplitude spectrum exactly; pure delay does not count against it;
-- information retained: D-efficiency of the flown input relative to the designed one for a model
-  (signaldesign's Fisher information), over the parameters the design excites. It exceeds 1 when
-  the flown input carries more energy than the designed one (overshoot, levels flown too large):
-  more information bought with a larger input than the design allowed, not better flying. The
-  raw value is kept (``d_efficiency``); what is shown is capped at 100 % with the raw value beside.
+- peak response (``peak_ratio``): the largest output peak the flown input drives on the model,
+  against the designed input's (each output's peak over its ``[limits]`` entry, or over the
+  designed input's own peak where the profile gives none): the design's amplitude was set so that
+  the designed input's largest peak meets its limit;
+- raw D-efficiency (``d_efficiency``): the flown input's Fisher information about the parameters
+  the design excites relative to the designed one's (det ratio to the 1/p). Information grows with
+  the response squared, so the raw figure rewards driving the aircraft harder than the design
+  allowed (overshoot, or a lag that lets an unstable mode grow);
+- information retained: the raw D-efficiency at the designed peak response,
+  ``d_efficiency / peak_ratio**2`` -- the comparison every design table makes (equal peak
+  response). Under 100 %: the flown shape (lag, rounded steps, level errors) lost information;
+  over 100 %: the flown shape carries more per unit of peak response than the design.
+  raw = retained x peak_ratio², so the three figures never contradict each other.
 - frame rate: achieved and worst-second rate against the target, flagged under 90 %.
 """
 from __future__ import annotations
@@ -54,6 +63,7 @@ class PracticeScore:
     spectral_fidelity: float
     lag: float = np.nan
     d_efficiency: float | None = None
+    peak_ratio: float | None = None
     frame_rate: float | None = None
     frame_rate_lowest: float | None = None
     frame_rate_target: float | None = None
@@ -61,8 +71,10 @@ class PracticeScore:
 
     @property
     def information_retained(self) -> float | None:
-        """D-efficiency capped at 1 (the raw value stays in ``d_efficiency``)."""
-        return None if self.d_efficiency is None else min(self.d_efficiency, 1.0)
+        """D-efficiency at the designed peak response: ``d_efficiency / peak_ratio**2``."""
+        if self.d_efficiency is None or not self.peak_ratio:
+            return None
+        return self.d_efficiency / self.peak_ratio ** 2
 
     @property
     def frame_rate_low(self) -> bool:
@@ -87,11 +99,13 @@ class PracticeScore:
                f"level error (+ / -)  {100 * self.level_error_pos:+5.1f} % / {100 * self.level_error_neg:+5.1f} %"
                f"  (asymmetry {100 * self.asymmetry:+5.1f} %)",
                f"spectral fidelity    {self.spectral_fidelity:5.3f}"]
-        if self.d_efficiency is not None and self.d_efficiency > 1:
-            out += [f"information retained 100.0 % (capped; raw D-efficiency {100 * self.d_efficiency:.1f} %)",
-                    "  over 100 %: flown with more energy than designed (overshoot), not better"]
-        elif self.d_efficiency is not None:
-            out.append(f"information retained {100 * self.d_efficiency:5.1f} % (D-efficiency)")
+        if self.information_retained is not None:
+            out += [f"information retained {100 * self.information_retained:5.1f} % (at the designed peak response)",
+                    f"peak response        {100 * self.peak_ratio:5.1f} % of the designed "
+                    f"(raw D-efficiency {100 * self.d_efficiency:.1f} %)"]
+            if self.peak_ratio > 1.05:
+                out.append(f"! the flown input drove the aircraft {100 * (self.peak_ratio - 1):.0f} % beyond the "
+                           "designed peak response (the limits assume the designed input)")
         if self.frame_rate_low:
             out.append("! " + frame_rate_warning({"rate_nominal": self.frame_rate_target,
                                                    "rate_achieved": self.frame_rate,
@@ -153,8 +167,13 @@ def tracking_lag(designed: np.ndarray, flown: np.ndarray, dt: float, max_lag: fl
     return float((lags[k] + shift) * dt)
 
 
-def level_errors(ts: np.ndarray, flown: np.ndarray, signal) -> tuple[float, float, float]:
-    """Settled level magnitude error on + and on - holds, and their difference (fractions of amplitude)."""
+def level_errors(ts: np.ndarray, flown: np.ndarray, signal, lag: float = 0.0) -> tuple[float, float, float]:
+    """Settled level magnitude error on + and on - holds, and their difference (fractions of
+    amplitude); each hold's settled second half taken ``lag`` s later (the pilot's lag)."""
+    lag = float(lag) if np.isfinite(lag) and lag > 0 else 0.0
+    if ts.size > 1:  # whole samples: a fraction of one would pull the next hold's first sample in
+        step = float(np.median(np.diff(ts)))
+        lag = round(lag / step) * step
     a = abs(signal.amplitude) or 1.0
     edges = np.concatenate([signal.switch_times(), [np.inf]])
     pos, neg = [], []
@@ -162,7 +181,7 @@ def level_errors(ts: np.ndarray, flown: np.ndarray, signal) -> tuple[float, floa
         level = float(signal.level_at(lo + 1e-6))
         if level == 0 or not np.isfinite(hi):
             continue
-        sel = (ts >= 0.5 * (lo + hi)) & (ts < hi)
+        sel = (ts >= 0.5 * (lo + hi) + lag) & (ts < hi + lag)
         if sel.any():
             achieved = np.mean(flown[sel]) * np.sign(signal.amplitude) / a
             (pos if level > 0 else neg).append(achieved * np.sign(level) - abs(level))
@@ -189,11 +208,8 @@ def signal_band(signal) -> tuple[float, float]:
     return 0.0, float(np.pi / signal.dt)
 
 
-def information_retained(model, run: Run, signals) -> float:
-    """D-efficiency of the flown inputs relative to the designed ones for ``model`` (LinearModel).
-
-    Profile inputs not flown stay zero; parameters the design leaves unexcited are left out.
-    """
+def _inputs(model, run: Run, signals) -> tuple[np.ndarray, np.ndarray]:
+    """Designed and flown inputs (N, m); profile inputs not flown stay zero."""
     names = model.profile.input_names
     u_design = np.zeros((len(run), len(names)))
     u_flown = np.zeros_like(u_design)
@@ -201,11 +217,33 @@ def information_retained(model, run: Run, signals) -> float:
         j = names.index(s.input)
         u_design[:, j] = run[s.input + CMD]
         u_flown[:, j] = run[s.input]
+    return u_design, u_flown
+
+
+def information_retained(model, run: Run, signals) -> float:
+    """Raw D-efficiency of the flown inputs relative to the designed ones for ``model``
+    (LinearModel), over the parameters the design excites (see the module doc)."""
+    u_design, u_flown = _inputs(model, run, signals)
     M_d = fisher_information(model, u_design, run.dt)
     M_f = fisher_information(model, u_flown, run.dt)
     d = np.diag(M_d)
     keep = d > 1e-10 * d.max()
     return d_efficiency(M_f[np.ix_(keep, keep)], M_d[np.ix_(keep, keep)])
+
+
+def peak_ratio(model, run: Run, signals) -> float:
+    """Largest output peak of the flown input's response over the designed input's (each output's
+    peak over its limit; over the designed peak where the profile has no limit for it)."""
+    from identify import simulate
+    u_design, u_flown = _inputs(model, run, signals)
+    y_d = np.abs(simulate(model, u_design, run.dt).y).max(axis=0)
+    y_f = np.abs(simulate(model, u_flown, run.dt).y).max(axis=0)
+    limits = np.array([model.profile.limits.get(y, np.nan) for y in model.profile.outputs])
+    scale = np.where(np.isfinite(limits), limits, y_d)
+    moved = scale > 0
+    if not moved.any() or not (y_d[moved] > 0).any():
+        return float("nan")
+    return float((y_f[moved] / scale[moved]).max() / (y_d[moved] / scale[moved]).max())
 
 
 def score_run(run: Run, signals, model=None, frame_stats: dict | None = None) -> PracticeScore:
@@ -218,10 +256,11 @@ def score_run(run: Run, signals, model=None, frame_stats: dict | None = None) ->
         a = abs(s.amplitude) or 1.0
         designed, flown = run[s.input + CMD], run[s.input]
         timing = switch_timing(t, flown, s, ts)
-        e_pos, e_neg, asym = level_errors(ts, flown, s)
+        lag = tracking_lag(designed, flown, run.dt)
+        e_pos, e_neg, asym = level_errors(ts, flown, s, lag)
         axes.append({"input": s.input, "rms": float(np.sqrt(np.mean((flown - designed) ** 2)) / a),
                      "timing": timing.tolist(), "level_error_pos": e_pos, "level_error_neg": e_neg,
-                     "asymmetry": asym, "lag": tracking_lag(designed, flown, run.dt),
+                     "asymmetry": asym, "lag": lag,
                      "spectral_fidelity": spectral_fidelity(designed, flown, run.dt, signal_band(s))})
     timing = np.concatenate([np.asarray(ax["timing"], float) for ax in axes])
     hit = timing[np.isfinite(timing)]
@@ -233,6 +272,7 @@ def score_run(run: Run, signals, model=None, frame_stats: dict | None = None) ->
                  level_error_pos=mean("level_error_pos"), level_error_neg=mean("level_error_neg"),
                  asymmetry=mean("asymmetry"), spectral_fidelity=mean("spectral_fidelity"), lag=mean("lag"),
                  d_efficiency=information_retained(model, run, signals) if model is not None else None,
+                 peak_ratio=peak_ratio(model, run, signals) if model is not None else None,
                  per_axis=axes, **_frame_rates(frame_stats))
 
 

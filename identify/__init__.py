@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 
+from ._version import __version__
 from .errors import ConvergenceWarning, EstimationError, ProfileError, PseudostepError, RunError, SimulationError
 
 # public name -> submodule that defines it
@@ -35,7 +36,7 @@ _LAZY = {
     **dict.fromkeys(["FrequencyResponse", "frequency_response", "fit_cost"], "estimators.frequency.response"),
 }
 
-__all__ = ["ConvergenceWarning", "EstimationError", "ProfileError", "PseudostepError", "RunError",
+__all__ = ["__version__", "ConvergenceWarning", "EstimationError", "ProfileError", "PseudostepError", "RunError",
            "SimulationError", *_LAZY]
 
 

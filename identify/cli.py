@@ -55,8 +55,27 @@ def _print_model(model: LinearModel) -> None:
     trim = p.meta.get("trim")
     if isinstance(trim, dict) and trim:
         print("\ntrim:\n" + "\n".join(f"  {name:<16}{value:13.6g}" for name, value in trim.items()))
+    effects = _declared_effects(p)
+    print("\ndeclared effects (every command applies them to the runs):" + ("" if effects else " none"))
+    if effects:
+        print("\n".join(f"  {line}" for line in effects))
+    notes = [f"{key}: {value}" for key, value in p.meta.items() if key not in ("delays", "pseudo_inputs", "std", "trim")]
+    if notes:
+        print("notes ([meta]):\n" + "\n".join(f"  {line}" for line in notes))
+    if p.limits:
+        print("\nresponse limits (signal design): " + ", ".join(f"{y} {v:g}" for y, v in p.limits.items()))
     print("\nmodes:")
     print(format_modes(model.modes()))
+
+
+def _declared_effects(p) -> list[str]:
+    """One line per input delay and pseudo-input the profile declares."""
+    from .model.pseudo_inputs import specs
+    lines = [f"delay on {name}: {float(tau):g} s (the aircraft sees {name}(t - {float(tau):g}))"
+             for name, tau in dict(p.meta.get("delays", {})).items()]
+    for name, spec in specs(p).items():
+        lines.append(f"pseudo-input {name}: " + ", ".join(f"{k} = {v}" for k, v in spec.items()))
+    return lines
 
 
 def build_parser() -> Parser:
@@ -82,7 +101,7 @@ def cmd_estimate(args) -> int:
     """Identify a profile's free parameters from runs; write result.json, the profile and plots."""
     from .data.preprocess import slice_run, smooth
 
-    profile = load_profile(args.profile)
+    profile = _profile(args)
     runs = []
     for r in _read_runs(args.runs, args.channel_map, profile, args):
         if args.smooth is not None:  # every channel alike, inputs included: keeps the equations consistent
@@ -112,7 +131,9 @@ def cmd_estimate(args) -> int:
         result.info["verify"] = verification.to_dict()
         print("\n" + "\n".join(verification.lines()), flush=True)
     out = result.save(args.out)
-    written = ["result.json", "identified_profile.toml"]
+    with open(out / "summary.txt", "a") as f:  # the frequency-domain cost printed above, too
+        f.write("\n" + text + "\n")
+    written = ["result.json", "summary.txt", "identified_profile.toml"] + (["time_histories.npz"] if result.time else [])
     if args.plots:  # on request: drawing them costs three times the fit itself (benchmarks/ml_speed.py)
         from .estimators.plots import save_plots
         written += [p.name for p in save_plots(result, out)]
@@ -247,6 +268,22 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
                    help='{"channels": {channel: column, variable, matrix column or expression such as '
                         '"(dar - dal)/2"}, "units": {name: unit}, "time": ..., "matrix": ..., "dt": ...} '
                         'as a file or inline JSON (required for .mat data matrices)')
+    p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
+    p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
+    p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+
+
+def _profile(args):
+    """The a priori profile, with ``--free``, ``--fix`` and ``--outputs`` applied (each said)."""
+    from .model import subset
+
+    profile = load_profile(args.profile)
+    for option, change in (("free", subset.free), ("fix", subset.fix), ("outputs", subset.with_outputs)):
+        if getattr(args, option):
+            profile = change(profile, getattr(args, option))
+            print(f"--{option} {getattr(args, option)}: {len(profile.free)} free parameters, "
+                  f"outputs {', '.join(profile.outputs)}", file=sys.stderr)
+    return profile
 
 
 def _trim_option(text: str) -> str:
@@ -272,7 +309,7 @@ def cmd_refine(args) -> int:
     kinds = KINDS if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if not kinds:
         raise EstimationError(f"--kinds names no effect kind (catalogue: {', '.join(KINDS)})")
-    profile = load_profile(args.profile)
+    profile = _profile(args)
     refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
                      kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
                      frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)

@@ -18,9 +18,11 @@ import sys
 import warnings
 from pathlib import Path
 
+from ._version import __version__
 from .errors import PseudostepError
 
 EXIT_BAD_INPUT = 2
+EXIT_BROKEN_PIPE = 141  # as a shell reports a program ended by SIGPIPE (``cmd | head``)
 DEFAULT_THREADS = 1
 
 
@@ -137,11 +139,32 @@ def add_threads_option(parser: argparse.ArgumentParser) -> None:
 
 
 class Parser(argparse.ArgumentParser):
-    """ArgumentParser whose usage errors are one line on stderr and exit status 2."""
+    """ArgumentParser whose usage errors are one line on stderr and exit status 2, with
+    ``--version`` on the command and on every subcommand (argparse makes them of this class)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.add_argument("--version", action="version", version=f"{self.prog.split()[0]} (pseudostep) {__version__}")
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._argv = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
 
     def error(self, message):  # noqa: D401 - argparse API
         # the program's name alone, as for every other error line ("cueing: error: ...")
-        self.exit(EXIT_BAD_INPUT, f"{self.prog.split()[0]}: error: {' '.join(message.split())}\n")
+        self.exit(EXIT_BAD_INPUT, f"{self.prog.split()[0]}: error: {' '.join(message.split())}{self._greedy_hint(message)}\n")
+
+    def _greedy_hint(self, message: str) -> str:
+        """Why the runs went missing: an option taking several files (``--validate RUN ...``) took
+        every file after it. Never guessed apart: which file was meant for which is the user's call."""
+        required = message.partition("the following arguments are required:")[2]
+        if not any(name.strip() and not name.strip().startswith("-") for name in required.split(",")):
+            return ""  # only a positional (the runs) can have been taken
+        greedy = [a.option_strings[0] for a in self._actions
+                  if a.option_strings and a.nargs in ("+", "*") and set(a.option_strings) & set(getattr(self, "_argv", []))]
+        if not greedy:
+            return ""
+        return f" ({greedy[0]} takes every file after it: put it after the runs)"
 
 
 def run(parser: argparse.ArgumentParser, argv=None) -> int:
@@ -157,7 +180,12 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
     try:
         with warnings.catch_warnings(), _blas_threads(getattr(args, "threads", DEFAULT_THREADS)):
             warnings.showwarning = _one_line(parser.prog)
-            return args.func(args) or 0
+            status = args.func(args) or 0
+            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+            return status
+    except BrokenPipeError:  # the reader went away (``| head``): nothing left to say, and no one to say it to
+        _stdout_to_devnull()
+        return EXIT_BROKEN_PIPE
     except PseudostepError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -172,6 +200,14 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def _stdout_to_devnull() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush of a closed pipe stays silent."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 def _one_line(prog: str):

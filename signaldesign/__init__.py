@@ -5,6 +5,8 @@ on first use (module ``__getattr__``), so ``signaldesign --help`` answers at onc
 """
 from __future__ import annotations
 
+from identify._version import __version__  # noqa: F401 (one version for the whole project)
+
 import importlib
 
 _LAZY = {

@@ -56,6 +56,14 @@ class ParameterBand:
     high: float
     peak: float
     mode: Mode | None
+    open_low: bool = False  # still above the level at the analysis grid's lowest frequency
+    open_high: bool = False  # ... at its highest: the band goes on beyond what was analysed
+
+    @property
+    def text(self) -> str:
+        lo = f"<{self.low:.3f}" if self.open_low else f"{self.low:.3f}"
+        hi = f">{self.high:.3f}" if self.open_high else f"{self.high:<.3f}"
+        return f"{lo}..{hi}"
 
 
 @dataclass
@@ -73,14 +81,35 @@ class RequiredBand:
     omega: np.ndarray = field(repr=False)
     curves: np.ndarray = field(repr=False)  # (W, p) normalised to each parameter's peak
 
+    @property
+    def bounded(self) -> bool:
+        """False when no parameter's band closes at one end (or both) within the analysed range:
+        ``low``/``high`` are then the grid's edges, not a band."""
+        return any(not b.open_low for b in self.parameters) and any(not b.open_high for b in self.parameters)
+
     def format(self) -> str:
-        lines = [f"required band for input {self.input}: {self.low:.3f} .. {self.high:.3f} rad/s "
-                 f"({self.low / (2 * np.pi):.3f} .. {self.high / (2 * np.pi):.3f} Hz; "
-                 f"sensitivities above {self.level:g} of their peak)"]
+        hz = f"{self.low / (2 * np.pi):.3f} .. {self.high / (2 * np.pi):.3f} Hz"
+        if self.bounded:
+            head = (f"required band for input {self.input}: {self.low:.3f} .. {self.high:.3f} rad/s ({hz}; "
+                    f"sensitivities above {self.level:g} of their peak, from the parameters whose band closes)")
+        else:
+            head = (f"no required band for input {self.input}: no parameter's sensitivity falls below {self.level:g} "
+                    f"of its peak {'below' if all(b.open_low for b in self.parameters) else 'above'} the analysed "
+                    f"range {self.omega[0]:g}..{self.omega[-1]:g} rad/s (shown: {self.low:.3f} .. {self.high:.3f} rad/s)")
+        lines = [head]
         lines.append(f"  {'parameter':<18} {'band [rad/s]':>16} {'peak [rad/s]':>13}  nearest mode")
         for b in self.parameters:
             m = _mode_label(b.mode)
-            lines.append(f"  {b.name:<18} {b.low:7.3f}..{b.high:<7.3f} {b.peak:13.3f}  {m}")
+            lines.append(f"  {b.name:<18} {b.text:>16} {b.peak:13.3f}  {m}")
+        open_low = [b.name for b in self.parameters if b.open_low]
+        open_high = [b.name for b in self.parameters if b.open_high]
+        if open_low:
+            lines.append(f"open below {self.omega[0]:g} rad/s (sensitivity still rising toward steady state: "
+                         f"the response's low-frequency content, i.e. record length, identifies them): "
+                         f"{', '.join(open_low)}")
+        if open_high:
+            lines.append(f"open above {self.omega[-1]:g} rad/s (sensitivity flat up to the analysed range's end: "
+                         f"any input excites them): {', '.join(open_high)}")
         lines.append("modes driving the band: " + "; ".join(_mode_label(m) for m in self.modes))
         if self.unexcited:
             lines.append(f"not excited by {self.input} (left out): {', '.join(self.unexcited)}")
@@ -130,8 +159,12 @@ def required_band(model: LinearModel, input: str, level: float = 0.5, noise_std=
         while hi < c.size - 1 and c[hi + 1] >= level:
             hi += 1
         bands.append(ParameterBand(model.names[i], float(omega[lo]), float(omega[hi]), float(omega[k]),
-                                   _nearest_mode(modes, omega[k])))
-    low, high = min(b.low for b in bands), max(b.high for b in bands)
+                                   _nearest_mode(modes, omega[k]), lo == 0, hi == c.size - 1))
+    # the band from the ends that close: a grid edge is where the analysis stopped, not a band's
+    # edge (the grid's edge only when no parameter's band closes at that end; ``bounded`` says so)
+    lows = [b.low for b in bands if not b.open_low] or [float(omega[0])]
+    highs = [b.high for b in bands if not b.open_high] or [float(omega[-1])]
+    low, high = min(lows), max(highs)
     driving = [m for m in modes if low / 1.5 <= m.frequency <= high * 1.5]
     unexcited = [n for i, n in enumerate(model.names) if i not in keep]
     return RequiredBand(input, low, high, level, bands, driving, unexcited, omega, curves)
@@ -147,7 +180,11 @@ def plot_band(band: RequiredBand, path, title: str = "") -> None:
     ax = fig.subplots()
     for col, b in enumerate(band.parameters):
         ax.semilogx(band.omega, band.curves[:, col], lw=1, label=b.name)
-    ax.axvspan(band.low, band.high, color="0.88", zorder=0, label="required band")
+    if band.bounded:
+        ax.axvspan(band.low, band.high, color="0.88", zorder=0, label="required band")
+    else:
+        ax.text(0.5, 0.97, "no required band: the sensitivities do not fall off within the analysed range",
+                transform=ax.transAxes, ha="center", va="top", fontsize=9, color="r")
     ax.axhline(band.level, color="k", ls="--", lw=0.7)
     for m in band.modes:
         ax.axvline(m.frequency, color="r", ls=":", lw=0.8)

@@ -1,6 +1,8 @@
 """``python -m signaldesign``: frequency band, signal design, baselines, comparison, plots."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, output_file, positive_float,
                                positive_int, progress_bar, run)
 from identify import LinearModel, load_profile
@@ -97,10 +99,13 @@ def cmd_design(args) -> int:
         save_signals(designer.signals_, args.out)
         print(f"signal written to {args.out}")
     if args.plot:
-        sigs = [reference[0], designer.signals_[0]]
+        # the 3211 at the design's amplitude: side by side, the two show the same deflection
+        optimised = designer.signals_[0]
+        sigs = [replace(reference[0], amplitude=optimised.amplitude), optimised]
         band = ev.bands[sigs[0].input]
-        plot_signals(sigs, args.plot, band=band, labels=["best 3211", "optimised"])
-        print(f"plot written to {args.plot} (required band shaded)")
+        plot_signals(sigs, args.plot, band=band, labels=["best 3211", "optimised"],
+                     unit=model.profile.inputs[optimised.input])
+        print(f"plot written to {args.plot} (the best 3211 at the design's amplitude; required band shaded)")
     return 0
 
 
@@ -148,16 +153,21 @@ def cmd_plot(args) -> int:
         for s in load_signals(path):
             signals.append(s)
             labels.append(f"{path}: {s.kind} on {s.input}")
-    band = None
+    band, unit = None, "rad"
     if args.profile:
         model = _model(args)
+        unit = model.profile.inputs.get(signals[0].input, unit)
         b = required_band(model, signals[0].input)
-        band = (b.low, b.high)
+        if b.bounded:
+            band = (b.low, b.high)
+        else:
+            print(f"no required band for {b.input} (its sensitivities do not fall off within "
+                  f"{b.omega[0]:g}..{b.omega[-1]:g} rad/s): none shaded, no coverage scored")
     for s, label in zip(signals, labels):
         lo, hi, peak = half_power_band(s)
         covered = f"; {100 * band_coverage(s, band):.0f}% of the required band inside it" if band else ""
         print(f"{label}: half-power band {lo:.3f}..{hi:.3f} rad/s (peak {peak:.3f} rad/s){covered}")
-    plot_signals(signals, args.out, band=band, labels=labels)
+    plot_signals(signals, args.out, band=band, labels=labels, unit=unit)
     print(f"plot written to {args.out}")
     return 0
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 
 import numpy as np
 
@@ -31,6 +32,26 @@ from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-e
 from .workers import check_jobs
 
 CRITERIA = ("robust", "mean", "worst", "nominal")
+
+
+PLAUSIBLE_CONTROL = np.radians(20.0)  # rad: beyond this a control deflection is no small test input
+
+
+def implausible_amplitudes(profile, inputs, amplitudes) -> list[str]:
+    """One line per input whose amplitude no test input has: a control angle beyond 20 degrees
+    (Kaletka & Rix's inputs are small perturbations about trim, where the linear model holds; a
+    cyclic's whole travel is about that). The output limits allowed it: they are too loose, or the
+    input's unit is wrong. Inputs in other units are not judged."""
+    out = []
+    for name, a in zip(inputs, np.atleast_1d(amplitudes)):
+        unit = profile.inputs.get(name, "")
+        if unit in ("rad", "deg"):
+            rad = a if unit == "rad" else np.radians(a)
+            if abs(rad) > PLAUSIBLE_CONTROL:
+                out.append(f"amplitude {np.degrees(rad):.1f} deg on {name} is implausible for a test input "
+                           f"(> {np.degrees(PLAUSIBLE_CONTROL):.0f} deg: far outside small perturbations; "
+                           f"check the profile's [limits] and the unit of {name}, '{unit}')")
+    return out
 
 
 class SequenceDesign:
@@ -174,6 +195,9 @@ class SequenceDesign:
         self.levels_, self.amplitude_ = result.levels, np.full(len(self.inputs), amplitude)
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
+        self.implausible_ = implausible_amplitudes(model.profile, self.inputs, self.amplitude_)
+        for line in self.implausible_:
+            warnings.warn(line, stacklevel=2)
         self.result_, self.basis_, self.evaluator_ = result, basis, ev
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
         self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
@@ -245,6 +269,7 @@ class SequenceDesign:
         cells = [f"{y} {pk:.3g}/{lim:.3g}" + (" BINDS" if y == self.binding_ else "")
                  for y, pk, lim in zip(p.outputs, self.peaks_, self.limits_) if np.isfinite(lim)]
         lines.append("peak response / limit on the a priori: " + ", ".join(cells))
+        lines += [f"WARNING: {line}" for line in self.implausible_]
         res = self.result_
         how = ("exhaustive: exact optimum among flyable sequences, gap 0" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "

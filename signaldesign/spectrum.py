@@ -80,9 +80,10 @@ def in_band_fraction(signal: Signal, band: tuple[float, float], points: int = 40
     return float(inside / (np.pi * energy(signal)))
 
 
-def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str = "") -> None:
-    """Time histories (top) and normalised power spectra with half-power points (bottom), as the
-    paper's Figs 2 and 6; the required band, if given, is shaded. Writes a PNG."""
+def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str = "", unit: str = "rad") -> None:
+    """Time histories (top, in the inputs' ``unit``) and normalised power spectra over a log
+    frequency axis with half-power points (bottom), as the paper's Figs 2 and 6; the required band,
+    if given, is shaded. Writes a PNG."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -91,10 +92,12 @@ def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str
     FigureCanvasAgg(fig)  # drawn off-screen, no pyplot state
     ax_t, ax_f = fig.subplots(2, 1)
     top = max(frequency_grid(s)[-1] for s in signals) / 4
-    w = np.linspace(0, top, 1500)
+    lows = [half_power_band(s)[0] for s in signals] + ([band[0]] if band is not None else [])
+    bottom = max(min([lo for lo in lows if lo > 0] or [top / 100]) / 5, top / 1e4)
+    w = np.geomspace(bottom, top, 1500)
     for s, label in zip(signals, labels):
         t = np.linspace(0, s.end_time, 2000)
-        line, = ax_t.step(t, s(t), where="post", label=label)
+        line, = ax_t.step(t, s(t), where="post", label=f"{label} (amplitude {s.amplitude:.3g} {unit})")
         P = energy_spectrum(s, w)
         lo, hi, _ = half_power_band(s)
         ax_f.plot(w, P / P.max(), color=line.get_color(), label=f"{label}: {lo:.2f}..{hi:.2f} rad/s")
@@ -104,8 +107,9 @@ def plot_signals(signals: list[Signal], path, band=None, labels=None, title: str
     if band is not None:
         ax_f.axvspan(*band, color="0.85", zorder=0, label=f"required band {band[0]:.2f}..{band[1]:.2f} rad/s")
     ax_f.axhline(0.5, color="k", lw=0.5, ls="--")
-    ax_t.set(xlabel="time [s]", ylabel="control [rad]", title=title or "input signals")
-    ax_f.set(xlabel="frequency [rad/s]", ylabel="power / peak", xlim=(0, top), ylim=(0, 1.05))
+    ax_f.set_xscale("log")
+    ax_t.set(xlabel="time [s]", ylabel=f"control [{unit}]", title=title or "input signals")
+    ax_f.set(xlabel="frequency [rad/s]", ylabel="power / peak [-]", xlim=(bottom, top), ylim=(0, 1.05))
     ax_t.legend(fontsize=7)
     ax_f.legend(fontsize=7)
     fig.tight_layout()

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from identify import FDEE, Profile
+from identify.model.subset import input_parameters
 
 from ..errors import CueingError
 from .log import LiveLogWriter
@@ -50,11 +51,18 @@ class LiveIdentification:
         self.signals = list(signals)
         self.inputs = [s.input for s in self.signals]
         self.profile, self.fixed_unflown = flown_profile(profile, self.inputs)
-        self.targets = targets if isinstance(targets, dict) else parse_targets(targets, self.profile)
+        # named targets against the whole profile: one on an input the signal does not move is
+        # refused with that reason, not as an unknown parameter; the default ones from what is flown
+        self.targets = targets if isinstance(targets, dict) else \
+            parse_targets(targets, profile if targets else self.profile)
         missing = [n for n in self.targets if n not in self.profile.free]
         if missing:
-            raise CueingError(f"targets {', '.join(missing)} belong to inputs not flown ("
-                              f"{', '.join(self.fixed_unflown)} are fixed at their a priori values)")
+            acting = input_parameters(profile)
+            why = "; ".join(f"{n} acts on {', '.join(u for u, ps in acting.items() if n in ps) or 'no flown input'}"
+                            for n in missing)
+            raise CueingError(f"--targets {', '.join(missing)}: not excited by this signal, which moves only "
+                              f"{', '.join(self.inputs)} ({why}): fly a signal on that input too (a design for "
+                              f"several axes) or leave the target out")
         # no samples yet: validates the options now and fixes the frequencies (omega_)
         self.estimator = FDEE(self.profile, band=band, n_freq=n_freq).partial_fit([], [], [])
         self.response = response

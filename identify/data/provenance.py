@@ -21,13 +21,11 @@ KEYS = ("sha256", "upstream_sha256", "compat_corrected", "compat_cut", "source_f
 
 
 def tool_version() -> str:
-    """``pseudostep <version>`` as installed (``unknown`` from a bare source tree)."""
-    from importlib.metadata import PackageNotFoundError, version
+    """``pseudostep <version>`` from ``identify/_version.py``, the one place it is written (the
+    installed metadata can lag behind an editable source tree)."""
+    from .._version import __version__
 
-    try:
-        return f"pseudostep {version('pseudostep')}"
-    except PackageNotFoundError:
-        return "pseudostep (version unknown: not installed)"
+    return f"pseudostep {__version__}"
 
 
 def provenance(runs: list[Run]) -> dict:

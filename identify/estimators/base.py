@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -53,9 +54,34 @@ from ..data.runs import Run
 from ..errors import EstimationError
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
+from ..model.subset import check_some_input_flown, fix, held_line, unflown_parameters
 from .result import IdentificationResult
 
 MIN_SAMPLES = 10
+
+
+class HeldWarning(UserWarning):
+    """Parameters held at their a priori values because no run moves their input."""
+
+
+def expand_held(reduced: IdentificationResult, full: Profile, unflown: dict[str, list[str]],
+                line: str) -> IdentificationResult:
+    """The result of a fit on ``full`` with the unflown inputs' parameters held, back on ``full``:
+    held parameters at their a priori values with an infinite standard error (no information),
+    uncorrelated with the rest; ``info["held"]`` and ``info["held_note"]`` say which and why."""
+    names = full.free_names
+    idx = [names.index(n) for n in reduced.names]
+    theta = np.array(list(full.free.values()), float)
+    std = np.full(len(names), np.inf)
+    theta[idx], std[idx] = reduced.theta, reduced.std
+    cov = np.zeros((len(names), len(names)))
+    np.fill_diagonal(cov, np.inf)
+    cov[np.ix_(idx, idx)] = reduced.covariance if reduced.covariance is not None else np.diag(reduced.std ** 2)
+    info = {**reduced.info, "held": unflown, "held_note": line}
+    if "not_excited" in info:  # ML's list of parameters without influence: the held ones have none
+        info["not_excited"] = [n for n in names if n in set(info["not_excited"]) | set(full.free) - set(reduced.names)]
+    return IdentificationResult(reduced.method, full, theta, std, reduced.fit, info, reduced.runs, cov,
+                                reduced.time, reduced.measured, reduced.modelled)
 
 
 class Estimator:
@@ -72,11 +98,33 @@ class Estimator:
     def fit(self, runs: Run | list[Run]) -> "Estimator":
         self._validate()
         runs = self.check_runs(runs)
-        self.result_ = self._fit(runs)
+        unflown = unflown_parameters(self.profile_, runs)
+        if unflown:
+            self.result_ = self._fit_holding(runs, unflown)
+        else:
+            self.result_ = self._fit(runs)
         from ..data.provenance import provenance
 
         self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
         return self
+
+    def _fit_holding(self, runs: list[Run], unflown: dict[str, list[str]]) -> IdentificationResult:
+        """Controls no run moves: their parameters carry no information; fit with them held at
+        their a priori values (said, recorded) and return the result on the whole profile."""
+        check_some_input_flown(self.profile_, unflown)
+        line = held_line(self.method, unflown)
+        warnings.warn(line, HeldWarning, stacklevel=3)
+        full, held = self.profile_, [n for params in unflown.values() for n in params]
+        if len(held) == len(full.free):
+            raise EstimationError(f"{line}: no free parameter is left to estimate")
+        # the same estimator on the profile with those parameters fixed; its fitted state is kept,
+        # then the full profile's restored (``_validate`` rebuilds what depends on it)
+        sub = self.clone(fix(full, held))
+        sub._validate()
+        reduced = sub._fit(runs)
+        self.__dict__.update({k: v for k, v in sub.__dict__.items() if k.endswith("_")})
+        self._validate()
+        return expand_held(reduced, full, unflown, line)
 
     def _validate(self) -> None:
         """Load the profile (``profile_``) and check the options; subclasses add theirs."""
@@ -92,6 +140,13 @@ class Estimator:
             raise EstimationError("no runs given")
         if not self.profile_.free:
             raise EstimationError(f"{self.profile_.source}: the profile has no free parameters")
+        # an input no run records was not flown: zero (its parameters are then held, see fit);
+        # one recorded in some runs only is a missing channel, reported below
+        absent = [u for u in self.profile_.input_names if not any(u in r.channels for r in runs)
+                  and u not in dict(self.profile_.meta.get("pseudo_inputs", {}))]
+        if absent:
+            runs = [r.with_channels({u: np.zeros(len(r)) for u in absent},
+                                    not_recorded=f"{', '.join(absent)} (not flown: taken as zero)") for r in runs]
         # as the profile needs them: inputs delayed by its meta.delays, its pseudo-inputs (a refined
         # model's nonlinear terms, drifts, vibrations) computed from the runs' own channels
         runs = prepare(self.profile_, runs)

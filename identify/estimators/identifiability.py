@@ -91,7 +91,8 @@ def mode_uncertainty(model, cov: np.ndarray, sigmas: float = MODE_SIGMAS, n_name
         s_im = float(np.sqrt(max(gi @ c @ gi, 0.0)))
         if np.any(~finite & (np.abs(grad[k]) > 0)):
             s_re = s_im = float("inf")  # a parameter it depends on is not excited at all
-        weight = np.abs(gr) * np.where(finite, std, np.inf)
+        # an unexcited (held) parameter it depends on weighs inf; one it does not depend on, 0 (not 0 x inf)
+        weight = np.where(finite, np.abs(gr) * np.where(finite, std, 0.0), np.where(np.abs(gr) > 0, np.inf, 0.0))
         named = [model.names[i] for i in np.argsort(-weight)[:n_named] if weight[i] > 0]
         out.append({"real": float(lam[k].real), "imag": float(abs(lam[k].imag)), "std_real": s_re,
                     "std_imag": s_im, "stability_determined": bool(abs(lam[k].real) > sigmas * s_re),

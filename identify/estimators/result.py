@@ -145,7 +145,11 @@ class IdentificationResult:
     def identifiability(self) -> dict:
         """Correlated pairs, poorly determined parameters and modes whose stability these runs do
         not determine (:func:`identify.identifiability.assess`)."""
-        return identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+        check = identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+        held = {n for names in self.info.get("held", {}).values() for n in names}
+        if held:  # held at the a priori, said on their own line: not "poorly determined"
+            check["poorly_determined"] = [n for n in check["poorly_determined"] if n not in held]
+        return check
 
     @property
     def insensitivity(self) -> np.ndarray:
@@ -201,6 +205,8 @@ class IdentificationResult:
                 row += f"{truth.get(name, float('nan')):12.5g}"
             lines.append(row)
         lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
+        if self.info.get("held_note"):
+            lines.append(f"held (std inf): {self.info['held_note']}")
         lines += [f"not determined: {n}: {why}" for n, why in self.info.get("not_determined", {}).items()]
         if self.info.get("ill_conditioned"):
             lines.append("warning: the information matrix is ill-conditioned (rank deficient to rounding): "
@@ -229,15 +235,19 @@ class IdentificationResult:
                 f"convergence: converged after {it} iterations"
         return f"convergence: NOT CONVERGED after {it} iterations ({stop}): the estimates are not final"
 
-    def markdown(self, truth: dict[str, float] | None = None) -> str:
-        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes."""
-        cols = ["parameter", "estimate", "std error", "rel. std %", "a priori"] + (["truth"] if truth else [])
+    def markdown(self, truth: dict[str, float] | None = None, start: dict[str, float] | None = None,
+                 start_label: str = "a priori") -> str:
+        """The :meth:`summary` as Markdown for reports: parameter table, fit table, modes. The
+        ``start_label`` column holds ``start`` values where given (``-`` for a parameter it lacks),
+        else the profile's values, the fit's starting point (the a priori for a first fit)."""
+        cols = ["parameter", "estimate", "std error", "rel. std %", start_label] + (["truth"] if truth else [])
         lines = [f"{self.method.upper()} identification of `{self.profile.name}` from "
                  f"{len(self.runs) or 1} run(s).", "", "| " + " | ".join(cols) + " |",
                  "| --- |" + " ---: |" * (len(cols) - 1)]
         for name, v, s, r, a in zip(self.names, self.theta, self.std, self.relative_std, self.apriori):
+            a = a if start is None else start.get(name)
             cells = [f"`{name}`", f"{v:.6g}"] + ([f"{s:.4g}", f"{r:.2f}"] if not np.isnan(s) else
-                                                ["not determined", "-"]) + [f"{a:.5g}"]
+                                                ["not determined", "-"]) + ["-" if a is None else f"{a:.5g}"]
             if truth:
                 cells.append(f"{truth.get(name, float('nan')):.5g}")
             lines.append("| " + " | ".join(cells) + " |")
@@ -270,17 +280,57 @@ class IdentificationResult:
             "eigenvalues": modes,
             "info": _summarised(self.info),
             "notes": [NULL_NOTE],
+            "profile_toml": self.profile.to_toml(),  # the a priori, so that from_json rebuilds the result
         }
         return jsonable(out)
 
     def save(self, outdir: str | Path) -> Path:
-        """Write ``result.json`` and ``identified_profile.toml`` into ``outdir``."""
+        """Write ``result.json``, ``identified_profile.toml``, ``summary.txt`` (the :meth:`summary`)
+        and, when the result holds them, the time histories (``time_histories.npz``: what
+        :meth:`from_json` needs to re-plot) into ``outdir``."""
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         (outdir / "result.json").write_text(dumps(self.to_dict()))
         self.identified_profile().save(outdir / "identified_profile.toml")
+        (outdir / "summary.txt").write_text(self.summary() + "\n")
+        if self.time:
+            arrays = {f"{kind}_{r}": a for kind, seq in (("time", self.time), ("measured", self.measured),
+                                                         ("modelled", self.modelled)) for r, a in enumerate(seq)}
+            np.savez_compressed(outdir / HISTORIES, **arrays)
         return outdir
 
+    @classmethod
+    def from_json(cls, path: str | Path) -> "IdentificationResult":
+        """The result ``save`` wrote to ``path`` (``result.json``), to re-plot or compare without
+        re-fitting: estimates, standard errors, covariance (from the stored correlation), fit, info
+        and, if ``time_histories.npz`` lies beside it, the runs' measured and modelled outputs.
+        Long info arrays come back as stored (cut, see ``_summarised``); None values as NaN/inf."""
+        from ..errors import RunError
+        from ..model.profile import parse_profile
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+            profile = parse_profile(data["profile_toml"], source=f"{path} (profile_toml)")
+            params = data["parameters"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise RunError(f"{path}: not a result.json that identify wrote ({exc})") from None
+        names = profile.free_names
+        theta = np.array([params[n]["value"] for n in names], float)
+        std = np.array([np.inf if params[n]["std"] is None else params[n]["std"] for n in names], float)
+        corr = np.array([[np.nan if c is None else c for c in row] for row in data["correlation"]["matrix"]], float)
+        with np.errstate(invalid="ignore"):
+            cov = corr * np.outer(std, std)
+        np.fill_diagonal(cov, std ** 2)
+        result = cls(data["method"], profile, theta, std, data.get("fit", {}), data.get("info", {}),
+                     data.get("runs", []), covariance=cov)
+        histories = path.with_name(HISTORIES)
+        if histories.exists():
+            with np.load(histories) as z:
+                for r in range(sum(k.startswith("time_") for k in z.files)):
+                    result.time.append(z[f"time_{r}"])
+                    result.measured.append(z[f"measured_{r}"])
+                    result.modelled.append(z[f"modelled_{r}"])
+        return result
 
 def _noise_lines(info: dict) -> list[str]:
     """The filter-error method's noise estimates: F and R with their bounds ("not determined" on
@@ -295,9 +345,12 @@ def _noise_lines(info: dict) -> list[str]:
     lines += [f"  {k:<16}{v['F']:12.4g}  std {bound(v['std'])}" for k, v in info["process_noise"].items()] or ["  none"]
     lines.append("measurement noise R (variances, output units squared):")
     lines += [f"  {k:<16}{v['variance']:12.4g}  std {bound(v['std'])}" for k, v in info["measurement_noise"].items()]
-    return lines + [f"  note: {n}" for n in info.get("not_determined", [])]
+    return lines + [f"  note: {n}: {why}" for n, why in info.get("not_determined", {}).items()
+                     if n.startswith(("F of ", "R of "))]
 
 
+
+HISTORIES = "time_histories.npz"  # the runs' time, measured and modelled outputs beside result.json
 CR_GUIDELINE, INSENSITIVITY_GUIDELINE = 20.0, 10.0  # %: Tischler & Remple's marks of a parameter worth keeping
 NULL_NOTE = ("null stands for a value that is not finite: an infinite standard error (a parameter no input excites) "
              "or NaN (not determined: the reason in info.not_determined)")

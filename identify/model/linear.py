@@ -42,6 +42,12 @@ class Mode:
         return self.eigenvalue.real < 0
 
     @property
+    def neutral(self) -> bool:
+        """Real part zero to rounding (an integrator such as heading or position): neither
+        converges nor diverges."""
+        return abs(self.eigenvalue.real) <= NEUTRAL_TOLERANCE * max(1.0, abs(self.eigenvalue))
+
+    @property
     def time_to_half_or_double(self) -> float:
         """ln 2 / |Re(lambda)|: time to half amplitude (stable) or to double (unstable)."""
         re = abs(self.eigenvalue.real)
@@ -62,18 +68,23 @@ def modes_of(A: np.ndarray) -> list[Mode]:
     return sorted(out, key=lambda m: (m.frequency, m.eigenvalue.imag))
 
 
+NEUTRAL_TOLERANCE = 1e-9  # |Re(lambda)| / max(1, |lambda|) below which a mode counts as neutral
+
+
 def format_modes(modes: list[Mode]) -> str:
-    """Plain-text table of modes, the way an engineer reads them."""
+    """Plain-text table of modes, the way an engineer reads them: ``-`` where a quantity does not
+    exist (the period of a real eigenvalue, the time to half or double of a neutral mode)."""
     rows = [f"{'eigenvalue':>24}  {'omega [rad/s]':>13}  {'damping':>8}  {'period [s]':>10}  "
             f"{'t_half/t_double [s]':>19}  stability"]
     for m in modes:
         lam = m.eigenvalue
         ev = f"{lam.real:+.4f} {'±' if m.oscillatory else ' '} {abs(lam.imag):.4f}j" if m.oscillatory \
             else f"{lam.real:+.4f}"
-        t2 = m.time_to_half_or_double
-        rows.append(f"{ev:>24}  {m.frequency:13.4f}  {m.damping:8.3f}  "
-                    f"{m.period if m.oscillatory else float('nan'):10.2f}  {t2:19.2f}  "
-                    f"{'stable' if m.stable else 'UNSTABLE'}")
+        period = f"{m.period:10.2f}" if m.oscillatory else f"{'-':>10}"
+        t2 = f"{'-':>19}" if m.neutral else f"{m.time_to_half_or_double:19.2f}"
+        state = "neutral" if m.neutral else "stable" if m.stable else "UNSTABLE"
+        damping = f"{m.damping:8.3f}" if m.frequency > 0 else f"{'-':>8}"  # undefined at the origin
+        rows.append(f"{ev:>24}  {m.frequency:13.4f}  {damping}  {period}  {t2}  {state}")
     return "\n".join(rows)
 
 

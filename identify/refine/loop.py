@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -42,9 +43,11 @@ from scipy import stats
 
 from ..data.runs import Run
 from ..errors import EstimationError, PseudostepError
+from ..estimators.base import HeldWarning, expand_held
 from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
+from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
 from .candidates import KIND_CLASSES, KINDS
 from .evaluation import MIN_SAMPLES, check_identifiable, errors, split_validation
@@ -101,6 +104,7 @@ class Refine:
         self._started = time.perf_counter()
         self._validate_options()
         self._check(runs, validate)
+        self._hold_unflown(runs)
         choose, judge = split_validation(validate, self.declared_.input_names)
         self.runs_, self.validation_runs_ = runs, validate
         self.data_ = {"fit": [r.source for r in runs], "choosing": [r.source for r in choose],
@@ -128,6 +132,9 @@ class Refine:
         diag = {"before": dg.summary(ev0.residuals, times, self.fitting_.dt, self.f_min, current.outputs)}
         current, result = self._loop(current, est)
         self.profile_, self.result_ = current, result
+        if self.held_:  # the final model keeps them free, at their a priori values, for runs that move them
+            self.profile_ = free(current, [n for names in self.held_.values() for n in names])
+            self.result_ = expand_held(result, self.profile_, self.held_, self.held_note_)
         self.error_after_ = self._errors(current)
         ev1 = self.fitting_.prediction(current)
         diag["after"] = dg.summary(ev1.residuals, times, self.fitting_.dt, self.f_min, current.outputs)
@@ -224,6 +231,17 @@ class Refine:
             if len(run) < MIN_SAMPLES:
                 raise EstimationError(f"{run.source}: only {len(run)} samples; refine needs at least "
                                       f"{MIN_SAMPLES} per run to test the residuals")
+
+    def _hold_unflown(self, runs: list[Run]) -> None:
+        """Fix the parameters of inputs no fitting run moves at their a priori values (said once):
+        no fit, test or candidate can learn anything about them from these runs."""
+        self.held_ = unflown_parameters(self.declared_, prepare(self.declared_, runs))
+        check_some_input_flown(self.declared_, self.held_)
+        self.held_note_ = held_line("refine", self.held_) if self.held_ else ""
+        if self.held_:
+            self._say(self.held_note_)
+            warnings.warn(self.held_note_, HeldWarning, stacklevel=3)
+            self.declared_ = fix(self.declared_, [n for names in self.held_.values() for n in names])
 
     def _segment(self, runs: list[Run], fitted: Profile | None = None) -> float:
         """One segmentation for every fit and test of the loop (the estimator's choice for the

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..estimators.result import jsonable
 from ..estimators.frequency.response import cost_report, format_cost
+from ..model.profile import output_units
 from .diagnostics import spectral_peak
 from .loop import Refine
 
@@ -160,7 +161,10 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
                      f"{a[y]['peak_hz']:.3g} / {a[y]['peak_p']:.2g} |")
     if figures:
         lines += ["", "## Plots", ""] + [f"![{f}]({f})" for f in figures]
-    lines += ["", "## Final identification", "", r.result_.markdown()]
+    # the final fit starts from the previous step's estimates; the column shows the declared a priori
+    # values (an effect refine added has none)
+    declared = {**r.declared_.fixed, **r.declared_.free}
+    lines += ["", "## Final identification", "", r.result_.markdown(start=declared, start_label="a priori (declared)")]
     lines += ["", "## Final model", "", "Written to `final_profile.toml`:", "", "```toml",
               r.profile_.to_toml().rstrip(), "```", ""]
     return "\n".join(lines)
@@ -194,14 +198,17 @@ def _evidence(s) -> list[str]:
 
 def _plots(r: Refine, outdir: Path) -> list[str]:
     outputs = list(r.declared_.outputs)
+    units = output_units(r.declared_)
     ev = r.final_evaluation_
     before, after = ev["before"].residuals, ev["fit"].residuals
-    _before_after(ev["time"][0], before[0], after[0], outputs, "time [s]",
+    _before_after(ev["time"][0], before[0], after[0], [f"{y} [{units[y] or '-'}]" for y in outputs], "time [s]",
                   "residuals (first fit run)", outdir / "residuals.png", log=False)
     dt = r.runs_[0].dt
     sb, sa = spectral_peak(before, dt), spectral_peak(after, dt)
-    _before_after(sb["freqs"][1:], sb["psd"][1:], sa["psd"][1:], outputs, "frequency [Hz]",
-                  "residual spectra (periodogram, fit runs averaged)", outdir / "residual_spectra.png", log=True)
+    # one-sided power spectral density (scipy's periodogram): output unit squared per Hz
+    _before_after(sb["freqs"][1:], sb["psd"][1:], sa["psd"][1:], [f"{y} [({units[y] or '-'})²/Hz]" for y in outputs],
+                  "frequency [Hz]", "residual power spectral density (periodogram, fit runs averaged)",
+                  outdir / "residual_spectra.png", log=True)
     return ["residuals.png", "residual_spectra.png"]
 
 
@@ -217,7 +224,7 @@ def _before_after(x, before, after, outputs, xlabel: str, title: str, path: Path
     axes = fig.subplots(ny, 1, sharex=True, squeeze=False)
     for j, y in enumerate(outputs):
         ax = axes[j, 0]
-        draw = ax.semilogy if log else ax.plot
+        draw = ax.loglog if log else ax.plot  # spectra: log frequency and log power
         draw(x, before[:, j], lw=0.7, label="before")
         draw(x, after[:, j], lw=0.7, label="after")
         ax.set_ylabel(y, fontsize=8)

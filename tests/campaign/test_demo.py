@@ -26,6 +26,7 @@ def test_demo_pipeline_finds_the_undeclared_delays(demo):
         assert (out / name).exists(), name
     for link in re.findall(r"!\[[^]]*\]\(([^)]+)\)", text):  # every figure the report shows exists
         assert (out / link).exists(), link
+    assert not list(out.glob("display_frames_*")), "frames are written only on request (--frames)"
     # the default design, its peak responses against the limits, one of them binding
     assert "Peak response on the a priori model against the limits" in text and "(binds)" in text
     # the refine step names the undeclared effect: a delay on each cyclic

@@ -99,15 +99,30 @@ def test_all_switches_missed_reads_as_such_not_nan():
     assert "none of 4 followed" in text and "nan" not in text.lower() and sc.lag == pytest.approx(0, abs=0.02)
 
 
-def test_information_over_100_percent_is_capped_on_screen_and_explained(s61_4dof):
+def test_scores_agree_overshoot_is_peak_response_not_information(s61_4dof):
+    """Flown 1.2x the design: raw D-efficiency 1.44 (information grows with the response squared),
+    peak response 1.2x, information retained at the designed peak response 1.0, level error +20 %:
+    every figure tells the same story."""
     sig = Signal("3211", "theta_s", 1.0, [1, 1, 1, -1, -1, 1, -1], AMP, delay=0.5)
     t = np.arange(0, 12, 0.05)
     sc = score_run(Run(t, {"theta_s_cmd": sig(t), "theta_s": 1.2 * sig(t)}), [sig], s61_4dof)
-    assert sc.d_efficiency == pytest.approx(1.2 ** 2, rel=1e-3)  # information grows with input energy
+    assert sc.d_efficiency == pytest.approx(1.2 ** 2, rel=1e-3)
+    assert sc.peak_ratio == pytest.approx(1.2, rel=1e-6) and sc.information_retained == pytest.approx(1.0, rel=1e-3)
+    assert sc.level_error_pos == pytest.approx(0.2, abs=1e-9) and sc.level_error_neg == pytest.approx(0.2, abs=1e-9)
     d = sc.to_dict()
-    assert d["information_retained"] == 1.0 and d["d_efficiency"] == sc.d_efficiency
+    assert d["information_retained"] == sc.information_retained and d["d_efficiency"] == sc.d_efficiency
     text = "\n".join(sc.lines())
-    assert "capped" in text and "144.0 %" in text and "overshoot" in text
+    assert "100.0 % (at the designed peak response)" in text and "120.0 % of the designed" in text
+    assert "144.0 %" in text and "20 % beyond the designed peak response" in text
+
+
+def test_level_error_is_not_the_lag(s61_4dof):
+    """A pilot exactly on the levels but 0.4 s late: level errors about 0, the lag 0.4 s."""
+    sig = Signal("3211", "theta_s", 1.0, [1, 1, 1, -1, -1, 1, -1], AMP, delay=0.5)
+    t = np.arange(0, 12, 0.01)
+    sc = score_run(Run(t, {"theta_s_cmd": sig(t), "theta_s": sig(t - 0.4)}), [sig], s61_4dof)
+    assert sc.lag == pytest.approx(0.4, abs=0.02)
+    assert abs(sc.level_error_pos) < 0.02 and abs(sc.level_error_neg) < 0.02
 
 
 def press_escape_after_1_s(t_signal):

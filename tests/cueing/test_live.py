@@ -218,6 +218,16 @@ def test_the_estimate_runs_without_pygame(tmp_path):
     assert rounds >= 8 and logged == rounds  # about one re-solve a second, each logged
 
 
+def test_target_on_an_input_the_signal_does_not_move_says_why(tmp_path):
+    from cueing.errors import CueingError
+    from cueing.live.estimate import LiveIdentification
+    from signaldesign.baselines import m3211
+    lon_only = [m3211(0.6, 0.01, "theta_s", 1.0)]
+    with pytest.raises(CueingError, match=r"L_theta_c: not excited by this signal, which moves only theta_s "
+                                          r"\(L_theta_c acts on theta_c\)"):
+        LiveIdentification(load_profile(PROFILE), lon_only, None, tmp_path / "x.live.csv", "M_q,L_theta_c")
+
+
 def test_live_writes_the_same_run_file_as_a_flight_without_it(tmp_path):
     """One cyclic flown: the run file still holds every input of the profile (the other at trim),
     every state and its derivative, as without --live; so ML after the flight, identify estimate

@@ -57,3 +57,23 @@ def test_band_errors_and_plot(s61, tmp_path):
     assert "M_theta_s" in band.unexcited and band.low < band.high
     plot_band(band, tmp_path / "band.png")
     assert (tmp_path / "band.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_open_ends_are_the_grid_not_a_band():
+    """BO 105 lateral: several sensitivities still rise at the grid's lowest frequency; the band is
+    where the others close, and the open ones are named, never reported as 0.01..100 rad/s."""
+    from identify import LinearModel, load_profile
+    from signaldesign.band import required_band
+    band = required_band(LinearModel(load_profile("bo105_70kt")), "theta_c")
+    assert band.bounded and band.omega[0] < band.low < band.high < band.omega[-1]
+    assert any(p.open_low for p in band.parameters) and "open below 0.01 rad/s" in band.format()
+    assert all(f"<{p.low:.3f}" in p.text for p in band.parameters if p.open_low)
+
+
+def test_implausible_control_amplitude_is_said():
+    from identify import load_profile
+    from signaldesign.design import implausible_amplitudes
+    p = load_profile("bo105_70kt")
+    assert implausible_amplitudes(p, ["theta_c"], [np.radians(5.0)]) == []
+    (line,) = implausible_amplitudes(p, ["theta_c"], [np.radians(79.0)])
+    assert "79.0 deg on theta_c is implausible" in line

@@ -115,12 +115,17 @@ def test_bad_data_and_unidentifiable_parameters_raise_one_line(s61, s61_run_20s)
     ch["q"][500] = np.nan
     with pytest.raises(EstimationError, match=r"channel 'q': non-finite value at t = 5 s"):
         LS(s61.profile).fit(Run(s61_run_20s.time, ch))
-    # lateral cyclic never moved: its derivatives cannot be told from the zero shifts
+    # lateral cyclic never moved: its derivatives are held at the a priori values, and said so
     t = np.arange(1001) * DT
     run = simulate_run(s61, t, inputs(t, lat=0.0), seed=0)
-    with pytest.raises(EstimationError) as err:
-        LS(s61.profile).fit(run)
-    assert "not identifiable" in str(err.value) and "theta_c" in str(err.value)
+    with pytest.warns(UserWarning, match="held at their a priori values: no run moves theta_c"):
+        result = LS(s61.profile).fit(run).result_
+    held = result.info["held"]["theta_c"]
+    assert held and all(n.endswith("_theta_c") for n in held)
+    for n in held:
+        i = result.names.index(n)
+        assert result.theta[i] == s61.profile.free[n] and np.isinf(result.std[i])
+    assert np.isfinite(result.std[[i for i, n in enumerate(result.names) if n not in held]]).all()
 
 
 def test_output_only_parameter_is_refused(s61):

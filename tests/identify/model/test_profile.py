@@ -205,3 +205,14 @@ def test_every_bundled_profile_limits_every_output():
     for name in ("s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long"):
         p = load_profile(name)
         assert set(p.limits) == set(p.outputs), name
+
+
+def test_modes_table_is_honest_about_real_and_zero_eigenvalues():
+    from identify.model.linear import format_modes, modes_of
+    table = format_modes(modes_of(np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 2.0], [0.0, -2.0, -1.0]])))
+    zero, pair = table.splitlines()[1:]
+    assert "nan" not in table and "inf" not in table
+    assert zero.split()[-1] == "neutral" and zero.split()[2:5] == ["-", "-", "-"]
+    assert pair.split()[-1] == "stable" and "3.14" in pair
+    unstable = format_modes(modes_of(np.array([[0.5]])))
+    assert unstable.splitlines()[1].split()[-1] == "UNSTABLE" and " - " in unstable
