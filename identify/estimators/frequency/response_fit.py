@@ -14,11 +14,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from ...data.runs import Run
 from ...errors import EstimationError
 from ...model.linear import LinearModel
 from ..base import Estimator
 from ..result import IdentificationResult, fit_metrics
+from .bootstrap import N_DRAWS, bootstrap_covariance
 from .response import MIN_COHERENCE, frequency_response
 from .statespace import ResponseData, fit_frequency_responses
 from .verify import output_weights, predict
@@ -31,17 +34,20 @@ class FR(Estimator):
     the profile's declared ``meta.delays``; ``prune`` fix, one at a time, the parameters that fail
     CIFER's gates (insensitivity <= 10 %, Cramér-Rao <= 20 %) at their a priori values and re-fit;
     ``f_range`` (Hz) and ``n_freq`` the frequency grid of the responses (default from the runs);
-    ``min_coherence`` of the points fitted.
+    ``min_coherence`` of the points fitted; ``n_draws`` surrogate runs behind the standard errors
+    (:mod:`.bootstrap`: the runs' own residual noise through the whole estimate and fit; 0: Tischler's
+    bound from J alone, which takes correlated points as independent and is too small).
     """
 
     method = "fr"
 
     def __init__(self, profile, *, delays: tuple[str, ...] = (), tau_max: float = 0.3, prune: bool = False,
                  f_range: tuple[float, float] | None = None, n_freq: int = 80,
-                 min_coherence: float = MIN_COHERENCE):
+                 min_coherence: float = MIN_COHERENCE, n_draws: int = N_DRAWS):
         super().__init__(profile)
         self.delays, self.tau_max, self.prune = delays, tau_max, prune
         self.f_range, self.n_freq, self.min_coherence = f_range, n_freq, min_coherence
+        self.n_draws = n_draws
 
     def _validate(self) -> None:
         super()._validate()
@@ -51,6 +57,8 @@ class FR(Estimator):
                                   f"(inputs: {', '.join(self.profile_.input_names)})")
         if not self.tau_max > 0:
             raise EstimationError(f"tau_max must be positive, got {self.tau_max!r}")
+        if self.n_draws != 0 and not self.n_draws >= 3:
+            raise EstimationError(f"n_draws must be 0 or at least 3, got {self.n_draws!r}")
         if not 0 < self.min_coherence < 1:
             raise EstimationError(f"min_coherence must lie in (0, 1), got {self.min_coherence!r}")
 
@@ -76,8 +84,11 @@ class FR(Estimator):
         model = LinearModel(profile, fit.theta)
         scale, unit_notes = output_weights(model)
         predictions = [predict(model, r, scale) for r in runs]
+        standard_errors = "Cramér-Rao from the J fit (Gauss-Newton, residual variance; points taken as independent)"
+        if self.n_draws:
+            fit, standard_errors = self._bootstrap(fit, fr, runs, predictions, delays)
         resolution = fr.resolution_line(LinearModel(p))  # against the a priori modes: the ones planned for
-        lines = [resolution] + fit.cost_lines() + fit.notes
+        lines = [resolution] + fit.cost_lines() + fit.notes + [f"standard errors: {standard_errors}"]
         if fr.unmoved:
             lines.append(f"inputs no run moves (their pairs and delays left out): {', '.join(fr.unmoved)}")
         if fit.tau:
@@ -89,7 +100,7 @@ class FR(Estimator):
                 "pruned": [{"parameter": n, "reason": r, "J_mean_after": j} for n, r, j in fit.pruned],
                 "delays_fitted": fit.tau, "delays_std": fit.tau_std, "resolution": resolution,
                 "windows_s": list(map(float, fr.windows)), "unmoved_inputs": fr.unmoved,
-                "standard_errors": "Cramér-Rao from the J fit (Gauss-Newton, scaled by the residual variance)",
+                "standard_errors": standard_errors,
                 "report_lines": lines, "initial_states": [pr.x0.tolist() for pr in predictions],
                 "zero_shifts": [pr.zero_shifts.tolist() for pr in predictions], "notes": unit_notes}
         result = IdentificationResult(
@@ -99,3 +110,27 @@ class FR(Estimator):
             [pr.time for pr in predictions], [pr.measured for pr in predictions], [pr.modelled for pr in predictions])
         result.info["accuracy"] = result.accuracy()
         return result
+
+    def _bootstrap(self, fit, fr, runs, predictions, delays):
+        """``fit`` with the standard errors of :mod:`.bootstrap` and the line that says how they were had."""
+        p = self.profile_
+
+        def refit(draws):
+            frb = frequency_response(draws, p.input_names, list(p.outputs), omega=fr.omega, windows=fr.windows)
+            f = fit_frequency_responses(fit.profile, ResponseData.from_response(frb), theta0=fit.theta,
+                                        delays=delays, tau_max=self.tau_max, min_coherence=self.min_coherence,
+                                        max_nfev=20)
+            return np.concatenate([f.theta, [f.tau[u] for u in delays]])
+
+        n = len(fit.theta)
+        cov, failed = bootstrap_covariance(refit, n + len(delays), runs, predictions, list(p.outputs), self.n_draws)
+        sd = np.sqrt(np.diag(cov))
+        how = (f"residual bootstrap, {self.n_draws - failed} surrogate runs sets (the runs' own prediction residual, "
+               f"phases randomised) through the response estimate and the fit; about "
+               f"{100 / np.sqrt(2 * max(self.n_draws - failed - 1, 1)):.0f} % relative precision")
+        if failed:
+            how += f"; {failed} surrogate(s) not fitted, left out"
+        if not np.all(np.isfinite(sd)):
+            how += "; not determined (too few surrogates fitted): NaN"
+        return replace(fit, std=sd[:n], covariance=cov[:n, :n],
+                       tau_std={u: float(sd[n + k]) for k, u in enumerate(delays)}), how
