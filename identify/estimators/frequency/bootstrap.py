@@ -32,12 +32,34 @@ from ...data.runs import Run
 from ...errors import EstimationError
 
 N_DRAWS = 30
+HALF_BAND = 3  # bins either side: 7 bins, 0.35 Hz on a 20-s run, narrower than the modes' own width
+OUTLIER = 5.0  # robust z (median, scaled MAD) beyond which a refit counts as diverged, not as scatter
 
 
-def surrogate_noise(residual: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Residual (N, ny) with its Fourier phases randomised, shared across columns: the same
-    spectrum and cross-spectra, a new realisation."""
-    R = np.fft.rfft(residual - residual.mean(axis=0), axis=0)
+def incoherent_part(residual: np.ndarray, inputs: np.ndarray, half_band: int = HALF_BAND) -> np.ndarray:
+    """Fourier transform (nf, ny) of the part of ``residual`` (N, ny) not coherent with ``inputs``
+    (N, nu): per frequency bin, what a regression on the inputs over the ``2 half_band + 1`` bins
+    around it leaves, scaled up for the degrees of freedom it took. A model's misfit is a response to
+    the inputs, smooth in frequency: it goes into the regression; the noise stays."""
+    E = np.fft.rfft(residual - residual.mean(axis=0), axis=0)
+    U = np.fft.rfft(inputs - inputs.mean(axis=0), axis=0)
+    U = U[:, np.ptp(inputs, axis=0) > 0]  # inputs this run moves
+    if U.shape[1] == 0:
+        return E
+    nb = 2 * half_band + 1
+    kernel = np.ones(nb)
+    band = lambda x: np.apply_along_axis(lambda c: np.convolve(c, kernel, mode="same"), 0, x)  # noqa: E731
+    Suu = band(np.einsum("fa,fb->fab", U.conj(), U).reshape(len(U), -1)).reshape(len(U), U.shape[1], -1)
+    Sue = band(np.einsum("fa,fy->fay", U.conj(), E).reshape(len(U), -1)).reshape(len(U), U.shape[1], -1)
+    ridge = 1e-12 * np.einsum("fii->f", Suu).real.max() * np.eye(U.shape[1])
+    X = np.linalg.solve(Suu + ridge, Sue)  # (nf, nu, ny) the residual's response to the inputs, band by band
+    return (E - np.einsum("fa,fay->fy", U, X)) * np.sqrt(nb / (nb - U.shape[1]))
+
+
+def surrogate_noise(residual: np.ndarray, rng: np.random.Generator, inputs: np.ndarray | None = None) -> np.ndarray:
+    """Residual (N, ny) (its part not coherent with ``inputs``, if given) with its Fourier phases
+    randomised, shared across columns: the same spectrum and cross-spectra, a new realisation."""
+    R = np.fft.rfft(residual - residual.mean(axis=0), axis=0) if inputs is None else incoherent_part(residual, inputs)
     phase = np.exp(2j * np.pi * rng.random(R.shape[0]))
     phase[0] = 1.0
     if residual.shape[0] % 2 == 0:
@@ -46,20 +68,30 @@ def surrogate_noise(residual: np.ndarray, rng: np.random.Generator) -> np.ndarra
 
 
 def bootstrap_covariance(refit, n_params: int, runs: list[Run], predictions, outputs: list[str],
-                         n_draws: int = N_DRAWS, seed: int = 0) -> tuple[np.ndarray, int]:
+                         inputs: list[str], n_draws: int = N_DRAWS, seed: int = 0) -> tuple[np.ndarray, int]:
     """Sample covariance (n_params, n_params) of ``refit(surrogate_runs) -> theta`` over ``n_draws``
-    surrogates (NaN if fewer than 3 refits succeed) and the number of draws whose refit failed
-    (left out: the response estimate or the fit refused the surrogate, e.g. too few points)."""
+    surrogates (NaN if fewer than 3 refits succeed) and the number of draws left out: refused by the
+    response estimate or the fit (e.g. too few points), or diverged (some parameter more than OUTLIER
+    robust standard deviations from the draws' median: one wild refit would otherwise set the bound)."""
     rng = np.random.default_rng(seed)
     thetas, failed = [], 0
     for _ in range(n_draws):
         draws = [r.with_channels({y: pr.modelled[:, k] + e[:, k] for k, y in enumerate(outputs)})
                  for r, pr in zip(runs, predictions)
-                 for e in [surrogate_noise(pr.measured - pr.modelled, rng)]]
+                 for e in [surrogate_noise(pr.measured - pr.modelled, rng, r.matrix(inputs))]]
         try:
             thetas.append(refit(draws))
         except (ValueError, EstimationError):
             failed += 1
-    if len(thetas) < 3:
+    T = np.array(thetas).reshape(len(thetas), n_params)
+    if len(T):
+        med = np.median(T, axis=0)
+        mad = 1.4826 * np.median(np.abs(T - med), axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(mad > 0, np.abs(T - med) / mad, 0.0)
+        keep = np.all(z <= OUTLIER, axis=1)
+        failed += int((~keep).sum())
+        T = T[keep]
+    if len(T) < 3:
         return np.full((n_params, n_params), np.nan), failed
-    return np.cov(np.array(thetas), rowvar=False, ddof=1).reshape(n_params, n_params), failed
+    return np.cov(T, rowvar=False, ddof=1).reshape(n_params, n_params), failed
