@@ -60,13 +60,11 @@ class ResponseData:
     inputs: list[str]
     outputs: list[str]
     random_error: np.ndarray | None = None  # (nf, ny, nu) normalised random error of |H|, if known
-    window: np.ndarray | None = None  # (nf, ny, nu) window length (s) behind each point, if known
 
     @classmethod
     def from_response(cls, fr) -> "ResponseData":
         """From a composite frequency response (any object with these attributes)."""
-        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error,
-                   getattr(fr, "window", None))
+        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error)
 
     def usable(self, min_coherence: float = MIN_COHERENCE) -> np.ndarray:
         """Resolved, coherent and (when the random errors are known) accurate points, as J judges them."""
