@@ -12,7 +12,8 @@ Piersol's coherence error (about 5 times the measured scatter on those runs: it 
 segments that carry input) nor a factor of grid points per cell gives the right size either.
 
 What is done instead: the runs' noise is taken as the time-domain residual ``z - y`` of the
-identified model's prediction (:func:`.verify.predict`, initial state and zero shifts fitted);
+identified model's prediction (:func:`.verify.predict`, initial state and zero shifts fitted), less
+its part coherent with the inputs (:func:`incoherent_part`: the model's misfit);
 ``n_draws`` surrogate runs are the prediction plus that residual with its Fourier phases
 randomised (one random phase per frequency shared by all outputs of a run, so the noise keeps its
 spectrum and its cross-spectra between outputs, coloured or white); each surrogate goes through the
@@ -22,7 +23,10 @@ the noise through everything the estimate does (window averaging, the composite'
 the coherence gates, the cost's weighting), with no factor chosen. Its own precision is that of a
 sample variance: about ``1 / sqrt(2 (n_draws - 1))`` relative (13 % for 30 draws).
 What it does not include: the deterministic error of the response estimate (a bias, the same in
-every draw) and the model's misfit (it adds to the residual, so it enlarges the bounds slightly).
+every draw; the caller corrects it with a ratio held fixed over the draws, although across flights
+it moves a little with the estimate: slightly too small). Misfit the band regression cannot take out
+(a wrong unstable mode's growth over the record, wrong initial transients) stays in the residual
+and enlarges the bounds: the premise is a model that predicts the runs to within their noise.
 """
 from __future__ import annotations
 

@@ -37,10 +37,13 @@ def estimate_error(fr, runs, predictions, fit, used: np.ndarray) -> tuple[np.nda
         ratio = replay(fr, sims) / exact
     known = np.isfinite(ratio) & (np.abs(ratio) > 0)
     ratio = np.where(known, ratio, 1.0)
+    unknown = int((used & ~known).sum())
     used = used & known
     size = 100 * np.abs(ratio[used] - 1)
     line = ("response estimate's own error (the fitted model's simulated runs through the same estimate, "
             f"against its exact response): {np.median(size):.2g} % median, {np.max(size):.2g} % max over "
             f"{used.sum()} fitted points; the fit and its J are against the data corrected for it"
             if size.size else "response estimate's own error: not determined on any fitted point")
+    if unknown:
+        line += f"; {unknown} fitted point(s) without a replay left uncorrected"
     return ratio, line
