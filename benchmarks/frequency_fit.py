@@ -13,8 +13,9 @@ values for every method, so that FR, ML (output error, states as outputs) and FD
 error in the frequency domain) estimate the same parameters from the same runs.
 
 Figures per method and parameter over the realisations: bias (mean estimate - truth) in units of the
-sample std, the sample std against the mean Cramér-Rao bound the method reports (std/CR, ideally
-0.8-1.25), and the wall time per fit (this machine, under load: compare methods within the run).
+sample std, the sample std against the mean standard error the method reports (std/CR, ideally
+0.8-1.25; ML and FDEE: Cramér-Rao bounds; FR: its residual bootstrap of 30 surrogates, after its
+correction for the response estimate's own error), and the wall time per fit (this machine, under load: compare methods within the run).
 
     nice -n 10 python benchmarks/frequency_fit.py --realisations 50   # -> benchmarks/output/frequency_fit/
 

@@ -103,6 +103,10 @@ class FrequencyResponse:
     # (nf, ny, nu) window length (s) behind each composite point, weighted as the estimate: its
     # resolution ~1.5/window Hz says how many neighbouring grid points share its errors
     window: np.ndarray | None = None
+    # (n_windows, nf, ny, nu) each window's share of each composite point and the segments' overlap:
+    # with them :func:`replay` puts other runs through exactly this estimate
+    weights: np.ndarray | None = None
+    overlap: float = 0.5
 
     @property
     def magnitude_db(self) -> np.ndarray:
@@ -233,9 +237,22 @@ def frequency_response(runs: Run | list[Run], inputs: list[str], outputs: list[s
                                                         for x in data)]
     per_window = [_window_estimate(data, dt, T, omega, nu, overlap, MIN_CYCLES_LONGEST if k == 0 else MIN_CYCLES)
                   for k, T in enumerate(windows)]
-    H, coh, mult, err, window = _composite(per_window, windows)
+    H, coh, mult, err, window, weights = _composite(per_window, windows)
     return FrequencyResponse(omega, H, coh, mult, err, list(inputs), list(outputs), list(windows),
-                             [r.source for r in runs], unmoved, window)
+                             [r.source for r in runs], unmoved, window, weights, overlap)
+
+
+def replay(fr: FrequencyResponse, runs: list[Run]) -> np.ndarray:
+    """H (nf, ny, nu) that ``runs`` give through ``fr``'s estimate: its frequencies, windows, leakage
+    correction and composite weights (nan where ``fr`` has no estimate). Runs simulated from a model
+    with the flown inputs show what the estimate makes of that model's response (its deterministic
+    error: leakage, the segments' transients), whatever their own noise level would have allowed."""
+    data = [r.matrix(list(fr.inputs) + list(fr.outputs)) for r in runs]
+    nu = len(fr.inputs)
+    est = [_window_estimate(data, runs[0].dt, T, fr.omega, nu, fr.overlap) for T in fr.windows]
+    H = np.stack([e[0] for e in est if e is not None])
+    has = fr.weights.sum(axis=0) > 0
+    return np.where(has, np.nansum(fr.weights * np.where(fr.weights > 0, H, 0), axis=0), np.nan + 0j)
 
 
 def default_windows(durations: list[float], n_inputs: int, overlap: float = 0.5) -> list[float]:
@@ -389,7 +406,7 @@ def _composite(per_window, windows):
     w_out = wn.mean(axis=3)  # output-level weights for the multiple coherence
     mult_c = (w_out * mult).sum(axis=0)
     window_c = np.where(has, np.tensordot(lengths, wn, axes=1), np.nan)
-    return H_c, coh_c, mult_c, err_c, window_c
+    return H_c, coh_c, mult_c, err_c, window_c, wn
 
 
 # -- models against the estimate -----------------------------------------------------------------

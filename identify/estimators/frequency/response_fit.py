@@ -14,11 +14,15 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from ...data.runs import Run
 from ...errors import EstimationError
 from ...model.linear import LinearModel
 from ..base import Estimator
 from ..result import IdentificationResult, fit_metrics
+from .bootstrap import N_DRAWS, bootstrap_covariance
+from .estimate_error import estimate_error
 from .response import MIN_COHERENCE, frequency_response
 from .statespace import ResponseData, fit_frequency_responses
 from .verify import output_weights, predict
@@ -31,17 +35,22 @@ class FR(Estimator):
     the profile's declared ``meta.delays``; ``prune`` fix, one at a time, the parameters that fail
     CIFER's gates (insensitivity <= 10 %, Cramér-Rao <= 20 %) at their a priori values and re-fit;
     ``f_range`` (Hz) and ``n_freq`` the frequency grid of the responses (default from the runs);
-    ``min_coherence`` of the points fitted.
+    ``min_coherence`` of the points fitted; ``n_draws`` surrogate runs behind the standard errors
+    (:mod:`.bootstrap`: the runs' own residual noise through the whole estimate and fit; 0: Tischler's
+    bound from J alone, which takes correlated points as independent and is too small);
+    ``bias_passes`` re-fits against the responses corrected for the estimate's own deterministic
+    error (:func:`.estimate_error.estimate_error`; 0: none).
     """
 
     method = "fr"
 
     def __init__(self, profile, *, delays: tuple[str, ...] = (), tau_max: float = 0.3, prune: bool = False,
                  f_range: tuple[float, float] | None = None, n_freq: int = 80,
-                 min_coherence: float = MIN_COHERENCE):
+                 min_coherence: float = MIN_COHERENCE, n_draws: int = N_DRAWS, bias_passes: int = 2):
         super().__init__(profile)
         self.delays, self.tau_max, self.prune = delays, tau_max, prune
         self.f_range, self.n_freq, self.min_coherence = f_range, n_freq, min_coherence
+        self.n_draws, self.bias_passes = n_draws, bias_passes
 
     def _validate(self) -> None:
         super()._validate()
@@ -51,6 +60,8 @@ class FR(Estimator):
                                   f"(inputs: {', '.join(self.profile_.input_names)})")
         if not self.tau_max > 0:
             raise EstimationError(f"tau_max must be positive, got {self.tau_max!r}")
+        if self.n_draws != 0 and not self.n_draws >= 3:
+            raise EstimationError(f"n_draws must be 0 or at least 3, got {self.n_draws!r}")
         if not 0 < self.min_coherence < 1:
             raise EstimationError(f"min_coherence must lie in (0, 1), got {self.min_coherence!r}")
 
@@ -62,22 +73,23 @@ class FR(Estimator):
         p = self.profile_
         fr = frequency_response(runs, p.input_names, list(p.outputs), f_range=self.f_range, n_freq=self.n_freq)
         delays = tuple(u for u in self.delays if u not in fr.unmoved)
+        data = ResponseData.from_response(fr)
         try:
-            fit = fit_frequency_responses(p, ResponseData.from_response(fr), delays=delays, tau_max=self.tau_max,
+            fit = fit_frequency_responses(p, data, delays=delays, tau_max=self.tau_max,
                                           min_coherence=self.min_coherence, prune=self.prune)
+            fit, ratio, bias_line = self._debiased(fit, fr, data, runs, delays)
+            standard_errors = "Cramér-Rao from the J fit (Gauss-Newton, residual variance; points taken as independent)"
+            if self.n_draws:
+                fit, standard_errors = self._bootstrap(fit, fr, ratio, runs, delays)
         except ValueError as exc:
             raise EstimationError(f"FR: {exc}") from None
-        declared = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
-        profile = fit.profile
-        if fit.tau:
-            meta = dict(profile.meta)
-            meta["delays"] = {**declared, **{u: declared.get(u, 0.0) + t for u, t in fit.tau.items()}}
-            profile = replace(profile, meta=meta)
-        model = LinearModel(profile, fit.theta)
+        model, predictions = self._predicted(fit, runs)
+        if bias_line:
+            fit.notes.append(bias_line)
+        profile = model.profile
         scale, unit_notes = output_weights(model)
-        predictions = [predict(model, r, scale) for r in runs]
         resolution = fr.resolution_line(LinearModel(p))  # against the a priori modes: the ones planned for
-        lines = [resolution] + fit.cost_lines() + fit.notes
+        lines = [resolution] + fit.cost_lines() + fit.notes + [f"standard errors: {standard_errors}"]
         if fr.unmoved:
             lines.append(f"inputs no run moves (their pairs and delays left out): {', '.join(fr.unmoved)}")
         if fit.tau:
@@ -89,7 +101,7 @@ class FR(Estimator):
                 "pruned": [{"parameter": n, "reason": r, "J_mean_after": j} for n, r, j in fit.pruned],
                 "delays_fitted": fit.tau, "delays_std": fit.tau_std, "resolution": resolution,
                 "windows_s": list(map(float, fr.windows)), "unmoved_inputs": fr.unmoved,
-                "standard_errors": "Cramér-Rao from the J fit (Gauss-Newton, scaled by the residual variance)",
+                "standard_errors": standard_errors,
                 "report_lines": lines, "initial_states": [pr.x0.tolist() for pr in predictions],
                 "zero_shifts": [pr.zero_shifts.tolist() for pr in predictions], "notes": unit_notes}
         result = IdentificationResult(
@@ -99,3 +111,56 @@ class FR(Estimator):
             [pr.time for pr in predictions], [pr.measured for pr in predictions], [pr.modelled for pr in predictions])
         result.info["accuracy"] = result.accuracy()
         return result
+
+    def _debiased(self, fit, fr, data, runs, delays):
+        """``fit`` re-fitted ``bias_passes`` times against the data freed of the response estimate's own
+        error as the current model shows it (:mod:`.estimate_error`), the last ratio and its line."""
+        ratio, line = np.ones_like(fr.H), ""
+        for _ in range(self.bias_passes):
+            _, predictions = self._predicted(fit, runs)
+            ratio, line = estimate_error(fr, runs, predictions, fit, data.usable(self.min_coherence))
+            refit = fit_frequency_responses(fit.profile, replace(data, H=data.H / ratio), theta0=fit.theta,
+                                            delays=delays, tau_max=self.tau_max, min_coherence=self.min_coherence)
+            fit = replace(refit, pruned=fit.pruned, left_out=fit.left_out,
+                          notes=list(dict.fromkeys(fit.notes + refit.notes)))
+        return fit, ratio, line
+
+    def _predicted(self, fit, runs):
+        """The identified model (fitted delays added to the declared ones) and its prediction of the runs."""
+        p = self.profile_
+        declared = {k: float(v) for k, v in dict(p.meta.get("delays", {})).items()}
+        profile = fit.profile
+        if fit.tau:
+            meta = dict(profile.meta)
+            meta["delays"] = {**declared, **{u: declared.get(u, 0.0) + t for u, t in fit.tau.items()}}
+            profile = replace(profile, meta=meta)
+        model = LinearModel(profile, fit.theta)
+        scale, _ = output_weights(model)
+        return model, [predict(model, r, scale) for r in runs]
+
+    def _bootstrap(self, fit, fr, ratio, runs, delays):
+        """``fit`` with the standard errors of :mod:`.bootstrap` and the line that says how they were had."""
+        p = self.profile_
+        _, predictions = self._predicted(fit, runs)
+
+        def refit(draws):
+            frb = frequency_response(draws, p.input_names, list(p.outputs), omega=fr.omega, windows=fr.windows)
+            d = ResponseData.from_response(frb)
+            f = fit_frequency_responses(fit.profile, replace(d, H=d.H / ratio), theta0=fit.theta,
+                                        delays=delays, tau_max=self.tau_max, min_coherence=self.min_coherence,
+                                        max_nfev=20)
+            return np.concatenate([f.theta, [f.tau[u] for u in delays]])
+
+        n = len(fit.theta)
+        cov, failed = bootstrap_covariance(refit, n + len(delays), runs, predictions, list(p.outputs), p.input_names,
+                                           self.n_draws)
+        sd = np.sqrt(np.diag(cov))
+        how = (f"residual bootstrap, {self.n_draws - failed} surrogate sets of runs (the prediction residual's part "
+               f"not coherent with the inputs, phases randomised) through the response estimate and the fit; about "
+               f"{100 / np.sqrt(2 * max(self.n_draws - failed - 1, 1)):.0f} % relative precision")
+        if failed:
+            how += f"; {failed} surrogate(s) not fitted or diverged, left out"
+        if not np.all(np.isfinite(sd)):
+            how += "; not determined (too few surrogates fitted): NaN"
+        return replace(fit, std=sd[:n], covariance=cov[:n, :n],
+                       tau_std={u: float(sd[n + k]) for k, u in enumerate(delays)}), how

@@ -17,12 +17,12 @@ pairs the model has no path for. Gauss-Newton with the exact Jacobian (``dH = dC
 
 Accuracy (Tischler & Remple): the Cramér-Rao bound from the Gauss-Newton information ``F = G^T G /
 s^2`` (``G`` the Jacobian of the weighted residuals, ``s^2 = sum r^2 / (n_r - p)`` the residual
-variance of the fit, the usual estimate when the point errors are not known, times the number of
-grid points per resolution cell: neighbouring points of a composite response closer than a window's
-resolution 1.5/T share their errors, so n points carry the information of about n / cells
-independent ones), reported as CR %
+variance of the fit, the usual estimate when the point errors are not known), reported as CR %
 ``= 100 CR / |theta|``; the insensitivity ``1 / sqrt(F_ii)`` in % likewise. CIFER's gates: CR <= 20 %,
-insensitivity <= 10 %. With ``prune=True`` the parameters the data cannot move at the start values
+insensitivity <= 10 %. This bound takes the points as independent; neighbouring points of a composite
+response are not, so it is too small (3-4 times on the S 61 benchmark): it serves the gates here,
+and :class:`~.response_fit.FR` replaces it by the bootstrap of :mod:`.bootstrap`. With
+``prune=True`` the parameters the data cannot move at the start values
 (insensitivity over its gate there, with the start's residual variance: a conservative screen) are
 fixed first, then after each fit the worst offender (largest insensitivity %, else largest
 CR %) is fixed at its a priori value, the model re-fitted, and so on until every free parameter
@@ -60,24 +60,11 @@ class ResponseData:
     inputs: list[str]
     outputs: list[str]
     random_error: np.ndarray | None = None  # (nf, ny, nu) normalised random error of |H|, if known
-    window: np.ndarray | None = None  # (nf, ny, nu) window length (s) behind each point, if known
 
     @classmethod
     def from_response(cls, fr) -> "ResponseData":
         """From a composite frequency response (any object with these attributes)."""
-        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error,
-                   getattr(fr, "window", None))
-
-    def points_per_cell(self) -> np.ndarray | None:
-        """(nf, ny, nu) grid points within one resolution cell (Hann: 1.5 / window Hz) of each point,
-        at least 1: neighbours closer than that share their errors. None if the windows are unknown."""
-        if self.window is None:
-            return None
-        f = self.omega / (2 * np.pi)
-        spacing = np.gradient(f) if f.size > 1 else np.ones(1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            n = (1.5 / self.window) / spacing[:, None, None]
-        return np.maximum(np.nan_to_num(n, nan=1.0), 1.0)
+        return cls(fr.omega, fr.H, fr.coherence, fr.resolved, list(fr.inputs), list(fr.outputs), fr.random_error)
 
     def usable(self, min_coherence: float = MIN_COHERENCE) -> np.ndarray:
         """Resolved, coherent and (when the random errors are known) accurate points, as J judges them."""
@@ -205,21 +192,14 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
                 pairs.append((a, b, key))
     if not pairs:
         raise ValueError("frequency-response fit: no input/output pair has resolved coherent points")
-    cells = data.points_per_cell()
-    # adjacent points of a composite response share errors: the information of n points is that of
-    # about n / (points per resolution cell) independent ones, so the bounds grow by that factor
-    inflation = 1.0 if cells is None else float(np.mean(
-        np.concatenate([cells[:, dj][:, :, di][usable[:, a, b], a, b] for a, b, _ in pairs])))
-
-    def solve(m, active, nfev, tau0=None, inflation=inflation):
-        return _solve(m, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, nfev, tau0=tau0,
-                      inflation=inflation)
+    def solve(m, active, nfev, tau0=None):
+        return _solve(m, data.omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, nfev, tau0=tau0)
 
     active = np.ones(len(profile.free), bool)
     pruned = []
     if prune:  # screen at the start values: what the data cannot move at all is not fitted
         # with the start's residual variance alone (its misfit already makes it conservative)
-        screen = solve(model, active, 0, inflation=1.0)
+        screen = solve(model, active, 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             ins_pct = np.nan_to_num(100 * screen["ins"] / np.abs(model.theta), nan=np.inf)
         for k in np.flatnonzero(ins_pct > INSENSITIVITY_GATE):
@@ -248,9 +228,6 @@ def fit_frequency_responses(profile: Profile, data: ResponseData, *, theta0: np.
     tau = {u: float(t) for u, t in zip(delays, fit["tau"])}
     tau_std = {u: float(t) for u, t in zip(delays, fit["tau_std"])}
     notes = [] if fit["converged"] else [f"optimiser stopped before convergence: {fit['message']}"]
-    if inflation > 1:
-        notes.append(f"bounds scaled for correlated neighbouring points: {inflation:.3g} grid points per "
-                     f"resolution cell on average (variance x {inflation:.3g})")
     at_bound = [u for u, t in tau.items() if t <= 1e-9 or t >= tau_max - 1e-9]
     if at_bound:
         notes.append(f"delay at its bound (0 or {tau_max:g} s): {', '.join(at_bound)}")
@@ -276,8 +253,7 @@ def _gates(theta, std, ins, active) -> tuple[int, str] | None:
     return None
 
 
-def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev, tau0=None,
-           inflation=1.0):
+def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, active, max_nfev, tau0=None):
     """One Gauss-Newton fit of the active parameters and the delays; cost, bounds and per-pair J."""
     d_idx = [ins.index(u) for u in delays]
     theta_all = model.theta.copy()
@@ -336,7 +312,7 @@ def _solve(model, omega, Hd, W, usable, pairs, yi, ui, ins, delays, tau_max, act
         n[key] = int(use.sum())
         k += m
     J_mean = float(np.mean(list(J.values())))
-    s2 = inflation * np.sum(r ** 2) / max(len(r) - G.shape[1], 1)
+    s2 = np.sum(r ** 2) / max(len(r) - G.shape[1], 1)
     F = G.T @ G / max(s2, 1e-300)
     try:
         cov_x = np.linalg.inv(F)

@@ -40,7 +40,10 @@ def flights():
 
 def test_fr_model_verifies_on_a_held_out_run(flights):
     p, truth, sweeps, held_out = flights
-    fit = FR(p, prune=True).fit(sweeps).result_
+    # 17 derivatives held 30 % off: the model's time-domain residual is misfit (up to 150x the noise
+    # power in the fitted band), not noise, so the residual bootstrap's premise fails; CIFER's gates on
+    # J's bound (n_draws=0) are what this test of pruning and VERIFY is about
+    fit = FR(p, prune=True, n_draws=0).fit(sweeps).result_
     assert fit.info["frequency_domain"] and fit.converged
     assert all(not a["over_guidelines"] for a in fit.accuracy().values())
     v = verify(fit.model, held_out)
