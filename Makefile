@@ -24,10 +24,44 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests
 
+# `make benchmarks`: every script in benchmarks/ at a reduced size (about 30 min on 2 cores; the
+# measured list is in docs/benchmarks.md). Run alone, each script keeps its full-size default;
+# `make benchmarks BENCH_FULL=1` runs them all at full size (about 2 h), `BENCHES="benchmarks/x.py ..."`
+# a selection. Each script's output folder under benchmarks/output/ is removed first, so resumable
+# stores (filter_error, frequency_fit, campaign) are recomputed, not resumed.
+BENCHES ?= $(sort $(wildcard benchmarks/*.py))
+BENCH_ARGS_campaign := 100
+BENCH_ARGS_compat := 4
+BENCH_ARGS_demo_under_load := --demo
+BENCH_ARGS_filter_error := --n 8 --calm 2
+BENCH_ARGS_frequency := --quick
+BENCH_ARGS_frequency_fit := --realisations 10
+BENCH_ARGS_ml_long_record := 0.1
+BENCH_ARGS_paper_bo105 := --seeds 2
+BENCH_ARGS_paper_s61 := --seeds 1
+BENCH_ARGS_pilot_fidelity := --seeds 5
+BENCH_ARGS_refine_coloured := 10
+BENCH_ARGS_refine_false_alarms := 5
+BENCH_ARGS_refine_speed := 1
+BENCH_ARGS_signal_design := --mc 20
+# always: filter_error's resumable store goes to benchmarks/output/, never the working directory
+BENCH_ALWAYS_filter_error := --save benchmarks/output/filter_error/filter_error_mc.jsonl
+bench_args = $(if $(BENCH_FULL),,$(BENCH_ARGS_$(1))) $(BENCH_ALWAYS_$(1))
+
 benchmarks: $(STAMP)
-	@start=$$(date +%s); for b in benchmarks/*.py; do t=$$(date +%s); echo "== $$b"; \
-	  $(BIN)/python $$b || exit 1; echo "== $$b: $$(( $$(date +%s) - t )) s"; done; \
-	echo "make benchmarks: total $$(( $$(date +%s) - start )) s"
+	@before=$$(git status --porcelain 2>/dev/null); start=$$(date +%s); \
+	$(foreach b,$(BENCHES),$(call bench_one,$(b),$(basename $(notdir $(b))))) \
+	after=$$(git status --porcelain 2>/dev/null); \
+	if [ "$$before" != "$$after" ]; then echo "make benchmarks: FAILED, tracked or untracked files changed:"; \
+	  echo "before:"; echo "$$before"; echo "after:"; echo "$$after"; exit 1; fi; \
+	printf "make benchmarks: time per script$$times\n"; \
+	echo "make benchmarks: total $$(( $$(date +%s) - start )) s$(if $(BENCH_FULL), (full size),)"
+
+# one script: clear its output folder, run it, stop everything if it fails, print its time
+bench_one = rm -rf benchmarks/output/$(2); mkdir -p benchmarks/output/$(2); t=$$(date +%s); \
+	echo "== $(1) $(strip $(call bench_args,$(2)))"; \
+	$(BIN)/python $(1) $(call bench_args,$(2)) || { echo "make benchmarks: FAILED in $(1)"; exit 1; }; \
+	echo "== $(1): $$(( $$(date +%s) - t )) s"; times="$$times\n  $(1): $$(( $$(date +%s) - t )) s";
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache
