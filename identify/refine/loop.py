@@ -297,7 +297,10 @@ class Refine:
             lr = null_cost - noise.cost(fitting.residuals(new_p))
             held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
                     for data in held_data}
-            wald = float(sum((v["value"] / v["std"]) ** 2 if v["std"] > 0 else math.inf for v in params.values()))
+            # a delay's own bound in the test's metric (``std_profile``): its ``std`` also carries the
+            # estimator's errors in the other parameters, which do not make the delay less present
+            wald = float(sum((v["value"] / s) ** 2 if (s := v.get("std_profile", v["std"])) > 0 else math.inf
+                             for v in params.values()))
             failed = _failed_refit(result, lr, null_cost, best.threshold)
             step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
                         error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,

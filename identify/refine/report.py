@@ -181,7 +181,9 @@ def _evidence(s) -> list[str]:
     lines.append(f"- likelihood ratio of the re-fit {s.lr_statistic:.4g}; Wald statistic of the estimate "
                  f"(coloured-residual bounds) {s.wald:.4g}")
     for name, v in s.parameters.items():
-        lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g}")
+        lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g}" + (
+            f" (± {v['std_profile']:.3g} from the profile's curvature alone, the other parameters' errors "
+            f"left out)" if "std_profile" in v and v["std_profile"] != v["std"] else ""))
     for data, (b, a) in s.held_out.items():
         lines.append(f"- prediction error on the {'judging' if data == 'validation' else 'choosing'} data "
                      f"(noise-model cost) {b:.6g} -> {a:.6g}")

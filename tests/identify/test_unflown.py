@@ -65,11 +65,9 @@ def test_fix_free_outputs_and_unflown_detection(cyclics_only):
         with_outputs(p, "p,nz")
 
 
-def test_cyclics_only_bo105_refines():
-    """refine on the cyclics-only test: the collective and tail-rotor parameters held (said once),
-    the undeclared 0.08 s delay on theta_s found; the final model keeps the held ones free, at
-    their a priori values, for a test that flies those controls."""
-    from identify.refine import Refine
+def delayed_cyclics_only():
+    """The cyclics-only BO 105 with an undeclared 0.08 s delay on theta_s: two fit runs (one per
+    cyclic) and two validation runs that move both."""
     from signaldesign.baselines import doublet
     p = load_profile("bo105_70kt")
     m = LinearModel(p)
@@ -83,6 +81,15 @@ def test_cyclics_only_bo105_refines():
         return simulate_run(truth, t, u, noise_fraction=0.03, seed=seed, input_delay={"theta_s": 0.08})
     runs = [run([m3211(0.7, 0.01, "theta_s", 1.0)], 0), run([m3211(0.5, 0.01, "theta_c", 1.0)], 1)]
     validate = [run([doublet(1.0, 0.01, "theta_s", 1.0), doublet(0.7, 0.01, "theta_c", 5.0)], 2 + k) for k in range(2)]
+    return p, runs, validate
+
+
+def test_cyclics_only_bo105_refines():
+    """refine on the cyclics-only test: the collective and tail-rotor parameters held (said once),
+    the undeclared 0.08 s delay on theta_s found; the final model keeps the held ones free, at
+    their a priori values, for a test that flies those controls."""
+    from identify.refine import Refine
+    p, runs, validate = delayed_cyclics_only()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         refine = Refine(p, kinds=("delay", "derivative")).fit(runs, validate=validate)
@@ -93,3 +100,18 @@ def test_cyclics_only_bo105_refines():
     held = [n for u in UNFLOWN for n in input_parameters(p)[u]]
     assert all(refine.profile_.free[n] == p.free[n] for n in held)
     assert all(np.isinf(refine.result_.std[refine.result_.names.index(n)]) for n in held)
+
+
+def test_delay_bound_with_fdee_carries_its_derivative_errors():
+    """refine with FDEE: the delay's curvature bound alone (0.0016 s) put this draw's 0.0855 s 3.4
+    standard errors from the truth; FDEE's own errors in the derivatives move the best-fitting
+    delay (12 draws scattered 0.0071 s), and the standard error now carries them."""
+    from identify.refine import Refine
+    p, runs, validate = delayed_cyclics_only()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        refine = Refine(p, estimator=FDEE(p), kinds=("delay", "derivative")).fit(runs, validate=validate)
+    (step,) = refine.steps_
+    tau = step.parameters["tau_theta_s"]
+    assert step.effect == "delay" and tau["std"] > 2 * tau["std_profile"], tau
+    assert abs(tau["value"] - 0.08) < 2 * tau["std"], tau
