@@ -32,7 +32,7 @@ test: $(STAMP)
 BENCHES ?= $(sort $(wildcard benchmarks/*.py))
 BENCH_ARGS_campaign := 100
 BENCH_ARGS_compat := 4
-BENCH_ARGS_demo_under_load := --demo
+BENCH_ARGS_demo_under_load := --estimate
 BENCH_ARGS_filter_error := --n 8 --calm 2
 BENCH_ARGS_frequency := --quick
 BENCH_ARGS_frequency_fit := --realisations 10
