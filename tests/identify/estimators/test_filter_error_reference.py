@@ -59,15 +59,31 @@ def matrices(theta):
     return A, B, C, D
 
 
-def discrete(theta, f):
-    """Phi, Gamma (inputs held over a sample), Qd of unit white noise through F on w."""
-    A, B, C, D = matrices(theta)
-    Phi = expm(A * DT)
-    Gamma = np.linalg.solve(A, (Phi - np.eye(2)) @ B)
-    FF = np.diag([f ** 2, 0.0])
+def exact_discretisation(A, B, FF, dt):
+    """Phi, Gamma (inputs held over a sample) and Qd (the covariance over a sample of unit white
+    noise through F, FF = F F^T) of a stable, invertible A."""
+    Phi = expm(A * dt)
+    Gamma = np.linalg.solve(A, (Phi - np.eye(len(A))) @ B)
     Pc = solve_continuous_lyapunov(A, -FF)  # stationary covariance of the continuous process
     Qd = Pc - Phi @ Pc @ Phi.T
-    return Phi, Gamma, 0.5 * (Qd + Qd.T), C, D
+    return Phi, Gamma, 0.5 * (Qd + Qd.T)
+
+
+def sample_exactly(Phi, Gamma, Qd, C, D, u, noise_sd, rng):
+    """Outputs (N, ny) of one run from rest, sampled exactly from the continuous model: process
+    noise of covariance Qd per sample, white measurement noise of ``noise_sd``; outputs that are
+    state derivatives are the model's noise-free C x + D u (the documented convention)."""
+    Lq = np.linalg.cholesky(Qd + 1e-15 * np.eye(len(Qd)))
+    x, z = np.zeros(len(Phi)), np.empty((len(u), len(C)))
+    for i in range(len(u)):
+        z[i] = C @ x + D @ u[i] + noise_sd * rng.standard_normal(len(C))
+        x = Phi @ x + Gamma @ u[i] + Lq @ rng.standard_normal(len(Phi))
+    return z
+
+
+def discrete(theta, f):
+    A, B, C, D = matrices(theta)
+    return (*exact_discretisation(A, B, np.diag([f ** 2, 0.0]), DT), C, D)
 
 
 def neg_log_likelihood(theta, f, r, runs):
@@ -112,7 +128,6 @@ def simulate(seed):
     """Three 25 s runs sampled exactly from the continuous model: a 3211 and a doublet on de."""
     rng = np.random.default_rng(seed)
     Phi, Gamma, Qd, C, D = discrete(TRUTH, F_TRUE)
-    Lq = np.linalg.cholesky(Qd + 1e-15 * np.eye(2))
     t = np.arange(0, 25, DT)
     runs = []
     for k in range(3):
@@ -121,11 +136,7 @@ def simulate(seed):
                   (9.0 + 2 * k, 2.0, 1), (11.0 + 2 * k, 2.0, -1)]  # a 3211 of 0.5 s, a doublet of 2 s
         for start, width, sign in pulses:
             u[(t >= start) & (t < start + width), 0] = 0.02 * sign
-        x, z = np.zeros(2), np.empty((len(t), 3))
-        for i in range(len(t)):
-            z[i] = C @ x + D @ u[i] + NOISE_SD * rng.standard_normal(3)
-            x = Phi @ x + Gamma @ u[i] + Lq @ rng.standard_normal(2)
-        runs.append((u, z))
+        runs.append((u, sample_exactly(Phi, Gamma, Qd, C, D, u, NOISE_SD, rng)))
     return t, runs
 
 
