@@ -65,9 +65,9 @@ NOISE_SHARE = 0.02
 PILOT_R = 100.0  # LQR input weight (state weight 1): a weak stabiliser, as in ml_long_record.py
 CASES = {
     # a flight-test programme's runs: three repeats of a short-period 3211 and three of a slower one
-    # that reaches the phugoid (X_u, Z_u, M_u), each 30 s with its own gusts and noise, every one
-    # within the profile's [limits]; one 30 s run held too little information for 2 % (4.5 %, on its
-    # Cramer-Rao bound)
+    # that reaches the phugoid (X_u, Z_u, M_u), each 30 s with its own gusts and noise, the input-driven
+    # response within the profile's [limits]; one 30 s run held too little information for 2 % (4.5 %,
+    # on its Cramer-Rao bound)
     "navion": dict(profile="navion_cruise_long", gusts=("u", "w"),
                    runs=[(30.0, [(1.0, 0.7, 0.02)])] * 3 + [(30.0, [(1.0, 1.5, 0.01)])] * 3),
     "s61": dict(profile="s61_hover_8state", gusts=("u", "v"),
