@@ -10,6 +10,7 @@ from identify import ML, LinearModel, Run, load_profile, parse_profile, simulate
 from identify.errors import EstimationError
 from identify.estimators.filter_error import FEM
 from identify.estimators.registry import estimator_class
+from tests.identify.estimators.test_filter_error_reference import exact_discretisation, sample_exactly
 from tests.identify.test_cli import _in_process
 
 DT = 0.02
@@ -132,8 +133,6 @@ def lateral_runs():
     """Two 40 s runs at 20 Hz sampled exactly from the continuous model (seed 0): a 3211 on the
     aileron and a rudder doublet, then a rudder 3211 and an aileron doublet; v a smooth lateral
     velocity (first-order filtered noise, 1.5 m/s rms, 1 s time constant)."""
-    from tests.identify.estimators.test_filter_error_reference import exact_discretisation, sample_exactly
-
     p = parse_profile(LATERAL)
     truth = LinearModel(p)
     FF = np.diag([LAT_F[s] ** 2 for s in p.state_names])
