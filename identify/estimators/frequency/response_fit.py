@@ -101,7 +101,7 @@ class FR(Estimator):
                 "pruned": [{"parameter": n, "reason": r, "J_mean_after": j} for n, r, j in fit.pruned],
                 "delays_fitted": fit.tau, "delays_std": fit.tau_std, "resolution": resolution,
                 "windows_s": list(map(float, fr.windows)), "unmoved_inputs": fr.unmoved,
-                "standard_errors": standard_errors,
+                "standard_errors": standard_errors, "n_draws": self.n_draws, "bias_passes": self.bias_passes,
                 "report_lines": lines, "initial_states": [pr.x0.tolist() for pr in predictions],
                 "zero_shifts": [pr.zero_shifts.tolist() for pr in predictions], "notes": unit_notes}
         result = IdentificationResult(
