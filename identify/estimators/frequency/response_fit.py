@@ -19,6 +19,7 @@ import numpy as np
 from ...data.runs import Run
 from ...errors import EstimationError
 from ...model.linear import LinearModel
+from ...model.subset import fix
 from ..base import Estimator
 from ..result import IdentificationResult, fit_metrics
 from .bootstrap import N_DRAWS, bootstrap_covariance
@@ -66,8 +67,19 @@ class FR(Estimator):
             raise EstimationError(f"min_coherence must lie in (0, 1), got {self.min_coherence!r}")
 
     def nested(self, profile, **_):
-        """Refine's nested fits compare likelihoods of one structure: no pruning inside them."""
+        """Refine's nested fits compare likelihoods of one structure: no pruning inside them (the
+        structure is pruned once, before them: :meth:`determinable`)."""
         return self.clone(profile, prune=False)
+
+    def determinable(self, profile, runs: list[Run]):
+        """``profile`` with the parameters that fail CIFER's gates on these runs held at their a priori
+        values, and their reasons: one pruned fit (no bootstrap, no correction passes: the gates are
+        read from J's bound, as the pruning does). Refine fits and extends that structure; unpruned,
+        its fits wander off along the undetermined directions (S 61 4-DOF: X_q -1487, Y_q -4581, not
+        converged)."""
+        fit = self.clone(profile, prune=True, n_draws=0, bias_passes=0).fit(runs).result_
+        reasons = {d["parameter"]: d["reason"] for d in fit.info["pruned"]}
+        return (fix(profile, list(reasons)) if reasons else profile), reasons
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         p = self.profile_
