@@ -66,10 +66,11 @@ class FR(Estimator):
         if not 0 < self.min_coherence < 1:
             raise EstimationError(f"min_coherence must lie in (0, 1), got {self.min_coherence!r}")
 
-    def nested(self, profile, **_):
+    def nested(self, profile, *, bounds: bool = True, **_):
         """Refine's nested fits compare likelihoods of one structure: no pruning inside them (the
-        structure is pruned once, before them: :meth:`determinable`)."""
-        return self.clone(profile, prune=False)
+        structure is pruned once, before them: :meth:`determinable`); no bootstrap where only the
+        estimate and its likelihood are used (``bounds=False``)."""
+        return self.clone(profile, prune=False, n_draws=self.n_draws if bounds else 0)
 
     def determinable(self, profile, runs: list[Run]):
         """``profile`` with the parameters that fail CIFER's gates on these runs held at their a priori
