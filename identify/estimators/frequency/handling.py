@@ -23,10 +23,10 @@ Level boundaries (:data:`ADS33_BOUNDARIES`): the corner points of the hover/low-
 charts, simplified to their rectangular corners (minimum bandwidth, maximum phase delay per level);
 the sloped high-bandwidth parts of the original charts are not drawn. **Every corner value is
 UNVERIFIED** (:data:`ADS33_UNVERIFIED`): written from memory of Tischler & Remple's reproductions
-of ADS-33E-PRF's hover/low-speed bandwidth charts (para. 3.3.2.1), not checked against ADS-33E-PRF
-itself. The public references searched (the ``search`` tool's docs, pages and code corpora, Nov
-2026: ADS-33E-PRF's table of contents is public, its charts' values were not found, nor open code
-that encodes them) could not confirm them; every level read from them says so on screen, in
+of ADS-33E-PRF's hover/low-speed bandwidth charts (para. 3.3.2.1, a number also from memory), not
+checked against ADS-33E-PRF itself. The public references searched (docs, pages and code corpora,
+Nov 2026: ADS-33E-PRF's table of contents is public, its charts' values were not found, nor open
+code that encodes them) could not confirm them; every level read from them says so on screen, in
 ``hq.md`` and on the chart.
 """
 from __future__ import annotations
