@@ -40,6 +40,11 @@ subclassing :class:`Estimator` and overriding what differs:
     fitting (output error) rather than from the measured channels (equation error).
 ``progress_quantity``
     what the ``progress`` callback's value is (``cost``, ``max rel. change``), for messages.
+``determinable(profile, runs)``
+    the structure refine fits and extends, and ``{parameter: reason}`` for the parameters the
+    estimator cannot determine from these runs (held at their a priori values for the whole
+    refinement). Default: the profile as declared, nothing held. The frequency-response fit
+    holds what fails CIFER's gates: unpruned, its nested fits diverge along those directions.
 """
 from __future__ import annotations
 
@@ -191,6 +196,9 @@ class Estimator:
 
     def prediction_segment(self, model, duration: float) -> float:
         return math.inf
+
+    def determinable(self, profile, runs: list[Run]) -> tuple[Profile, dict[str, str]]:
+        return profile, {}
 
     def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
                    start: list[Run] | None = None):
