@@ -87,20 +87,23 @@ class StateTerms:
         self.J0 = self.J0[:, :, 0]
         self.linear_at_trim = not np.any(self.J0)
 
-    def terms(self, x, const):
-        """``f`` (nt, R) and its state Jacobian ``J`` (nt, n, R) at states ``x`` (n, R)."""
-        nt, R = const.shape
-        f, J = const.copy(), np.zeros((nt, self.n, R))
+    def terms(self, x, const, jacobian: bool = True):
+        """``f`` (..., nt, R) and (with ``jacobian``) its state Jacobian ``J`` (..., nt, n, R) at states
+        ``x`` (..., n, R), ``const`` (..., nt, R) the terms' channel factors: any number of samples at once."""
+        f = const.copy()
+        J = np.zeros(const.shape[:-1] + (self.n,) + const.shape[-1:]) if jacobian else None
         for t, factors in enumerate(self.state_factors):
-            vals = [np.abs(x[i]) if a else x[i] for i, a in factors]
-            for j, (i, a) in enumerate(factors):
-                others = const[t].copy()
+            vals = [np.abs(x[..., i, :]) if a else x[..., i, :] for i, a in factors]
+            for v in vals:
+                f[..., t, :] *= v
+            if not jacobian:
+                continue
+            for j, (i, a) in enumerate(factors):  # the product rule
+                d = const[..., t, :] * (np.sign(x[..., i, :]) if a else 1.0)
                 for l, v in enumerate(vals):
                     if l != j:
-                        others = others * v
-                J[t, i] += others * (np.sign(x[i]) if a else 1.0)
-            for v in vals:
-                f[t] = f[t] * v
+                        d = d * v
+                J[..., t, i, :] += d
         return f, J
 
     def _split(self, Gamma, D):
@@ -130,7 +133,7 @@ class StateTerms:
         Dh = np.hstack([model.D, np.zeros_like(model.D)]) if self.hold == "linear" else model.D
         Gu, Gf, Du, Df = self._split(Gamma, Dh)
         with np.errstate(over="ignore", invalid="ignore"):
-            x, xh, ft, fh, Jt, Jh, nu = self._filter(model.C, Phi, Gu, Gf, Du, Df, K, x0, b)
+            x, xh, nu = self._filter(model.C, Phi, Gu, Gf, Du, Df, K, x0, b)
         if not np.all(np.isfinite(nu)):
             raise np.linalg.LinAlgError("the extended filter's prediction is not finite")
         Sinv = np.linalg.inv(S)
@@ -143,33 +146,31 @@ class StateTerms:
             dPhil_g = np.zeros((self.G, self.n, self.n))
             dPhil_g[:self.p] = dPhil
             dK = np.linalg.solve(Phil, dKp - dPhil_g @ K)
-            ev.dnu = self._sensitivities(model, Phi, Gamma, dPhi, dGamma, Dh, K, dK, x, xh, ft, fh, Jt, Jh, nu)
+            ev.dnu = self._sensitivities(model, Phi, Gamma, dPhi, dGamma, Dh, K, dK, x, xh, nu)
             if not (np.all(np.isfinite(ev.dnu)) and np.all(np.isfinite(ev.dS))):
                 raise np.linalg.LinAlgError("the extended filter's sensitivities are not finite")
         return ev
 
     def _filter(self, C, Phi, Gu, Gf, Du, Df, K, x0, b):
-        """The extended filter over all runs at once: predicted and corrected states (L, n, R), the
-        terms on each (L, nt, R) with their Jacobians (L, nt, n, R), the innovations (L, ny, R)."""
-        L, n, R, nt = self.Z.shape[0], self.n, self.n_runs, len(self.cols)
+        """The extended filter over all runs at once: predicted and corrected states (L, n, R) and
+        the innovations (L, ny, R)."""
+        L, n, R = self.Z.shape[0], self.n, self.n_runs
         drive, yu, zb = Gu @ self.U, Du @ self.U, self.Z - b[None]
-        x, xh = np.zeros((L, n, R)), np.zeros((L, n, R))
-        ft, fh, nu = np.zeros((L, nt, R)), np.zeros((L, nt, R)), np.zeros((L, self.ny, R))
-        Jt, Jh = np.zeros((L, nt, n, R)), np.zeros((L, nt, n, R))
+        x, xh, nu = np.zeros((L, n, R)), np.zeros((L, n, R)), np.zeros((L, self.ny, R))
         xk = np.array(x0, float)
         for k in range(L):
             on = self.mask[k] > 0  # padding after a shorter run's end: held at zero
             xk = np.where(on, xk, 0.0)
             x[k] = xk
-            ft[k], Jt[k] = self.terms(xk, self.const[k])
-            nu[k] = np.where(on, zb[k] - C @ xk - yu[k] - Df @ ft[k], 0.0)
+            nu[k] = np.where(on, zb[k] - C @ xk - yu[k] - Df @ self.terms(xk, self.const[k], False)[0], 0.0)
             xh[k] = xk + K @ nu[k]
-            fh[k], Jh[k] = self.terms(xh[k], self.const[k])
-            xk = Phi @ xh[k] + drive[k] + Gf @ fh[k]
-        return x, xh, ft, fh, Jt, Jh, nu
+            xk = Phi @ xh[k] + drive[k] + Gf @ self.terms(xh[k], self.const[k], False)[0]
+        return x, xh, nu
 
-    def _sensitivities(self, model, Phi, Gamma, dPhi, dGamma, Dh, K, dK, x, xh, ft, fh, Jt, Jh, nu):
+    def _sensitivities(self, model, Phi, Gamma, dPhi, dGamma, Dh, K, dK, x, xh, nu):
         """``dnu`` (L, ny, k, R) over each run's local unknowns [theta, F, R, x0, zero shifts]."""
+        ft, Jt = self.terms(x, self.const)  # the terms and their Jacobians on the filter's states
+        fh, Jh = self.terms(xh, self.const)
         L, n, ny, R, p, G, k = self.Z.shape[0], self.n, self.ny, self.n_runs, self.p, self.G, self.k
         mu = self.U.shape[1]
         dPhi_g, dGamma_g = np.zeros((G, n, n)), np.zeros((G, n, mu))
