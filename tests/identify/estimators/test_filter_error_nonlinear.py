@@ -3,6 +3,7 @@ quadratic pitch damping M q|q| recovered under turbulence where output error is 
 on the innovations, equal to output error's maximum likelihood in calm air, and the command line."""
 import json
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -94,3 +95,29 @@ def test_without_process_noise_the_extended_filter_is_output_error_ml():
     reference = _output_error_reference(prof, runs, R)
     np.testing.assert_array_less(np.abs(fem.theta - reference), 0.1 * fem.std)
     assert abs(fem.theta[-1] - COEF) < 3 * fem.std[-1]
+
+
+def test_refine_on_fem_finds_undeclared_quadratic_damping_under_turbulence():
+    turbulence = TURBULENCE / 2
+    fit, val = [simulate(1, turbulence), simulate(2, turbulence)], [simulate(9, turbulence)]
+    r = Refine(PROFILE, estimator=FEM(PROFILE, process_noise=NOISE), kinds=("derivative", "nonlinear")
+               ).fit(fit, validate=val)
+    assert [(s.effect, s.target) for s in r.steps_] == [("nonlinear", "M:q_absq")], \
+        [s.to_dict() for s in r.steps_ + r.rejected_]
+    est = r.steps_[0].parameters["M_q_absq"]
+    assert abs(est["value"] - COEF) < 2 * est["std"], est
+
+
+def test_cli_estimate_fem_on_a_profile_with_a_state_built_term(tmp_path, capsys):
+    profile = tmp_path / "pitch_qq.toml"  # process noise where the turbulence acts, F started near it
+    profile.write_text(replace(nonlinear_profile(), process_noise={"u": 0.03, "q": 0.06}).to_toml())
+    files = [simulate(s).to_csv(tmp_path / f"run{s}.csv") for s in (1, 2)]
+    out = tmp_path / "out"
+    proc = _in_process(["estimate", "--profile", profile, "--method", "fem", *files, "--out", out], capsys)
+    assert proc.returncode == 0, proc.stderr
+    assert "FEM identification" in proc.stdout and "M_q_absq" in proc.stdout
+    result = json.loads((out / "result.json").read_text())
+    assert result["method"] == "fem" and result["converged"]
+    assert set(result["info"]["process_noise"]) == {"u", "q"}
+    z = {k: (v["value"] - t) / v["std"] for (k, v), t in zip(result["parameters"].items(), TRUTH)}
+    assert all(abs(v) < 3 for v in z.values()), z
