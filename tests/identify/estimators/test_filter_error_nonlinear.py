@@ -121,3 +121,28 @@ def test_cli_estimate_fem_on_a_profile_with_a_state_built_term(tmp_path, capsys)
     assert set(result["info"]["process_noise"]) == {"u", "q"}
     z = {k: (v["value"] - t) / v["std"] for (k, v), t in zip(result["parameters"].items(), TRUTH)}
     assert all(abs(v) < 3 for v in z.values()), z
+
+
+@pytest.mark.parametrize("hold", ["held", "linear"])
+def test_extended_filter_sensitivities_are_exact(hold):
+    """A state times an input of non-zero mean (the gain from a linearisation that is not the linear
+    part), runs of different lengths: the innovations' and S's derivatives equal central differences."""
+    prof = Nonlinear("M", "q_x_eta", ("q", "eta"), "prod", "test").profile(PROFILE, {"M_q_x_eta": 3.0})
+    runs = [r.with_channels({"eta": r["eta"] + 0.05}, input_hold=hold) for r in (simulate(1), simulate(2))]
+    est = FEM(prof, process_noise=NOISE)
+    est._validate()
+    prob, beta, _ = est._problem(est.check_runs([runs[0], runs[1].slice(0, 15.0)]))
+    assert np.any(prob.J0) and prob.hold == hold
+    beta[prob.index["r"]] = 1e-4
+    ev = prob.evaluate(beta, jacobian=True, noise=True)
+    r = 1  # the shorter run: padded after its end
+    for j, g in enumerate(prob.local_index[r]):
+        h = 1e-6 * max(abs(beta[g]), 1e-2)
+        up, down = beta.copy(), beta.copy()
+        up[g] += h
+        down[g] -= h
+        hi, lo = prob.evaluate(up), prob.evaluate(down)
+        num = (hi.nu[:, :, r] - lo.nu[:, :, r]) / (2 * h)
+        np.testing.assert_allclose(ev.dnu[:, :, j, r], num, atol=1e-5 * np.abs(num).max() + 1e-12)
+        if j < prob.G:
+            np.testing.assert_allclose(ev.dS[j], (hi.S - lo.S) / (2 * h), atol=1e-5 * np.abs(hi.S).max())
