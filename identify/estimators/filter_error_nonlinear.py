@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model import pseudo_inputs as pi
 from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import discretize
 from .output_error import pad
+from .prediction import state_terms
 
 
 class Linearised:
@@ -61,7 +61,7 @@ class StateTerms:
     def __init__(self, profile, u, z, dt, noise_states, hold, runs):
         super().__init__(profile, u, z, dt, noise_states, hold)
         state = {s: i for i, s in enumerate(profile.state_names)}
-        terms = {n: s for n, s in pi.specs(profile).items() if set(s.get("product", ())) & set(state)}
+        terms = state_terms(profile)
         self.term_names = list(terms)
         self.cols = [profile.input_names.index(n) for n in terms]
         nt, L, R = len(terms), self.Z.shape[0], self.n_runs
