@@ -57,6 +57,9 @@ filter's gain is zero and FEM is output-error ML (plain form).
 Outputs that are state derivatives (p_dot, a_y) use the model's noise-free derivative
 ``C x + D u`` (the convention of Maine & Iliff and Jategaonkar: continuous white noise has no
 finite sample value; its effect on such outputs is absorbed by R).
+
+Profiles with state-built nonlinear terms (q|q|): the extended Kalman filter of
+:mod:`identify.estimators.filter_error_nonlinear` (:class:`NonlinearFilterProblem`), the rest as above.
 """
 from __future__ import annotations
 
