@@ -6,7 +6,8 @@ measurement noise, two 20 s runs per realisation (tests/identify/estimators/test
 ``simulate``). Per estimator: each parameter's mean and spread of (estimate - truth) / reported std
 (a bias and how well the bound covers), the median relative error and the median wall time per
 fit; output error (ML, the term from its own simulated states re-fitted until the estimates
-settle, as ``identify estimate`` fits it) also counts the realisations in which it did not settle.
+settle, as ``identify estimate`` fits it) also counts the realisations in which it did not settle
+(or its simulation diverged).
 
     .venv/bin/python benchmarks/filter_error_nonlinear.py [n_realisations, default 25]
 """
@@ -23,7 +24,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import ML  # noqa: E402
-from identify.errors import EstimationError  # noqa: E402
+from identify.errors import EstimationError, SimulationError  # noqa: E402
 from identify.estimators.filter_error import FEM  # noqa: E402
 from identify.estimators.prediction import fit_state_terms  # noqa: E402
 from identify.model.pseudo_inputs import prepare  # noqa: E402
@@ -51,7 +52,7 @@ def main(n: int = 25) -> None:
             t0 = time.perf_counter()
             try:
                 r = fit(prof, runs)
-            except EstimationError:
+            except (EstimationError, SimulationError):  # did not settle, or its simulation diverged
                 failed[label] += 1
                 continue
             names = r.names
@@ -65,7 +66,7 @@ def main(n: int = 25) -> None:
             continue
         z = np.array([r[0] for r in res])
         rel = np.array([r[1] for r in res])
-        print(f"{label}: {len(res)} fits, {failed[label]} failed (did not settle), median wall "
+        print(f"{label}: {len(res)} fits, {failed[label]} failed (did not settle or diverged), median wall "
               f"{np.median([r[2] for r in res]):.1f} s")
         print(f"{'  mean z (bias / std)':24s}" + "".join(f"{v:12.2f}" for v in z.mean(0)))
         print(f"{'  std of z':24s}" + "".join(f"{v:12.2f}" for v in z.std(0, ddof=1)))
