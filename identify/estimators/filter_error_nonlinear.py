@@ -118,6 +118,7 @@ class StateTerms:
         return Gu, Gf, Du, D[..., self.cols]
 
     def evaluate(self, beta, jacobian: bool = False, noise: bool = False):
+        """The linear method's ``evaluate`` (same unknowns, result and errors) by the extended filter."""
         theta, f, x0, b, r = self.unpack(beta)
         model = self.model0.with_theta(theta)
         lin = Linearised(model, self.cols, self.J0)
