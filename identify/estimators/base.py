@@ -38,6 +38,10 @@ subclassing :class:`Estimator` and overriding what differs:
 ``simulates_state_terms``
     whether pseudo-inputs built from states are taken from the model's simulated states when
     fitting (output error) rather than from the measured channels (equation error).
+``builds_state_terms``
+    whether the estimator computes such pseudo-inputs itself, inside each fit, from its own state
+    estimates (the extended filter of FEM): then one fit is the estimate and its bounds, no
+    re-fitting until the simulated terms settle.
 ``progress_quantity``
     what the ``progress`` callback's value is (``cost``, ``max rel. change``), for messages.
 ``determinable(profile, runs)``
@@ -94,6 +98,7 @@ class Estimator:
 
     method = "base"
     simulates_state_terms = False
+    builds_state_terms = False
     progress_quantity = "value"
 
     def __init__(self, profile: Profile | str | Path):

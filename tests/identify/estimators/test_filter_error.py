@@ -216,10 +216,6 @@ def test_cli_estimate_fem_on_headerless_textbook_layout(lateral_runs, tmp_path, 
 
 def test_refusals(navion):
     assert estimator_class("fem") is FEM
-    terms = navion.to_toml().replace("[meta]", "") + '\n[meta.pseudo_inputs]\nqq = { product = ["q", "q"] }\n'
-    with pytest.raises(EstimationError, match="built from the model's states"):
-        FEM(parse_profile(terms.replace('inputs = { delta_e = "rad" }', 'inputs = { delta_e = "rad", qq = "" }'))
-            ).fit([])
     with pytest.raises(EstimationError, match="not a state"):
         FEM(navion, process_noise={"x": 1.0}).fit([])
 
