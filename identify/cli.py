@@ -156,10 +156,11 @@ def _estimator(args, profile, show_progress: bool = True):
 
     estimator = build(args.method, profile, progress=show if show_progress else None,
                       names={"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays",
-                             "prune": "--prune", "x0": "--x0"},
+                             "prune": "--prune", "x0": "--x0", "n_draws": "--n-draws"},
                       max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
                       delays=_names(getattr(args, "fr_delays", None)) or None,
-                      prune=getattr(args, "prune", None) or None, x0=getattr(args, "x0", None))
+                      prune=getattr(args, "prune", None) or None, x0=getattr(args, "x0", None),
+                      n_draws=getattr(args, "n_draws", None))
     return estimator
 
 
@@ -199,7 +200,23 @@ def _add_estimate_parser(sub) -> None:
     p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")
     p.add_argument("--prune", action="store_true", help="fr: fix parameters that fail CIFER's gates "
                    "(insensitivity <= 10 %%, Cramér-Rao <= 20 %%) at their a priori values, one at a time")
+    p.add_argument("--n-draws", type=_n_draws, metavar="N",
+                   help="fr: surrogate sets of runs behind the bootstrap standard errors (default 30; 0: Tischler's "
+                        "bound from J alone, which takes correlated points as independent and is too small)")
     p.set_defaults(func=cmd_estimate)
+
+
+def _n_draws(text: str) -> int:
+    """argparse type of --n-draws: 0 or at least 3 (a sample covariance needs three refits)."""
+    import argparse
+
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if n != 0 and n < 3:
+        raise argparse.ArgumentTypeError(f"0 or at least 3, got {n}")
+    return n
 
 
 def _names(text: str | None) -> tuple[str, ...]:

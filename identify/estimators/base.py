@@ -38,8 +38,17 @@ subclassing :class:`Estimator` and overriding what differs:
 ``simulates_state_terms``
     whether pseudo-inputs built from states are taken from the model's simulated states when
     fitting (output error) rather than from the measured channels (equation error).
+``builds_state_terms``
+    whether the estimator computes such pseudo-inputs itself, inside each fit, from its own state
+    estimates (the extended filter of FEM): then one fit is the estimate and its bounds, no
+    re-fitting until the simulated terms settle.
 ``progress_quantity``
     what the ``progress`` callback's value is (``cost``, ``max rel. change``), for messages.
+``determinable(profile, runs)``
+    the structure refine fits and extends, and ``{parameter: reason}`` for the parameters the
+    estimator cannot determine from these runs (held at their a priori values for the whole
+    refinement). Default: the profile as declared, nothing held. The frequency-response fit
+    holds what fails CIFER's gates: unpruned, its nested fits diverge along those directions.
 """
 from __future__ import annotations
 
@@ -89,6 +98,7 @@ class Estimator:
 
     method = "base"
     simulates_state_terms = False
+    builds_state_terms = False
     progress_quantity = "value"
 
     def __init__(self, profile: Profile | str | Path):
@@ -191,6 +201,9 @@ class Estimator:
 
     def prediction_segment(self, model, duration: float) -> float:
         return math.inf
+
+    def determinable(self, profile, runs: list[Run]) -> tuple[Profile, dict[str, str]]:
+        return profile, {}
 
     def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
                    start: list[Run] | None = None):

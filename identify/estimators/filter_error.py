@@ -57,6 +57,9 @@ filter's gain is zero and FEM is output-error ML (plain form).
 Outputs that are state derivatives (p_dot, a_y) use the model's noise-free derivative
 ``C x + D u`` (the convention of Maine & Iliff and Jategaonkar: continuous white noise has no
 finite sample value; its effect on such outputs is absorbed by R).
+
+Profiles with state-built nonlinear terms (q|q|): the extended Kalman filter of
+:mod:`identify.estimators.filter_error_nonlinear` (:class:`NonlinearFilterProblem`), the rest as above.
 """
 from __future__ import annotations
 
@@ -77,6 +80,7 @@ from ..model.profile import Profile
 from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import discretize, held_inputs, propagate
 from .base import Estimator
+from .filter_error_nonlinear import StateTerms
 from .ml import (INITIAL_DAMPING, MAX_DAMPING, MAX_REL_STEP, MIN_GAIN_RATIO, STALL_TOL_SE,
                  STEP_TOL_SE, common_dt, finite_channels)
 from .output_error import cut, pad
@@ -126,10 +130,6 @@ class FEM(Estimator):
     def _validate(self) -> None:
         super()._validate()
         p = self.profile_
-        built = _state_terms(p)
-        if built and not getattr(self, "_scoring", False):
-            raise EstimationError(f"FEM: the profile's nonlinear terms {', '.join(built)} are built from the "
-                                  f"model's states, which the linear filter cannot carry: use --method ml")
         if not (isinstance(self.max_iter, (int, np.integer)) and self.max_iter >= 1):
             raise EstimationError(f"FEM: max_iter must be a positive integer, got {self.max_iter!r}")
         if not (np.isfinite(self.tol) and self.tol > 0):
@@ -155,7 +155,9 @@ class FEM(Estimator):
                                   f"use one of held, linear for all runs")
         u = [finite_channels(r, p.input_names) for r in runs]
         z = [finite_channels(r, list(p.outputs)) for r in runs]
-        prob = FilterProblem(p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
+        args = (p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
+        # state-built terms (q|q|): the extended filter (identify.estimators.filter_error_nonlinear)
+        prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else FilterProblem(*args)
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
         return prob, beta, active
 
@@ -171,7 +173,8 @@ class FEM(Estimator):
         return self._result(runs, prob, solver, _time.perf_counter() - started)
 
     # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
-    simulates_state_terms = False  # state-built terms are refused
+    simulates_state_terms = False  # state-built terms come from the filter's own states ...
+    builds_state_terms = True  # ... inside each fit (the extended filter): one fit, no settling loop
     progress_quantity = "cost"
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
@@ -192,22 +195,9 @@ class FEM(Estimator):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
         (N_r, ny, k) = -d(innovations)/d(F, R, the run's initial state and zero shifts) per run
         (F and R are shared by the runs; as per-run columns the score test is a little conservative).
-
-        A candidate term built from states (q|q|) is scored, not fitted (fitting it needs an extended
-        Kalman filter, which FEM does not have): its column is the term computed from the filter's
-        one-step *predicted* states of the null model (at null values the term does not change the
-        innovations), never from the measured states, which carry the measurement noise."""
-        terms = _state_terms(profile)
-        if not terms:
-            return self._innovations(profile, runs, zero_shifts, jacobian=True)[0]
-        zeroed = [r.with_channels({n: np.zeros(len(r)) for n in terms}) for r in runs]
-        _, prob, ev = self._innovations(profile, zeroed, zero_shifts, jacobian=False, scoring=True)
-        states = prob.per_run(ev.x)
-        built = []
-        for r, x in zip(runs, states):
-            pred = r.with_channels({s: x[:, i] for i, s in enumerate(profile.state_names)})
-            built.append(r.with_channels({n: pi.channel(n, pi.specs(profile)[n], pred) for n in terms}))
-        return self._innovations(profile, built, zero_shifts, jacobian=True, scoring=True)[0]
+        A candidate term built from states (q|q|) gets its column from the extended filter at the
+        term's null value: the term on the filter's own states, never on the measured ones."""
+        return self._innovations(profile, runs, zero_shifts, jacobian=True)[0]
 
     def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform):
         """Per run (N_r, ny): the filter's one-step prediction's response to ``transform(u, dt)`` of
@@ -225,7 +215,7 @@ class FEM(Estimator):
         x = propagate(Phi - Kp @ model.C, (Gamma - Kp @ Dh) @ U, np.zeros((prob.n, prob.n_runs)))
         return prob.per_run(model.C @ x + Dh @ U)
 
-    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool, scoring: bool = False):
+    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool):
         """``(ModelFit, problem, filtered)`` of the profile's derivatives on ``runs``, the nuisance
         fitted (cached per profile and runs: refine asks for the same prediction several ways)."""
         from .prediction import ModelFit  # the protocol's result type
@@ -238,7 +228,6 @@ class FEM(Estimator):
         while len(cache) >= INNOVATION_CACHE:
             cache.pop(next(iter(cache)))
         est = self.clone(profile, estimate_bias=zero_shifts)
-        est._scoring = scoring  # state-built terms given as channels (sensitivities), not refused
         est._validate()
         runs = est.check_runs(runs)
         prob, beta, active = est._problem(runs)
@@ -497,7 +486,7 @@ class FilterProblem:
         ``dQd`` by central differences of Van Loan's exponential (exact in F, which enters
         squared), batched; no Riccati solve and no re-filtering."""
         theta, f, _, _, r = self.unpack(ev.beta)
-        m0, p, nf, ny, n, G = self.model0, self.p, self.nf, self.ny, self.n, self.G
+        p, nf, ny, n, G = self.p, self.nf, self.ny, self.n, self.G
         model, P, S = ev.model, ev.P, ev.S
         C = model.C
         dPhi_g, dC_g, dR = np.zeros((G, n, n)), np.zeros((G, ny, n)), np.zeros((G, ny, ny))
@@ -506,9 +495,9 @@ class FilterProblem:
             dR[p + nf + np.arange(ny), np.arange(ny), np.arange(ny)] = 1.0
         # dQd: theta through A, F through F F^T (central differences; Qd is quadratic in F)
         h = GAIN_STEP * np.maximum(np.abs(np.concatenate([theta, f])), 1e-3 * max(np.abs(theta).max(), 1e-12))
-        As = np.concatenate([model.A + h[:p, None, None] * m0.dA, np.repeat(model.A[None], nf, 0)])
+        As = np.concatenate([model.A + h[:p, None, None] * model.dA, np.repeat(model.A[None], nf, 0)])
         fs = np.concatenate([np.repeat(f[None], p, 0), f + np.diag(h[p:])])
-        Am = np.concatenate([model.A - h[:p, None, None] * m0.dA, np.repeat(model.A[None], nf, 0)])
+        Am = np.concatenate([model.A - h[:p, None, None] * model.dA, np.repeat(model.A[None], nf, 0)])
         fm = np.concatenate([np.repeat(f[None], p, 0), f - np.diag(h[p:])])
         dQd = np.zeros((G, n, n))
         with np.errstate(over="ignore", invalid="ignore"):  # not finite: reported by the caller
@@ -546,6 +535,13 @@ class FilterProblem:
     def per_run(self, arr: np.ndarray) -> list[np.ndarray]:
         """(L, ny, R) back to one (N_r, ny) array per run."""
         return [arr[:n_r, :, r].copy() for r, n_r in enumerate(self.layout.length)]
+
+
+class NonlinearFilterProblem(StateTerms, FilterProblem):
+    """:class:`FilterProblem` of a profile with state-built terms: the extended Kalman filter
+    (:mod:`identify.estimators.filter_error_nonlinear`)."""
+
+    Filtered = Filtered
 
 
 class _Solver:

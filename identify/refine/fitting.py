@@ -84,13 +84,17 @@ class Fitting:
 
     def refit(self, ext_p: Profile, p: Profile, bounds: bool = True) -> tuple[Profile, IdentificationResult]:
         """Fit of an extended profile: the fitted profile (named as ``p``) and the result.
-        State-built terms come from the predicted states of the model being fitted (:func:`settle`)."""
+        State-built terms come from the predicted states of the model being fitted (:func:`settle`),
+        or from the estimator's own state estimates inside its fit (``builds_state_terms``)."""
+        builds = self.estimator.builds_state_terms
+
         def fit(prof: Profile):
-            runs = self.prediction(prof).runs if state_terms(prof) else prepare(prof, self.data["fit"])
+            simulated = state_terms(prof) and not builds
+            runs = self.prediction(prof).runs if simulated else prepare(prof, self.data["fit"])
             result = self.estimate(prof, runs, bounds=bounds)
             return _keep_meta(result.identified_profile(p.name), ext_p), result
 
-        if not state_terms(ext_p):
+        if not state_terms(ext_p) or builds:
             return fit(ext_p)
         fitted, result = settle(fit, ext_p)
         if bounds:

@@ -105,6 +105,7 @@ class Refine:
         self._validate_options()
         self._check(runs, validate)
         self._hold_unflown(runs)
+        self._hold_undeterminable(runs)
         choose, judge = split_validation(validate, self.declared_.input_names)
         self.runs_, self.validation_runs_ = runs, validate
         self.data_ = {"fit": [r.source for r in runs], "choosing": [r.source for r in choose],
@@ -132,6 +133,8 @@ class Refine:
         diag = {"before": dg.summary(ev0.residuals, times, self.fitting_.dt, self.f_min, current.outputs)}
         current, result = self._loop(current, est)
         self.profile_, self.result_ = current, result
+        if self.undeterminable_:
+            result.info["undeterminable"] = dict(self.undeterminable_)
         if self.held_:  # the final model keeps them free, at their a priori values, for runs that move them
             self.profile_ = free(current, [n for names in self.held_.values() for n in names])
             self.result_ = expand_held(result, self.profile_, self.held_, self.held_note_)
@@ -242,6 +245,17 @@ class Refine:
             self._say(self.held_note_)
             warnings.warn(self.held_note_, HeldWarning, stacklevel=3)
             self.declared_ = fix(self.declared_, [n for names in self.held_.values() for n in names])
+
+    def _hold_undeterminable(self, runs: list[Run]) -> None:
+        """Fix what the estimator says it cannot determine from the fitting runs
+        (:meth:`~identify.estimators.base.Estimator.determinable`; said once, kept in
+        ``undeterminable_`` and the result): no fit, test or candidate of the loop moves them."""
+        self.declared_, self.undeterminable_ = self.estimator_.determinable(self.declared_,
+                                                                             prepare(self.declared_, runs))
+        if self.undeterminable_:
+            self._say(f"{len(self.undeterminable_)} parameter(s) the {self.estimator_.method.upper()} estimator cannot "
+                      "determine from these runs, held at their a priori values: "
+                      + "; ".join(f"{n} ({r})" for n, r in self.undeterminable_.items()))
 
     def _segment(self, runs: list[Run], fitted: Profile | None = None) -> float:
         """One segmentation for every fit and test of the loop (the estimator's choice for the

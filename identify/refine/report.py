@@ -41,6 +41,7 @@ def to_dict(r: Refine) -> dict:
         "evaluations": r.evaluations_,
         "catalogue": list(r.kinds_),
         "unconverged_fits": r.unconverged_,
+        "undeterminable": dict(getattr(r, "undeterminable_", {})),
         "estimator_advice": r.initial_result_.info.get("estimator_advice"),
         "segment_s": r.segment_ if np.isfinite(r.segment_) else None,
         "nothing_found": r.nothing_found,
@@ -125,6 +126,9 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
               f"stopped: {r.stopped_}"]
     lines += [f"- **warning**: {len(r.unconverged_)} fit(s) did not converge: " + "; ".join(r.unconverged_)
               ] if r.unconverged_ else []
+    lines += ["- held at a priori values (the estimator cannot determine them from the fit runs): "
+              + "; ".join(f"`{n}` ({why})" for n, why in r.undeterminable_.items())
+              ] if getattr(r, "undeterminable_", None) else []
     lines.append("")
     if r.nothing_found:
         lines.append("**Nothing found**: no candidate effect is significant and confirmed; the residuals are "

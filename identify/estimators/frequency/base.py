@@ -15,6 +15,7 @@ the leading sample axis of stacked segments, for the windowed (tapered) spectral
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -50,8 +51,25 @@ def fourier_sum(x: np.ndarray, t: np.ndarray, omega: np.ndarray) -> np.ndarray:
     """``sum_k x[..., k, c] e^{-jw t_k}``: (..., L, c) samples at times t (L,) -> (..., nf, c).
 
     The discrete sum at arbitrary frequencies; for a taper that vanishes at both ends (Hann) it is
-    the trapezoidal finite Fourier transform divided by the sample interval."""
-    return np.einsum("...lc,lf->...fc", x, np.exp(-1j * np.outer(t, omega)))
+    the trapezoidal finite Fourier transform divided by the sample interval. Computed as two real
+    matrix products (cosine and sine kernels, cached per grid): real data times a complex kernel
+    in ``einsum`` ran an unbuffered loop that took 80 % of an FR fit (cProfile, benchmarks/frequency_fit.py)."""
+    x = np.asarray(x)
+    if np.iscomplexobj(x):
+        return fourier_sum(x.real, t, omega) + 1j * fourier_sum(x.imag, t, omega)
+    c, s = _kernels(np.ascontiguousarray(t, dtype=float).tobytes(), np.ascontiguousarray(omega, dtype=float).tobytes())
+    xt = np.swapaxes(x, -1, -2)  # (..., c, L) @ (L, nf) -> (..., c, nf)
+    return np.swapaxes(xt @ c, -1, -2) - 1j * np.swapaxes(xt @ s, -1, -2)
+
+
+@lru_cache(maxsize=32)
+def _kernels(t_bytes: bytes, omega_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of ``outer(t, omega)`` (L, nf), read-only: the same grid recurs for every window,
+    transform and bootstrap draw of a fit."""
+    wt = np.outer(np.frombuffer(t_bytes), np.frombuffer(omega_bytes))
+    c, s = np.cos(wt), np.sin(wt)
+    c.flags.writeable = s.flags.writeable = False
+    return c, s
 
 
 class FourierTransform:

@@ -24,7 +24,8 @@ the coherence gates, the cost's weighting), with no factor chosen. Its own preci
 sample variance: about ``1 / sqrt(2 (n_draws - 1))`` relative (13 % for 30 draws).
 What it does not include: the deterministic error of the response estimate (a bias, the same in
 every draw; the caller corrects it with a ratio held fixed over the draws, although across flights
-it moves a little with the estimate: slightly too small). Misfit the band regression cannot take out
+it moves with the estimate: FR scales the covariance for that by its linearised fixed point's gain,
+:meth:`.response_fit.FR._fixed_point_gain`). Misfit the band regression cannot take out
 (a wrong unstable mode's growth over the record, wrong initial transients) stays in the residual
 and enlarges the bounds: the premise is a model that predicts the runs to within their noise.
 """

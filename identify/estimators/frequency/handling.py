@@ -20,10 +20,14 @@ reach is "not determined" (NaN and a reason), never extrapolated. Crossings are 
 linearly in log frequency between the two points that bracket them.
 
 Level boundaries (:data:`ADS33_BOUNDARIES`): the corner points of the hover/low-speed pitch and roll
-charts (ADS-33E-PRF Fig. 3.3-1 as reproduced by Tischler & Remple), simplified to their rectangular
-corners (minimum bandwidth, maximum phase delay per level); the sloped high-bandwidth parts of the
-original charts are not drawn. Check the figures against the specification before relying on a
-level near a boundary.
+charts, simplified to their rectangular corners (minimum bandwidth, maximum phase delay per level);
+the sloped high-bandwidth parts of the original charts are not drawn. **Every corner value is
+UNVERIFIED** (:data:`ADS33_UNVERIFIED`): written from memory of Tischler & Remple's reproductions
+of ADS-33E-PRF's hover/low-speed bandwidth charts (para. 3.3.2.1, a number also from memory), not
+checked against ADS-33E-PRF itself. The public references searched (docs, pages and code corpora,
+Nov 2026: ADS-33E-PRF's table of contents is public, its charts' values were not found, nor open
+code that encodes them) could not confirm them; every level read from them says so on screen, in
+``hq.md`` and on the chart.
 """
 from __future__ import annotations
 
@@ -39,6 +43,15 @@ ADS33_BOUNDARIES = {
     "other": {"pitch": ((2.0, 0.20), (1.0, 0.30)), "roll": ((2.0, 0.20), (1.0, 0.30))},
 }
 TASK_NAMES = {"tracking": "target acquisition and tracking", "other": "all other MTEs (UCE 1, fully attended)"}
+# (task, axis) whose corners were not checked against ADS-33E-PRF: all of them (see the module notes);
+# a pair leaves this set only with the specification's figure cited beside its values above
+ADS33_UNVERIFIED = frozenset((task, axis) for task, axes in ADS33_BOUNDARIES.items() for axis in axes)
+
+
+def boundary_status(axis: str, task: str = "tracking") -> str:
+    """"" for boundaries checked against the specification, else the marker every level read from
+    them carries."""
+    return "UNVERIFIED boundaries" if (task, axis) in ADS33_UNVERIFIED else ""
 
 
 @dataclass
@@ -211,7 +224,9 @@ def ads33_chart(points: dict[str, Bandwidth], axis: str, task: str = "tracking")
     ax.set_ylim(0, t_hi)
     ax.set_xlabel("bandwidth $\\omega_{BW}$ [rad/s]")
     ax.set_ylabel("phase delay $\\tau_p$ [s]")
-    ax.set_title(f"ADS-33 {axis} attitude, hover/low speed: {TASK_NAMES.get(task, task)}", fontsize=9)
+    status = boundary_status(axis, task)
+    ax.set_title(f"ADS-33 {axis} attitude, hover/low speed: {TASK_NAMES.get(task, task)}"
+                 + (f"\n{status}: corners not checked against ADS-33E-PRF" if status else ""), fontsize=9)
     ax.legend(fontsize=7, loc="upper right")
     ax.grid(True, color="0.9")
     fig.tight_layout()

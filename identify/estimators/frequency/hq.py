@@ -23,7 +23,7 @@ import numpy as np
 
 from ...errors import EstimationError
 from ...model.linear import LinearModel
-from .handling import TASK_NAMES, Bandwidth, ads33_chart, bandwidth
+from .handling import TASK_NAMES, Bandwidth, ads33_chart, bandwidth, boundary_status
 from .loes import ShortPeriod, fit_transfer_function, short_period
 
 AXES = {"pitch": (("theta_s", "delta_e"), "q", "theta"), "roll": (("theta_c", "delta_a"), "p", "phi")}
@@ -50,9 +50,12 @@ class HQReport:
     notes: list[str] = field(default_factory=list)
 
     def markdown(self) -> str:
+        unverified = any(boundary_status(a.axis, self.task) for a in self.axes)
         lines = [f"# Handling qualities: {self.source}", "",
                  f"ADS-33 task category: {TASK_NAMES.get(self.task, self.task)} (hover and low speed; "
-                 "simplified corner boundaries, see docs/frequency.md).", "",
+                 "simplified corner boundaries, see docs/frequency.md)."
+                 + (" **UNVERIFIED boundaries**: the corner values were not checked against ADS-33E-PRF; "
+                    "a level near a boundary may be wrong." if unverified else ""), "",
                  "| axis | response | omega_180 [rad/s] | BW phase [rad/s] | BW gain [rad/s] | bandwidth [rad/s] "
                  "| phase delay [s] | ADS-33 level |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
         for a in self.axes:
@@ -62,7 +65,7 @@ class HQReport:
                          f"{_f(b.omega_bw_gain)} | "
                          f"{_f(b.bandwidth) if not np.isfinite(b.bandwidth_below) else f'< {b.bandwidth_below:.3g}'} | "
                          f"{_f(b.phase_delay, 4)} | "
-                         f"{lvl if lvl else 'not determined'} |")
+                         f"{_level(lvl, a.axis, self.task)} |")
         for a in self.axes:
             for n in a.bandwidth.notes:
                 lines.append(f"- {a.axis}: {n}")
@@ -87,7 +90,7 @@ class HQReport:
             bw = _f(b.bandwidth, unit="rad/s") if not np.isfinite(b.bandwidth_below) else \
                 f"< {b.bandwidth_below:.3g} rad/s"
             out.append(f"  {a.axis} ({a.response}): bandwidth {bw}, phase delay "
-                       f"{_f(b.phase_delay, 4, 's')}: ADS-33 level {lvl if lvl else 'not determined'}"
+                       f"{_f(b.phase_delay, 4, 's')}: ADS-33 level {_level(lvl, a.axis, self.task)}"
                        + (f" ({'; '.join(b.notes)})" if b.notes else ""))
             if a.loes is not None:
                 out += ["  " + s for s in a.loes.lines()] + ([f"  {a.loes_note}"] if a.loes_note else [])
@@ -115,6 +118,14 @@ class HQReport:
             fig.savefig(path, dpi=90)
             paths.append(path)
         return paths
+
+
+def _level(lvl: int | None, axis: str, task: str) -> str:
+    """The ADS-33 level as printed: with its boundaries' status (UNVERIFIED ones say so)."""
+    if not lvl:
+        return "not determined"
+    status = boundary_status(axis, task)
+    return f"{lvl} ({status})" if status else str(lvl)
 
 
 def _f(x: float, digits: int = 3, unit: str = "") -> str:

@@ -223,11 +223,16 @@ def _bounds(jac: np.ndarray, J: float, n_res: int, n_par: int) -> tuple[np.ndarr
 
 
 # -- short-period LOES and MIL-STD-1797A ---------------------------------------------------------
-# flight-phase category -> Level -> (zeta_min, zeta_max); equivalent delay limit per Level (s)
+# flight-phase category -> Level -> (zeta_min, zeta_max); equivalent delay limit per Level (s).
+# Checked: the category A row and the delay limits equal the one table of Morelli's SIDPAC
+# milstd.m ("data in MIL-STD 1797A", pitch rate LOES: zeta 0.35-1.30 / 0.25-2.00 / >= 0.15,
+# tau_e 0.10 / 0.20 / 0.25 s; it names no category and caps Level 3's zeta at 10 for its plot). The B
+# and C rows are from memory of MIL-STD-1797A and UNVERIFIED (MIL1797_UNVERIFIED): said with the level.
 MIL1797_ZETA = {"A": ((0.35, 1.30), (0.25, 2.00), (0.15, np.inf)),
                 "B": ((0.30, 2.00), (0.20, 2.00), (0.15, np.inf)),
                 "C": ((0.35, 1.30), (0.25, 2.00), (0.15, np.inf))}
 MIL1797_TAU = (0.10, 0.20, 0.25)
+MIL1797_UNVERIFIED = frozenset({"B", "C"})
 
 
 @dataclass
@@ -281,7 +286,8 @@ def mil1797_short_period_level(zeta: float, tau_e: float, category: str = "A") -
         return None, ["zeta or tau_e not determined"]
     lz = next((k for k, (a, b) in enumerate(MIL1797_ZETA[category], start=1) if a <= zeta <= b), 4)
     lt = next((k for k, t in enumerate(MIL1797_TAU, start=1) if tau_e <= t), 4)
-    reasons = [f"zeta_sp {zeta:.3g}: Level {lz if lz < 4 else 'worse than 3'} (category {category})",
+    unverified = ", UNVERIFIED damping limits" if category in MIL1797_UNVERIFIED else ""
+    reasons = [f"zeta_sp {zeta:.3g}: Level {lz if lz < 4 else 'worse than 3'} (category {category}{unverified})",
                f"tau_e {tau_e:.3g} s: Level {lt if lt < 4 else 'worse than 3'}"]
     return min(max(lz, lt), 3) if max(lz, lt) < 4 else 3, reasons
 

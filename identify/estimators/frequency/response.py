@@ -370,7 +370,7 @@ class _Transforms:
         tapered signals): the slope at the window's own resolution, the scale that leaks."""
         nu = self.nu
         Gud = self._cross(self.F, self._transform(np.gradient(self.hann, self.t), slice(0, nu)))  # (nf, nu, nu)
-        Ft = self._transform(-1j * self.t * self.hann)  # dF/dw
+        Ft = -1j * self._transform(self.t * self.hann)  # dF/dw (a real taper: one real transform)
         dG = self._cross(Ft, self.F) + self._cross(self.F, Ft)  # d/dw of [G_uu, G_uy]
         dH = self.solve(dG[:, :, nu:] - dG[:, :, :nu] @ np.swapaxes(H, 1, 2))  # d/dw of H^T (nf, nu, ny)
         return np.swapaxes(1j * self.solve(Gud @ dH), 1, 2)

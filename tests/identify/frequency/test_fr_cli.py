@@ -61,12 +61,13 @@ def test_cli_fr_verify_hq_loes(flights, tmp_path, capsys):
     paths = [r.to_csv(tmp_path / f"run{k}.csv") for k, r in enumerate(sweeps[::2])]  # the sweeps only
     val = held_out.to_csv(tmp_path / "val.csv")
     assert main(["estimate", *map(str, paths), "--profile", "s61_hover_4dof", "--method", "fr", "--prune",
-                 "--verify", str(val), "--out", str(tmp_path / "fr")]) == 0
+                 "--n-draws", "4", "--verify", str(val), "--out", str(tmp_path / "fr")]) == 0
     out = capsys.readouterr().out
     assert "FR identification" in out and "VERIFY" in out and "J_rms" in out
     assert "fixed at a priori" in out and "lowest resolved frequency" in out
     info = json.loads((tmp_path / "fr" / "result.json").read_text())["info"]
     assert info["verify"]["passes"] and info["J_mean"] < 100
+    assert info["n_draws"] == 4 and info["standard_errors"].startswith("residual bootstrap, ")  # --n-draws recorded
     assert (tmp_path / "fr" / "verify.png").stat().st_size > 10_000
     assert main(["hq", *map(str, paths), "--profile", "s61_hover_4dof", "--out", str(tmp_path / "hq")]) == 0
     assert "ADS-33 level" in capsys.readouterr().out and (tmp_path / "hq" / "hq_pitch.png").exists()
@@ -77,3 +78,9 @@ def test_cli_fr_verify_hq_loes(flights, tmp_path, capsys):
     proc = run_cli("identify", "loes", *paths, "--profile", "s61_hover_4dof", "--pair", "r/theta_c", "--out",
                    tmp_path / "x")
     one_error_line(proc, "--pair r/theta_c")
+    proc = run_cli("identify", "estimate", *paths, "--profile", "s61_hover_4dof", "--method", "fr", "--n-draws", "2",
+                   "--out", tmp_path / "y")
+    assert proc.returncode != 0 and "0 or at least 3" in proc.stderr
+    proc = run_cli("identify", "estimate", *paths, "--profile", "s61_hover_4dof", "--method", "ml", "--n-draws", "5",
+                   "--out", tmp_path / "z")
+    one_error_line(proc, "--n-draws does not apply to ml")

@@ -1,5 +1,7 @@
 """Handling-qualities figures and LOES fits against exact truths: responses measured from simulated
 flight data (sweeps through a known transfer function with a delay) and exact responses."""
+import re
+
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -120,3 +122,33 @@ def test_mil1797_levels():
     assert mil1797_short_period_level(0.7, 0.15)[0] == 2
     assert mil1797_short_period_level(0.2, 0.22)[0] == 3
     assert mil1797_short_period_level(float("nan"), 0.05)[0] is None
+
+
+def test_verified_boundary_points_are_pinned():
+    """MIL-STD-1797A short-period limits checked against SIDPAC's milstd.m (category A row, delays):
+    the values, and the level changing exactly there; what is not checked says UNVERIFIED."""
+    from identify.estimators.frequency.loes import MIL1797_TAU, MIL1797_UNVERIFIED, MIL1797_ZETA
+
+    assert MIL1797_ZETA["A"][:2] == ((0.35, 1.30), (0.25, 2.00)) and MIL1797_ZETA["A"][2][0] == 0.15
+    assert MIL1797_TAU == (0.10, 0.20, 0.25) and "A" not in MIL1797_UNVERIFIED
+    for zeta, level in ((0.34, 2), (0.36, 1), (1.29, 1), (1.31, 2), (0.24, 3), (0.26, 2), (1.99, 2), (2.01, 3)):
+        assert mil1797_short_period_level(zeta, 0.05)[0] == level, zeta
+    for tau, level in ((0.099, 1), (0.101, 2), (0.199, 2), (0.201, 3), (0.26, 3)):
+        assert mil1797_short_period_level(0.7, tau)[0] == level, tau
+    assert "UNVERIFIED" not in " ".join(mil1797_short_period_level(0.7, 0.05, "A")[1])
+    assert "UNVERIFIED" in " ".join(mil1797_short_period_level(0.7, 0.05, "B")[1])
+
+
+def test_unverified_ads33_boundaries_are_said_everywhere(tmp_path):
+    from identify.estimators.frequency.handling import ADS33_BOUNDARIES, ADS33_UNVERIFIED
+    from identify.estimators.frequency.hq import handling_qualities
+
+    # no ADS-33 corner could be checked against ADS-33E-PRF: every one is marked
+    assert ADS33_UNVERIFIED == {(t, a) for t, axes in ADS33_BOUNDARIES.items() for a in axes}
+    w = np.geomspace(0.3, 40, 200)
+    H = (2 * np.exp(-0.1j * w) / (1j * w * (0.2j * w + 1)) * 1j * w)[:, None, None]  # a rate response
+    report = handling_qualities(w, H, None, ["theta_s"], ["q"], "test", "tracking")
+    assert re.search(r"ADS-33 level [123] \(UNVERIFIED boundaries\)", "\n".join(report.lines()))
+    assert "UNVERIFIED" in report.markdown()
+    report.save(tmp_path)
+    assert "UNVERIFIED" in ads33_chart({"x": report.axes[0].bandwidth}, "pitch").axes[0].get_title()
