@@ -463,10 +463,11 @@ class Compat:
     def _result(self, runs, before: _Fit, fit: _Fit, steps) -> CompatResult:
         prob = fit.prob
         P = prob.p
-        cov, ill = np.zeros((0, 0)), False
+        cov, ill, white = np.zeros((0, 0)), False, np.zeros(0)
         if P:
             cov = fit.coloured()[0].gg[:P, :P]
-            ill = fit.M.covariance()[1]
+            cov_white, ill = fit.M.covariance()
+            white = np.sqrt(np.clip(np.diag(cov_white.gg)[:P], 0, None))
         d = np.diag(cov)
         std = np.where(d > 0, np.sqrt(np.where(d > 0, d, 0.0)), np.nan)
         theta, xs = prob.split(fit.beta)
@@ -484,6 +485,7 @@ class Compat:
             iterations=fit.iterations, runs=[r.source for r in runs], alpha=self.alpha,
             info={"ill_conditioned": bool(ill), "method": "the output-error engine (ML, relaxed noise covariance, "
                   "multiple shooting, Levenberg-Marquardt) on the rigid-body kinematics; finite-difference "
-                  "sensitivities; coloured-residual bounds (Morelli & Klein)"},
+                  "sensitivities; coloured-residual bounds (Morelli & Klein)",
+                  "std_white": dict(zip([e.name for e in prob.errors], map(float, white)))},
             residuals_before=prob.segments(before.ev.e), residuals_after=prob.segments(fit.ev.e),
             time=[d.time for d in prob.data])
