@@ -156,30 +156,37 @@ class KinematicProblem(OutputError):
                 continue
             diff = {(kind, i): (y[1 + 2 * m] - y[2 + 2 * m]) / (2 * h) for m, (kind, i, h) in enumerate(perturb)}
             for i, e in enumerate(self.errors):
-                dy_theta[:N, :, i, s] = self._column(e, diff, y[0], d.dt, theta)
+                dy_theta[:N, :, i, s] = self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta)
             for i in range(7):
                 dy_x0[:N, :, i, s] = diff[("x0", i)]
-            extras.append(np.stack([self._column(e, diff, y[0], d.dt, theta) for e in extra], axis=2) if extra
+            extras.append(np.stack([self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta) for e in extra], axis=2) if extra
                           else np.zeros((N, self.ny, 0)))
         ev = Response(beta.copy(), np.where(self.mask[:, None, :] > 0, self.Z - y_all, 0.0), y_all)
         if jacobian:
             ev.dy_x0, ev.held, ev.extra = dy_x0, dy_theta, extras
+            # for the input-noise term of the bounds (:func:`_input_noise_information`): the
+            # trajectory, the inputs driving it and the state transition from each segment's start
+            x0_rows = [m for m, (kind, _, _) in enumerate(perturb) if kind == "x0"]
+            ev.states, ev.drive = states[0], drive[:S]
+            ev.dx_x0 = np.stack([(states[1 + 2 * m] - states[2 + 2 * m]) / (2 * perturb[m][2]) for m in x0_rows],
+                                axis=-1)  # (S, L, 7 states, 7 initial states)
         return ev
 
-    def _column(self, e: SensorError, diff: dict, y: np.ndarray, dt: float, theta: dict) -> np.ndarray:
-        """Sensitivity (N, ny) of the outputs of one segment (modelled ``y``) to sensor error ``e``."""
+    def _column(self, e: SensorError, diff: dict, y: np.ndarray, ykin: np.ndarray, t: np.ndarray,
+                theta: dict) -> np.ndarray:
+        """Sensitivity (N, ny) of the outputs of one segment (modelled ``y``, kinematic ``ykin``
+        at the times ``t`` from its start) to sensor error ``e``."""
         if e.on_input:
             return diff[("in", K.INPUTS.index(e.channel))]  # the batch perturbed b itself
         j = self.outputs.index(e.channel)
         out = np.zeros_like(y)
         gain = 1 + theta.get(f"K_{e.channel}", 0.0)
-        shifted = (y[:, j] - theta.get(f"b_{e.channel}", 0.0)) / gain
         if e.kind == "bias":
             out[:, j] = 1.0
         elif e.kind == "scale":
-            out[:, j] = shifted
-        else:  # d/dtau of K y(t - tau) = -K y'(t - tau)
-            out[:, j] = -gain * np.gradient(shifted, dt)
+            out[:, j] = (y[:, j] - theta.get(f"b_{e.channel}", 0.0)) / gain
+        else:
+            out[:, j] = gain * _skew_sensitivity(ykin[:, j], t, theta.get(e.name, 0.0))
         return out
 
     def segments(self, arr: np.ndarray) -> list[np.ndarray]:
@@ -219,6 +226,67 @@ def _solve(prob: KinematicProblem, beta: np.ndarray, max_iter: int) -> _Fit:
 
 class _EngineSolver(_Solver):
     requires_parameters = False  # the first fit holds no sensor error: initial states alone
+
+
+def _skew_sensitivity(y: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+    """``d/dtau`` of ``y(t - tau)`` linearly interpolated between the samples (as the model does):
+    minus the slope of the sample interval that ``t - tau`` falls in (0 where it is clamped at
+    the record's ends). The exact derivative of the model: a central difference of the shifted
+    output (its smoothed slope) moved the Gauss-Newton fixed point off the cost's minimum by
+    0.1 standard error."""
+    dt = t[1] - t[0]
+    x = (t - tau - t[0]) / dt
+    j = np.clip(np.floor(x + 1e-9).astype(int), 0, len(y) - 2)
+    inside = (x >= -1e-9) & (x <= len(y) - 1 + 1e-9)
+    return -np.where(inside, (y[j + 1] - y[j]) / dt, 0.0)
+
+
+def _input_matrix(states: np.ndarray, inputs: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """``df/da`` (N, 7, 6) of the kinematics along a trajectory (states (N, 7), inputs (N, 6))."""
+    out = np.empty((len(states), 7, 6))
+    for i in range(6):
+        step = np.zeros(6)
+        step[i] = h
+        out[:, :, i] = (K.derivatives(states.T, (inputs + step).T)
+                        - K.derivatives(states.T, (inputs - step).T)).T / (2 * h)
+    return out
+
+
+def input_noise_variance(prob: KinematicProblem) -> np.ndarray:
+    """Variance (6,) of the accelerometers' and gyros' white noise, from their fifth differences
+    (var = 252 sigma^2 for white noise, in which the motion, even turbulence's with its
+    random-walk-like increments, counts about 12 times less than in third differences), robustly
+    (median absolute value / 0.6745: the steps of a control input's response do not count)."""
+    d5 = np.vstack([np.diff(d.inputs, 5, axis=0) for d in prob.data])
+    return (np.median(np.abs(d5), axis=0) / 0.6745) ** 2 / 252
+
+
+def _input_noise_information(prob: KinematicProblem, ev: Response, Wh: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``J^T W G Q G^T W J`` as local blocks (S, k, k): what the noise of the measured inputs
+    (variances ``q`` (6,)), integrated through the kinematics, adds to the residuals' covariance
+    (errors in the variables: the inputs are measured, not known). ``G`` is the response of the
+    outputs to a noise sample w_k of the inputs at sample k, ``dy/dx0(t) Phi(k)^-1 B_k dt`` for
+    t > k (Phi(k) the state transition from the segment's start, B_k = df/da there), so
+    ``G_k^T W J = dt B_k^T Phi(k)^-T sum_{t>k} (dy/dx0)^T W J`` (and half the term t = k, from the
+    interpolation of the inputs between samples): a reverse cumulative sum per
+    segment, no (N x N) matrix. The outputs it couples (an integrated q noise moves theta and
+    alpha alike) are what the per-output Toeplitz of the coloured bounds cannot describe."""
+    Jloc = prob.local_jacobian(ev, Wh)  # (S, L, ny, k)
+    p, k = prob.p, Jloc.shape[-1]
+    local = np.zeros((len(Jloc), k, k))
+    for s, N in enumerate(prob.layout.length):
+        J = Jloc[s, :N]
+        A = np.einsum("tyi,tyk->tik", J[:, :, p:p + 7], J)  # (N, 7, k)
+        # RK4 with the inputs linear between samples: a sample drives the interval before it
+        # (half, reaching x(k)) and the one after it (half, from x(k+1)); the ends drive one each
+        after = np.zeros_like(A)
+        after[:-1] = np.cumsum(A[::-1], axis=0)[::-1][1:]  # sum over t > k
+        after[1:] += 0.5 * A[1:]
+        after[0] *= 0.5
+        X = np.linalg.solve(ev.dx_x0[s, :N].transpose(0, 2, 1), after)  # Phi(k)^-T (N, 7, k)
+        v = prob.dt * np.einsum("tji,tjk->tik", _input_matrix(ev.states[s, :N], ev.drive[s, :N]), X)
+        local[s] = np.einsum("tik,i,til->kl", v, q, v)
+    return local
 
 
 def _spectrum(rho: np.ndarray, n_fft: int) -> np.ndarray:
@@ -347,6 +415,7 @@ class Compat:
         self.errors, self.alpha, self.candidates, self.segment = errors, alpha, candidates, segment
         self.max_steps, self.max_iter, self.progress = max_steps, max_iter, progress
         self.result_: CompatResult | None = None
+        self.problem_ = self.beta_ = self.weighting_ = None  # the final fit on the engine: problem, unknowns, Wh
 
     def _data(self, runs: list[Run]) -> tuple[list[_RunData], list[str]]:
         runs = [runs] if isinstance(runs, Run) else list(runs)
@@ -395,6 +464,7 @@ class Compat:
             _, rho = fit.coloured()
             fit, steps = self._select(data, outputs, pool, before, rho, fits)
         self.result_ = self._result(runs, before, fit, steps)
+        self.problem_, self.beta_, self.weighting_ = fit.prob, fit.beta, fit.Wh
         return self
 
     def _select(self, data, outputs, pool, before: _Fit, rho, fits: dict):
@@ -463,15 +533,20 @@ class Compat:
     def _result(self, runs, before: _Fit, fit: _Fit, steps) -> CompatResult:
         prob = fit.prob
         P = prob.p
-        cov, ill, white = np.zeros((0, 0)), False, np.zeros(0)
+        cov, ill, white, coloured, inputs = np.zeros((0, 0)), False, np.zeros(0), np.zeros(0), np.zeros(0)
+        q = input_noise_variance(prob)
         if P:
-            cov = fit.coloured()[0].gg[:P, :P]
+            cov_c = fit.coloured()[0].gg[:P, :P]
+            cov_i = fit.M.sandwich(_input_noise_information(prob, fit.ev, fit.Wh, q)).gg[:P, :P]
+            cov = cov_c + cov_i  # the outputs' own (coloured) noise and the inputs' noise integrated
             cov_white, ill = fit.M.covariance()
-            white = np.sqrt(np.clip(np.diag(cov_white.gg)[:P], 0, None))
+            white, coloured, inputs = (np.sqrt(np.clip(np.diag(c)[:P], 0, None))
+                                       for c in (cov_white.gg[:P, :P], cov_c, cov_i))
         d = np.diag(cov)
         std = np.where(d > 0, np.sqrt(np.where(d > 0, d, 0.0)), np.nan)
         theta, xs = prob.split(fit.beta)
         value = np.array([e.display(v) for e, v in zip(prob.errors, theta)])
+        names = [e.name for e in prob.errors]
 
         def rms(f: _Fit):
             e = np.vstack(prob.segments(f.ev.e))
@@ -486,6 +561,9 @@ class Compat:
             info={"ill_conditioned": bool(ill), "method": "the output-error engine (ML, relaxed noise covariance, "
                   "multiple shooting, Levenberg-Marquardt) on the rigid-body kinematics; finite-difference "
                   "sensitivities; coloured-residual bounds (Morelli & Klein)",
-                  "std_white": dict(zip([e.name for e in prob.errors], map(float, white)))},
+                  "std_white": dict(zip(names, map(float, white))),
+                  "std_coloured": dict(zip(names, map(float, coloured))),
+                  "std_input_noise": dict(zip(names, map(float, inputs))),
+                  "input_noise_std": dict(zip(K.INPUTS, map(float, np.sqrt(q))))},
             residuals_before=prob.segments(before.ev.e), residuals_after=prob.segments(fit.ev.e),
             time=[d.time for d in prob.data])

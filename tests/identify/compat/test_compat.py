@@ -82,3 +82,46 @@ def test_compat_says_what_it_needs(tmp_path):
     with pytest.raises(RunError, match=r"missing channel\(s\) a_z needed by flight-path reconstruction .*"
                                        r"\(the run holds: a_x, a_y, p, q, r, V"):
         Compat().fit(no_az)
+
+
+def test_compat_estimate_is_the_least_squares_minimum_of_the_engine():
+    """compat runs on the output-error engine (its problem on the engine's seam, ML's solver):
+    a general least-squares solver started from no sensor error finds the same estimates."""
+    from scipy.optimize import least_squares
+
+    measured, _ = flight(duration=9.0, seed=3)
+    compat = Compat(["b_q", "b_alpha", "tau_alpha", "K_alpha"]).fit(measured)
+    prob, beta, Wh = compat.problem_, compat.beta_, compat.weighting_
+    start = beta.copy()
+    start[:prob.p] = 0.0
+    ls = least_squares(prob.residual_vector, start, args=(Wh,), x_scale="jac", xtol=1e-12, ftol=1e-12)
+    white = np.array(list(compat.result_.info["std_white"].values()))
+    assert np.all(np.abs(ls.x[:prob.p] - beta[:prob.p]) < 0.01 * white), (ls.x[:prob.p] - beta[:prob.p]) / white
+
+
+def test_input_noise_term_is_the_integrated_input_noise():
+    """The errors-in-variables term J' W G Q G' W J of the bounds, computed by a reverse cumulative
+    sum, equals the one with G built sample by sample (finite differences of the integration)."""
+    from identify.compat import fit as F
+
+    measured, _ = flight(duration=1.2, seed=2)
+    compat = Compat(["b_q", "b_alpha"], segment=1.2).fit(measured)
+    prob, beta, Wh = compat.problem_, compat.beta_, compat.weighting_
+    ev = prob.evaluate(beta)
+    q = np.array([1.0, 2.0, 3.0, 4e-4, 5e-4, 6e-4])
+    fast = F._input_noise_information(prob, ev, Wh, q)[0]
+    J = prob.local_jacobian(ev, Wh)[0].reshape(-1, fast.shape[0])  # whitened (N ny, k)
+    d, N = prob.data[0], len(prob.data[0].time)
+    brute = np.zeros_like(fast)
+    for k in range(N):
+        for i in range(6):
+            h = 1e-4 if i < 3 else 1e-6
+            ys = []
+            for sgn in (1, -1):
+                bumped = F._RunData(d.source, d.run, d.time, d.dt, d.inputs.copy(), d.z)
+                bumped.inputs[k, i] += sgn * h
+                ys.append(F.KinematicProblem([bumped], prob.outputs, prob.errors).evaluate(beta, False).y[:N, :, 0])
+            g = (Wh @ ((ys[0] - ys[1]) / (2 * h))[..., None])[..., 0].ravel()  # whitened response to w_k,i
+            brute += q[i] * np.outer(J.T @ g, J.T @ g)
+    scale = np.sqrt(np.outer(np.diag(brute), np.diag(brute)))
+    assert np.all(np.abs(fast - brute) < 1e-3 * scale), (fast / brute)
