@@ -1,24 +1,26 @@
-"""The flight-path reconstruction estimator: output error on the rigid-body kinematics.
+"""The flight-path reconstruction estimator: the output-error engine on the rigid-body kinematics.
 
-Unknowns ``beta = [theta (the sensor errors in the model), x0 of every segment (7 each)]``: as the
-engine's multiple shooting does for unstable models, each run is integrated in segments of
-``SEGMENT`` s, each from its own estimated initial state, so the accelerometers' and gyros' noise,
-integrated, cannot build up into a random walk over the whole run (which would make the residuals
-strongly coloured, the bounds of the biases too confident and the score tests too eager). The
-kinematics are nonlinear, so their sensitivities are not those of the linear output-error engine
-(:mod:`identify.estimators.output_error`, whose linear time-invariant recursions do not apply to
-a trajectory-dependent linearisation): they are central finite differences of the integrated
-kinematics, all perturbations of a run integrated as one batch. The normal equations, the
-Levenberg-Marquardt steps on them and the Cramér-Rao covariance are the engine's own
-(:class:`~identify.estimators.information.BlockInformation`: the parameters shared by every run,
-each run's initial state its own block), as is ML's noise-covariance relaxation (the noise
-variance of each output re-estimated from the residuals after every step).
+:class:`KinematicProblem` puts the kinematics on the engine's seam
+(:mod:`identify.estimators.output_error`): unknowns ``beta = [theta (the sensor errors in the
+model), x0 of every segment (7 each)]``; each run is integrated in segments of ``SEGMENT`` s,
+each from its own estimated initial state (the engine's multiple shooting), so the
+accelerometers' and gyros' noise, integrated, cannot build up into a random walk over the whole
+run. The kinematics are nonlinear: the problem supplies the prediction and its sensitivities
+(central finite differences of the integration, all perturbations and segments as one batch; the
+output model's columns exact), the engine does the rest: ML's Levenberg-Marquardt with
+noise-covariance relaxation (:class:`identify.estimators.ml._Solver`), the block information
+matrix and the coloured-residual bounds (:class:`~identify.estimators.coloured_bounds.ColouredBounds`).
+
+The bounds add to the engine's sandwich (the outputs' own, possibly coloured, noise) the noise of
+the measured inputs integrated through the kinematics (errors in the variables,
+:func:`_input_noise_information`): it moves theta and alpha alike (and h with alpha), a coupling
+of the outputs that the per-output Toeplitz of the coloured bounds cannot hold.
 
 Sensor errors enter one at a time (forward selection): at the current fit, every error not yet in
 the model is scored with refine's Lagrange-multiplier test (:class:`identify.refine.diagnostics.ScoreBase`:
 the residual's energy along the candidate's sensitivity, orthogonal to the model's and the initial
-states' columns, here divided by its variance under the residuals' own covariance: the integrated
-accelerometer and gyro noise makes them coloured); the largest is added if it exceeds the Šidák threshold for the family-wise level
+states' columns, here divided by its variance under the noise autocorrelation the engine's coloured
+bounds estimate); the largest is added if it exceeds the Šidák threshold for the family-wise level
 ``alpha`` over the candidates tested, and the model refitted; the selection stops when none does.
 """
 from __future__ import annotations
@@ -159,8 +161,8 @@ class KinematicProblem(OutputError):
                 dy_theta[:N, :, i, s] = self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta)
             for i in range(7):
                 dy_x0[:N, :, i, s] = diff[("x0", i)]
-            extras.append(np.stack([self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta) for e in extra], axis=2) if extra
-                          else np.zeros((N, self.ny, 0)))
+            columns = [self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta) for e in extra]
+            extras.append(np.stack(columns, axis=2) if columns else np.zeros((N, self.ny, 0)))
         ev = Response(beta.copy(), np.where(self.mask[:, None, :] > 0, self.Z - y_all, 0.0), y_all)
         if jacobian:
             ev.dy_x0, ev.held, ev.extra = dy_x0, dy_theta, extras
@@ -302,8 +304,9 @@ def _spectrum(rho: np.ndarray, n_fft: int) -> np.ndarray:
 @dataclass
 class CompatResult:
     """Estimated sensor errors: ``errors`` (names), ``value`` (as reported: scale factors as K),
-    ``std`` (Cramér-Rao corrected for coloured residuals, Morelli & Klein), ``steps`` of the selection, per-output residual RMS
-    ``rms_before`` (no sensor error modelled) and ``rms_after``, ``noise_std`` per output,
+    ``std`` (the outputs' coloured noise, Morelli & Klein, and the inputs' integrated noise),
+    ``steps`` of the selection, per-output residual RMS ``rms_before`` (no sensor error modelled)
+    and ``rms_after``, ``noise_std`` per output,
     per-run initial states and the convergence of the final fit."""
 
     errors: list[SensorError]
