@@ -36,7 +36,7 @@ def realisations(gust: float) -> list[dict]:
         measured, _ = flight(seed=seed, gust_deg=gust)
         t0 = time.perf_counter()
         r = Compat().fit(measured).result_
-        rows.append({"seed": seed, "wall": time.perf_counter() - t0, "converged": r.converged,
+        rows.append({"seed": seed, "wall": time.perf_counter() - t0, "converged": r.converged, "stop": r.stop,
                      "value": {e.name: float(v) for e, v in zip(r.errors, r.value)},
                      "std": {e.name: float(s) for e, s in zip(r.errors, r.std)},
                      **{k: r.info[k] for k in ("std_white", "std_coloured", "std_input_noise")}})
