@@ -418,13 +418,17 @@ class Compat:
     ``theta``, ``psi`` rad, ``h`` m): those present are compared. ``errors``: sensor errors to
     estimate without selection (names such as ``b_q``, ``K_alpha``, ``tau_alpha``); None (default)
     selects them with score tests at family-wise level ``alpha`` from ``candidates`` (default the
-    whole :func:`~identify.compat.sensors.catalogue`), at most ``max_steps``.
+    whole :func:`~identify.compat.sensors.catalogue`), at most ``max_steps``. ``input_noise``:
+    standard deviations of the inertial sensors' white noise by channel (SI, e.g. from the data
+    sheet) for the bounds; channels not given are estimated from the data (:func:`input_noise_variance`,
+    which counts high-frequency motion such as rough turbulence in ``a_z`` as noise: conservative).
     """
 
     def __init__(self, errors=None, *, alpha: float = 0.01, candidates=None, max_steps: int = 12,
-                 max_iter: int = 30, segment: float = SEGMENT, progress=None):
+                 max_iter: int = 30, segment: float = SEGMENT, input_noise: dict | None = None, progress=None):
         self.errors, self.alpha, self.candidates, self.segment = errors, alpha, candidates, segment
         self.max_steps, self.max_iter, self.progress = max_steps, max_iter, progress
+        self.input_noise = input_noise
         self.result_: CompatResult | None = None
         self.problem_ = self.beta_ = self.weighting_ = None  # the final fit on the engine: problem, unknowns, Wh
 
@@ -545,7 +549,13 @@ class Compat:
         prob = fit.prob
         P = prob.p
         cov, ill, white, coloured, inputs = np.zeros((0, 0)), False, np.zeros(0), np.zeros(0), np.zeros(0)
-        q = input_noise_variance(prob)
+        given = dict(self.input_noise or {})
+        unknown = set(given) - set(K.INPUTS)
+        if unknown:
+            raise EstimationError(f"compat: input_noise: {', '.join(sorted(unknown))} not an inertial sensor "
+                                  f"(known: {', '.join(K.INPUTS)})")
+        q = np.where([c in given for c in K.INPUTS], [float(given.get(c, 0.0)) ** 2 for c in K.INPUTS],
+                     input_noise_variance(prob))
         if P:
             cov_c = fit.coloured()[0].gg[:P, :P]
             cov_i = fit.M.sandwich(_input_noise_information(prob, fit.ev, fit.Wh, q)).gg[:P, :P]
@@ -575,6 +585,8 @@ class Compat:
                   "std_white": dict(zip(names, map(float, white))),
                   "std_coloured": dict(zip(names, map(float, coloured))),
                   "std_input_noise": dict(zip(names, map(float, inputs))),
-                  "input_noise_std": dict(zip(K.INPUTS, map(float, np.sqrt(q))))},
+                  "input_noise_std": dict(zip(K.INPUTS, map(float, np.sqrt(q)))),
+                  "input_noise_source": {c: "given" if c in given else "estimated (fifth differences)"
+                                         for c in K.INPUTS}},
             residuals_before=prob.segments(before.ev.e), residuals_after=prob.segments(fit.ev.e),
             time=[d.time for d in prob.data])

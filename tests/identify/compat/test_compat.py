@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from identify import ML, RunError, load_profile, read_run
+from identify.errors import EstimationError
 from identify.data.runs import Run
 from identify.compat import Compat
 from identify.compat.kinematics import integrate, outputs
@@ -125,3 +126,17 @@ def test_input_noise_term_is_the_integrated_input_noise():
             brute += q[i] * np.outer(J.T @ g, J.T @ g)
     scale = np.sqrt(np.outer(np.diag(brute), np.diag(brute)))
     assert np.all(np.abs(fast - brute) < 1e-3 * scale), (fast / brute)
+
+
+def test_inertial_noise_given_or_estimated_is_said():
+    """The bounds' input-noise term uses the inertial sensors' noise given (a data sheet's) where
+    given, else its estimate from the data; result.info says which, and a wrong channel is refused."""
+    measured, _ = flight(duration=3.0, seed=4, gust_deg=0.1)
+    given = Compat(["b_q"], input_noise={"q": 1e-3}).fit(measured).result_
+    estimated = Compat(["b_q"]).fit(measured).result_
+    assert given.info["input_noise_source"]["q"] == "given" and given.info["input_noise_std"]["q"] == 1e-3
+    assert estimated.info["input_noise_source"]["q"].startswith("estimated")
+    assert abs(estimated.info["input_noise_std"]["q"] / NOISE["q"] - 1) < 0.3  # white gyro noise: found
+    assert given.info["std_input_noise"]["b_q"] > 2 * estimated.info["std_input_noise"]["b_q"]
+    with pytest.raises(EstimationError, match="V not an inertial sensor"):
+        Compat(["b_q"], input_noise={"V": 0.1}).fit(measured)
