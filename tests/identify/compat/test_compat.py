@@ -140,3 +140,26 @@ def test_inertial_noise_given_or_estimated_is_said():
     assert given.info["std_input_noise"]["b_q"] > 2 * estimated.info["std_input_noise"]["b_q"]
     with pytest.raises(EstimationError, match="V not an inertial sensor"):
         Compat(["b_q"], input_noise={"V": 0.1}).fit(measured)
+
+
+def test_coloured_bounds_use_each_segments_own_initial_state_response():
+    """The engine's coloured bounds on the kinematic problem: with white noise their B is the
+    information itself, segment by segment, also where segments have one length (a linear
+    model's initial-state columns are shared by such segments, a nonlinear model's are not)."""
+    from identify.estimators.coloured_bounds import ColouredBounds
+
+    measured, _ = flight(duration=6.0, seed=5)
+    compat = Compat(["b_q", "b_alpha"], segment=2.0).fit(measured)
+    prob, beta, Wh = compat.problem_, compat.beta_, compat.weighting_
+    assert len(set(prob.layout.length)) < prob.layout.n_segments  # segments of one length
+    ev = prob.evaluate(beta)
+    M, _ = prob.information(ev, Wh)
+    bounds = ColouredBounds(prob, ev, Wh, M)
+    B, _ = bounds.first_half(np.broadcast_to(bounds.variance, bounds.r.shape), white=True)
+    local, _ = prob.local_information(ev, Wh)
+    assert np.allclose(bounds.variance, 1.0, rtol=0.02)  # whitened by the relaxed noise variances
+    for s in range(prob.layout.n_segments):
+        keep = prob.local_index[s] >= 0
+        Bs, Ms = B[s][np.ix_(keep, keep)], local[s][np.ix_(keep, keep)]
+        scale = np.sqrt(np.outer(np.diag(Ms), np.diag(Ms)))
+        assert np.all(np.abs(Bs - Ms) <= 0.03 * scale), (s, np.max(np.abs(Bs - Ms) / scale))
