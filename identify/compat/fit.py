@@ -8,7 +8,7 @@ accelerometers' and gyros' noise, integrated, cannot build up into a random walk
 run. The kinematics are nonlinear: the problem supplies the prediction and its sensitivities
 (central finite differences of the integration, all perturbations and segments as one batch; the
 output model's columns exact), the engine does the rest: ML's Levenberg-Marquardt with
-noise-covariance relaxation (:class:`identify.estimators.ml._Solver`), the block information
+noise-covariance relaxation (:class:`identify.estimators.ml.OutputErrorSolver`), the block information
 matrix and the coloured-residual bounds (:class:`~identify.estimators.coloured_bounds.ColouredBounds`).
 
 The bounds add to the engine's sandwich (the outputs' own, possibly coloured, noise) the noise of
@@ -33,7 +33,7 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError, SimulationError
 from ..estimators.colour import toeplitz_apply
-from ..estimators.ml import _Solver
+from ..estimators.ml import OutputErrorSolver
 from ..estimators.output_error import Layout, OutputError, Response
 from . import kinematics as K
 from .sensors import ANGULAR, SensorError, by_name, catalogue
@@ -226,7 +226,7 @@ def _solve(prob: KinematicProblem, beta: np.ndarray, max_iter: int) -> _Fit:
     return _Fit(prob, sv.beta, sv.ev, sv.Wh, sv.M, sv.iterations, sv.converged, sv.stop)
 
 
-class _EngineSolver(_Solver):
+class _EngineSolver(OutputErrorSolver):
     requires_parameters = False  # the first fit holds no sensor error: initial states alone
 
 

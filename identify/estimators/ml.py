@@ -453,6 +453,9 @@ class _Solver:
         self.history.append(float(cost) + 0.5 * float(self.prob.mask.sum()) * log_det)
 
 
+OutputErrorSolver = _Solver  # the public name for problems on the engine's seam (identify.compat)
+
+
 # -- helpers ---------------------------------------------------------------------------------------
 COLOURED_ADVICE = 2.0  # coloured-residual bounds this many times the white ones: say FEM is the estimator
 
