@@ -45,9 +45,10 @@ def compat_run(tmp_path_factory):
 
 def test_compat_recovers_each_sensor_error_within_two_standard_errors(compat_run, capsys):
     tmp, path = compat_run
-    code, out, err = identify_cli(capsys, "compat", path, "--out", tmp / "out")
+    code, out, err = identify_cli(capsys, "compat", path, "--out", tmp / "out", "--input-noise", f"q={NOISE['q']}")
     assert code == 0, err
     saved = json.loads((tmp / "out" / "compat.json").read_text())
+    assert saved["input_noise_source"]["q"] == "given" and saved["input_noise_source"]["p"].startswith("estimated")
     found = saved["sensor_errors"]
     assert {"b_alpha", "K_alpha", "tau_alpha", "b_q"} <= set(found), found
     for name, truth in ERRORS.items():
@@ -128,7 +129,7 @@ def test_input_noise_term_is_the_integrated_input_noise():
     assert np.all(np.abs(fast - brute) < 1e-3 * scale), (fast / brute)
 
 
-def test_inertial_noise_given_or_estimated_is_said():
+def test_inertial_noise_given_or_estimated_is_said(tmp_path, capsys):
     """The bounds' input-noise term uses the inertial sensors' noise given (a data sheet's) where
     given, else its estimate from the data; result.info says which, and a wrong channel is refused."""
     measured, _ = flight(duration=3.0, seed=4, gust_deg=0.1)
@@ -140,6 +141,9 @@ def test_inertial_noise_given_or_estimated_is_said():
     assert given.info["std_input_noise"]["b_q"] > 2 * estimated.info["std_input_noise"]["b_q"]
     with pytest.raises(EstimationError, match="V not an inertial sensor"):
         Compat(["b_q"], input_noise={"V": 0.1}).fit(measured)
+    path = measured.to_csv(tmp_path / "flight.csv")
+    code, _, err = identify_cli(capsys, "compat", path, "--out", tmp_path / "out", "--input-noise", "q:0.1")
+    assert code != 0 and "not channel=std" in str(err)
 
 
 def test_coloured_bounds_use_each_segments_own_initial_state_response():
