@@ -586,7 +586,7 @@ class Compat:
                   "std_coloured": dict(zip(names, map(float, coloured))),
                   "std_input_noise": dict(zip(names, map(float, inputs))),
                   "input_noise_std": dict(zip(K.INPUTS, map(float, np.sqrt(q)))),
-                  "input_noise_source": {c: "given" if c in given else "estimated (fifth differences)"
+                  "input_noise_source": {c: "given" if c in given else "estimated"
                                          for c in K.INPUTS}},
             residuals_before=prob.segments(before.ev.e), residuals_after=prob.segments(fit.ev.e),
             time=[d.time for d in prob.data])
