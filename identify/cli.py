@@ -461,11 +461,26 @@ def cmd_compat(args) -> int:
                           ReadOptions(args.nan))
     errors = None if args.errors is None else [e.strip() for e in args.errors.split(",") if e.strip()]
     compat = Compat(errors, alpha=args.alpha, max_steps=args.max_steps, segment=args.segment,
+                    input_noise=_input_noise(args.input_noise),
                     progress=lambda text: print(text, file=sys.stderr, flush=True)).fit(runs)
     print(compat.result_.summary(), flush=True)
     written = write(compat.result_, runs, args.out, plots=args.plots)
     print(f"written to {args.out}: {', '.join(written)}")
     return 0
+
+
+def _input_noise(text: str | None) -> dict | None:
+    """``a_z=0.01,q=0.00035`` -> {channel: std}; one clear error for a malformed item."""
+    if not text:
+        return None
+    out = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        name, _, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise EstimationError(f"--input-noise: '{item}' is not channel=std (e.g. q=0.00035)") from None
+    return out
 
 
 def _add_compat_parser(sub) -> None:
@@ -483,6 +498,8 @@ def _add_compat_parser(sub) -> None:
     p.add_argument("--max-steps", type=nonnegative_int, default=12, help="sensor errors added at most (default 12)")
     p.add_argument("--segment", type=positive_float, default=3.0, metavar="S",
                    help="integration segment length, each from its own initial state (default 3 s)")
+    p.add_argument("--input-noise", metavar="LIST", help="white-noise std of inertial sensors for the bounds, "
+                   "SI units (e.g. a_z=0.01,q=0.00035, from a data sheet); others estimated from the data")
     p.add_argument("--plots", action="store_true", help="also draw residuals_before_after.png")
     p.set_defaults(func=cmd_compat)
 

@@ -69,6 +69,8 @@ def run_tasks(task, arg_list, objective, fly, jobs: int = 1, progress=None) -> l
         return out
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
+    # children that exist before the pool are not ours to stop
+    others = {c.pid for c in multiprocessing.active_children()}
     pool = ProcessPoolExecutor(jobs, mp_context=context, initializer=_init, initargs=(objective, fly))
     try:
         futures = {pool.submit(_call, task, args): i for i, args in enumerate(arg_list)}
@@ -80,23 +82,28 @@ def run_tasks(task, arg_list, objective, fly, jobs: int = 1, progress=None) -> l
         pool.shutdown(wait=True)
         return out
     except BrokenProcessPool as exc:
-        _stop(pool)
+        _stop(pool, others)
         raise DesignError(f"a design worker process died ({exc}); retry with jobs=1 to see why") from None
     except PseudostepError:
-        _stop(pool)
+        _stop(pool, others)
         raise
     except Exception as exc:
-        _stop(pool)
+        _stop(pool, others)
         raise DesignError(f"design worker failed: {type(exc).__name__}: {exc}") from exc
     except BaseException:  # KeyboardInterrupt, SystemExit: no worker outlives the parent's search
-        _stop(pool)
+        _stop(pool, others)
         raise
 
 
-def _stop(pool: ProcessPoolExecutor) -> None:
+def _stop(pool: ProcessPoolExecutor, others: set) -> None:
     """Cancel what has not started and terminate the workers (a running task is not waited for),
-    then wait for the pool's manager thread, which reaps what is left (a broken pool's workers)."""
+    then wait for the pool's manager thread, which reaps what is left (a broken pool's workers).
+    ``others``: pids of children that are not the pool's."""
+    # an interrupt inside submit() can land after a worker is forked but before the pool lists
+    # it: every child born since the pool was made is one of its workers
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    listed = {p.pid for p in processes}
+    processes += [c for c in multiprocessing.active_children() if c.pid not in others | listed]
     pool.shutdown(wait=False, cancel_futures=True)
     for p in processes:
         if p.is_alive():
@@ -109,4 +116,4 @@ def _stop(pool: ProcessPoolExecutor) -> None:
     for p in processes:
         if p.is_alive():
             p.kill()
-        p.join(timeout=1)  # reaped here, not left to the pool's manager thread
+        p.join(timeout=5)  # reaped here, not left to the pool's manager thread (slow on a loaded machine)

@@ -1,24 +1,26 @@
-"""The flight-path reconstruction estimator: output error on the rigid-body kinematics.
+"""The flight-path reconstruction estimator: the output-error engine on the rigid-body kinematics.
 
-Unknowns ``beta = [theta (the sensor errors in the model), x0 of every segment (7 each)]``: as the
-engine's multiple shooting does for unstable models, each run is integrated in segments of
-``SEGMENT`` s, each from its own estimated initial state, so the accelerometers' and gyros' noise,
-integrated, cannot build up into a random walk over the whole run (which would make the residuals
-strongly coloured, the bounds of the biases too confident and the score tests too eager). The
-kinematics are nonlinear, so their sensitivities are not those of the linear output-error engine
-(:mod:`identify.estimators.output_error`, whose linear time-invariant recursions do not apply to
-a trajectory-dependent linearisation): they are central finite differences of the integrated
-kinematics, all perturbations of a run integrated as one batch. The normal equations, the
-Levenberg-Marquardt steps on them and the Cramér-Rao covariance are the engine's own
-(:class:`~identify.estimators.information.BlockInformation`: the parameters shared by every run,
-each run's initial state its own block), as is ML's noise-covariance relaxation (the noise
-variance of each output re-estimated from the residuals after every step).
+:class:`KinematicProblem` puts the kinematics on the engine's seam
+(:mod:`identify.estimators.output_error`): unknowns ``beta = [theta (the sensor errors in the
+model), x0 of every segment (7 each)]``; each run is integrated in segments of ``SEGMENT`` s,
+each from its own estimated initial state (the engine's multiple shooting), so the
+accelerometers' and gyros' noise, integrated, cannot build up into a random walk over the whole
+run. The kinematics are nonlinear: the problem supplies the prediction and its sensitivities
+(central finite differences of the integration, all perturbations and segments as one batch; the
+output model's columns exact), the engine does the rest: ML's Levenberg-Marquardt with
+noise-covariance relaxation (:class:`identify.estimators.ml.OutputErrorSolver`), the block information
+matrix and the coloured-residual bounds (:class:`~identify.estimators.coloured_bounds.ColouredBounds`).
+
+The bounds add to the engine's sandwich (the outputs' own, possibly coloured, noise) the noise of
+the measured inputs integrated through the kinematics (errors in the variables,
+:func:`_input_noise_information`): it moves theta and alpha alike (and h with alpha), a coupling
+of the outputs that the per-output Toeplitz of the coloured bounds cannot hold.
 
 Sensor errors enter one at a time (forward selection): at the current fit, every error not yet in
 the model is scored with refine's Lagrange-multiplier test (:class:`identify.refine.diagnostics.ScoreBase`:
 the residual's energy along the candidate's sensitivity, orthogonal to the model's and the initial
-states' columns, here divided by its variance under the residuals' own covariance: the integrated
-accelerometer and gyro noise makes them coloured); the largest is added if it exceeds the Šidák threshold for the family-wise level
+states' columns, here divided by its variance under the noise autocorrelation the engine's coloured
+bounds estimate); the largest is added if it exceeds the Šidák threshold for the family-wise level
 ``alpha`` over the candidates tested, and the model refitted; the selection stops when none does.
 """
 from __future__ import annotations
@@ -29,8 +31,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..data.runs import Run
-from ..errors import EstimationError
-from ..estimators.information import BlockInformation
+from ..errors import EstimationError, SimulationError
+from ..estimators.colour import toeplitz_apply
+from ..estimators.ml import OutputErrorSolver
+from ..estimators.output_error import Layout, OutputError, Response
 from . import kinematics as K
 from .sensors import ANGULAR, SensorError, by_name, catalogue
 
@@ -42,15 +46,17 @@ _X0_STEP = np.array([1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-3])
 # (RMS of error / std 1.01) and optimistic at 5 s (1.34) and 8 s (1.61): the integrated gyro noise
 # colours the residuals more the longer a segment
 SEGMENT = 3.0
-MAX_LAG_SHARE = 0.25  # the residual autocovariance is used up to this share of a segment (Bartlett taper)
-STEP_TOL_SE = 1e-2  # converged: the next Gauss-Newton step moves no unknown by 1/100 of its std error
-R_CHANGE_TOL = 1e-4
+STEP_TOL = 1e-10  # relative parameter step: never the convergence test (sensor errors start at 0); the engine's
+                  # test in standard errors is
 MIN_SAMPLES = 50
 
 
 @dataclass
 class _RunData:
+    """One segment of a run: ``run`` its index, ``time`` from the segment's start."""
+
     source: str
+    run: int
     time: np.ndarray
     dt: float
     inputs: np.ndarray  # (N, 6) measured
@@ -58,27 +64,50 @@ class _RunData:
 
 
 @dataclass
-class _Response:
-    y: list[np.ndarray]  # per segment (N, ny)
-    e: list[np.ndarray]
-    J: list[np.ndarray] | None = None  # per segment (N, ny, p + 7)
-    extra: list[np.ndarray] | None = None  # per segment (N, ny, q): candidates not in the model
+class _Settings:
+    """What the engine's solver reads from its estimator (:class:`identify.estimators.ml.ML`)."""
+
+    max_iter: int
+    tol: float = STEP_TOL
+    noise_cov_: None = None  # relaxation
+    progress: None = None
+    verbose: bool = False
 
 
-class _Problem:
-    """Modelled outputs and their sensitivities for a set of sensor errors ``errors``."""
+class KinematicProblem(OutputError):
+    """Flight-path reconstruction on the output-error engine's seam (:mod:`identify.estimators.output_error`).
+
+    Unknowns ``beta = [theta (the sensor errors ``errors``), x0 of every segment (7 each)]``; no
+    zero shifts of the engine's kind (output biases are sensor errors, shared by the runs). The
+    prediction integrates the kinematics of every segment and its sensitivities are central finite
+    differences, all segments and perturbations in one batch (one time loop); the engine does the
+    rest. ``__init__`` sets the attributes the engine reads, not a linear model's (no ``super()``).
+    """
 
     def __init__(self, data: list[_RunData], outputs: list[str], errors: list[SensorError]):
         self.data, self.outputs, self.errors = data, outputs, errors
         self.col = [K.OUTPUTS.index(y) for y in outputs]
-        self.p, self.S = len(errors), len(data)
+        S = len(data)
+        self.p, self.n, self.ny, self.m, self.dt = len(errors), 7, len(outputs), 6, data[0].dt
+        self.layout = Layout(np.array([d.run for d in data]), np.zeros(S, int), np.array([len(d.time) for d in data]))
+        L = self.layout.L
+        self.n_runs = int(self.layout.run.max()) + 1
+        self.Z, self.mask = np.zeros((L, self.ny, S)), np.zeros((L, S))
+        for s, d in enumerate(data):
+            self.Z[:len(d.time), :, s], self.mask[:len(d.time), s] = d.z, 1.0
+        self.estimate_x0, self.estimate_bias = True, False
+        self.local_index = np.hstack([np.tile(np.arange(self.p), (S, 1)),
+                                      self.p + np.arange(7 * S).reshape(S, 7), -np.ones((S, self.ny), int)])
+        self.n_beta = self.p + 7 * S
 
-    @property
-    def n_beta(self) -> int:
-        return self.p + 7 * self.S
+    def names(self) -> list[str]:
+        return [e.name for e in self.errors] + [f"x0[{s}].{x}" for s in range(len(self.data)) for x in K.STATES]
+
+    def segment_groups(self) -> list[tuple[int, int]]:
+        return [(0, len(self.data))]  # the sensitivities are held whole
 
     def split(self, beta):
-        return beta[:self.p], beta[self.p:].reshape(self.S, 7)
+        return beta[:self.p], beta[self.p:].reshape(-1, 7)
 
     def _output_model(self, ykin: np.ndarray, t: np.ndarray, theta: dict) -> np.ndarray:
         """``K y_kin(t - tau) + b`` per output, ``ykin`` (B, N, ny)."""
@@ -86,13 +115,15 @@ class _Problem:
         for j, name in enumerate(self.outputs):
             tau, dk, b = (theta.get(f"{k}_{name}", 0.0) for k in ("tau", "K", "b"))
             if tau:
-                y[:, :, j] = np.stack([np.interp(t - tau, t, row) for row in y[:, :, j]])
+                y[:, :, j] = _shifted(y[:, :, j], t, tau)
             y[:, :, j] = (1 + dk) * y[:, :, j] + b
         return y
 
-    def evaluate(self, beta: np.ndarray, jacobian: bool = True, extra: list[SensorError] = ()) -> _Response:
-        """Outputs, residuals and (with ``jacobian``) sensitivities of every segment: all segments
-        and all finite-difference perturbations integrated as one batch (one time loop)."""
+    def evaluate(self, beta: np.ndarray, jacobian: bool = True, extra: list[SensorError] = ()) -> Response:
+        """Outputs, residuals and (with ``jacobian``) sensitivities of every segment, as the
+        engine's :class:`~identify.estimators.output_error.Response` (``dy_x0`` per segment);
+        ``extra`` candidates not in the model get their sensitivities in ``ev.extra`` (per segment
+        (N_s, ny, q)) for the score tests."""
         theta_vec, x0 = self.split(beta)
         theta = {e.name: v for e, v in zip(self.errors, theta_vec)}
         bias = np.array([theta.get(f"b_{c}", 0.0) for c in K.INPUTS])
@@ -101,8 +132,7 @@ class _Problem:
             perturb = [("in", K.INPUTS.index(e.channel), _STEP[e.channel]) for e in (*self.errors, *extra)
                        if e.on_input]
             perturb += [("x0", i, _X0_STEP[i]) for i in range(7)]
-        B, S = 1 + 2 * len(perturb), self.S
-        L = max(len(d.time) for d in self.data)
+        B, S, L = 1 + 2 * len(perturb), len(self.data), self.layout.L
         inputs = np.stack([np.pad(d.inputs, ((0, L - len(d.time)), (0, 0)), mode="edge") for d in self.data])
         biases = np.repeat(bias[None], B, axis=0)  # (B, 6)
         starts = np.repeat(x0[None], B, axis=0)  # (B, S, 7)
@@ -113,147 +143,178 @@ class _Problem:
                 else:
                     starts[row, :, i] += sgn * h
         drive = (inputs[None] - biases[:, None, None, :]).reshape(B * S, L, 6)
-        states = K.integrate(starts.reshape(B * S, 7), drive, self.data[0].dt).reshape(B, S, L, 7)
-        ykin = K.outputs(states)[..., self.col]
-        ys, es, Js, Xs = [], [], [], []
+        with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported below
+            states = K.integrate(starts.reshape(B * S, 7), drive, self.dt).reshape(B, S, L, 7)
+            ykin = K.outputs(states)[..., self.col]
+        y_all = np.zeros((L, self.ny, S))
+        dy_x0, dy_theta, extras = np.zeros((L, self.ny, 7, S)), np.zeros((L, self.ny, self.p, S)), []
         for s, d in enumerate(self.data):
-            y = self._output_model(ykin[:, s, :len(d.time)], d.time, theta)
+            N = len(d.time)
+            y = self._output_model(ykin[:, s, :N], d.time, theta)
             if not np.all(np.isfinite(y[0])):
-                raise EstimationError(f"{d.source}: the reconstructed trajectory diverges")
-            ys.append(y[0])
-            es.append(d.z - y[0])
+                raise SimulationError(f"{d.source}: the reconstructed trajectory diverges")
+            y_all[:N, :, s] = y[0]
             if not jacobian:
                 continue
             diff = {(kind, i): (y[1 + 2 * m] - y[2 + 2 * m]) / (2 * h) for m, (kind, i, h) in enumerate(perturb)}
-
-            def column(e: SensorError):
-                if e.on_input:
-                    return diff[("in", K.INPUTS.index(e.channel))]  # the batch perturbed b itself
-                j = self.outputs.index(e.channel)
-                out = np.zeros_like(y[0])
-                gain = 1 + theta.get(f"K_{e.channel}", 0.0)
-                shifted = (y[0][:, j] - theta.get(f"b_{e.channel}", 0.0)) / gain
-                if e.kind == "bias":
-                    out[:, j] = 1.0
-                elif e.kind == "scale":
-                    out[:, j] = shifted
-                else:  # d/dtau of K y(t - tau) = -K y'(t - tau)
-                    out[:, j] = -gain * np.gradient(shifted, d.dt)
-                return out
-
-            J = np.zeros((len(d.time), len(self.outputs), self.p + 7))
             for i, e in enumerate(self.errors):
-                J[:, :, i] = column(e)
+                dy_theta[:N, :, i, s] = self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta)
             for i in range(7):
-                J[:, :, self.p + i] = diff[("x0", i)]
-            Js.append(J)
-            Xs.append(np.stack([column(e) for e in extra], axis=2) if extra else np.zeros(J.shape[:2] + (0,)))
-        return _Response(ys, es, Js if jacobian else None, Xs if jacobian else None)
+                dy_x0[:N, :, i, s] = diff[("x0", i)]
+            columns = [self._column(e, diff, y[0], ykin[0, s, :N], d.time, theta) for e in extra]
+            extras.append(np.stack(columns, axis=2) if columns else np.zeros((N, self.ny, 0)))
+        ev = Response(beta.copy(), np.where(self.mask[:, None, :] > 0, self.Z - y_all, 0.0), y_all)
+        if jacobian:
+            ev.dy_x0, ev.held, ev.extra = dy_x0, dy_theta, extras
+            # for the input-noise term of the bounds (:func:`_input_noise_information`): the
+            # trajectory, the inputs driving it and the state transition from each segment's start
+            x0_rows = [m for m, (kind, _, _) in enumerate(perturb) if kind == "x0"]
+            ev.states, ev.drive = states[0], drive[:S]
+            ev.dx_x0 = np.stack([(states[1 + 2 * m] - states[2 + 2 * m]) / (2 * perturb[m][2]) for m in x0_rows],
+                                axis=-1)  # (S, L, 7 states, 7 initial states)
+        return ev
 
-    def information(self, ev: _Response, R: np.ndarray) -> tuple[BlockInformation, np.ndarray]:
-        """``M = J^T R^-1 J`` in the engine's block form and ``g = J^T R^-1 e``."""
-        k = self.p + 7
-        w = 1 / np.sqrt(R)
-        local = np.zeros((self.S, k, k))
-        index = np.zeros((self.S, k), int)
-        g = np.zeros(self.n_beta)
-        for r, (J, e) in enumerate(zip(ev.J, ev.e)):
-            Jw = (J * w[None, :, None]).reshape(-1, k)
-            local[r] = Jw.T @ Jw
-            index[r] = np.r_[np.arange(self.p), self.p + 7 * r + np.arange(7)]
-            np.add.at(g, index[r], Jw.T @ (e * w).ravel())
-        return BlockInformation(local, index, self.n_beta, index[:, self.p:]), g
+    def _column(self, e: SensorError, diff: dict, y: np.ndarray, ykin: np.ndarray, t: np.ndarray,
+                theta: dict) -> np.ndarray:
+        """Sensitivity (N, ny) of the outputs of one segment (modelled ``y``, kinematic ``ykin``
+        at the times ``t`` from its start) to sensor error ``e``."""
+        if e.on_input:
+            return diff[("in", K.INPUTS.index(e.channel))]  # the batch perturbed b itself
+        j = self.outputs.index(e.channel)
+        out = np.zeros_like(y)
+        gain = 1 + theta.get(f"K_{e.channel}", 0.0)
+        if e.kind == "bias":
+            out[:, j] = 1.0
+        elif e.kind == "scale":
+            out[:, j] = (y[:, j] - theta.get(f"b_{e.channel}", 0.0)) / gain
+        else:
+            out[:, j] = gain * _skew_sensitivity(ykin[:, j], t, theta.get(e.name, 0.0))
+        return out
 
-
-def _coloured_kernel(e: np.ndarray, max_lag: int) -> np.ndarray:
-    """Per output (ny, 2L+1) the Bartlett-tapered autocovariance of the weighted residual ``e``
-    (N, ny) at lags -L..L: the residual covariance as a Toeplitz kernel. The integrated noise of
-    the accelerometers and gyros makes the residuals of a kinematic fit coloured (a random walk
-    on the integrated states): white-noise bounds and scores would be too confident."""
-    N = len(e)
-    L = min(max_lag, N - 1)
-    lags = np.arange(L + 1)
-    gamma = np.array([np.einsum("ny,ny->y", e[lag:], e[:N - lag]) / N for lag in lags])  # (L+1, ny)
-    taper = 1 - lags / (L + 1)
-    half = gamma * taper[:, None]
-    return np.concatenate([half[:0:-1], half]).T  # lags -L..L
-
-
-def _toeplitz_apply(kernel: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``T_y X`` per output: ``X`` (N, ny, k), ``kernel`` (ny, 2L+1)."""
-    from scipy.signal import fftconvolve
-
-    L = (kernel.shape[1] - 1) // 2
-    out = np.empty_like(X)
-    for j in range(X.shape[1]):
-        full = fftconvolve(X[:, j, :], kernel[j][:, None], mode="full", axes=0)
-        out[:, j, :] = full[L:L + len(X)]
-    return out
-
-
-def _cost(ev: _Response, R: np.ndarray) -> float:
-    return 0.5 * float(sum(np.sum(e ** 2 / R) for e in ev.e))
-
-
-def _relaxed(ev: _Response) -> np.ndarray:
-    e = np.vstack(ev.e)
-    return np.maximum(np.mean(e ** 2, axis=0), 1e-30)
+    def segments(self, arr: np.ndarray) -> list[np.ndarray]:
+        """(L, ny, S) back to one (N_s, ny) array per segment."""
+        return [arr[:n, :, s] for s, n in enumerate(self.layout.length)]
 
 
 @dataclass
 class _Fit:
+    prob: KinematicProblem
     beta: np.ndarray
-    ev: _Response
-    R: np.ndarray
-    M: BlockInformation
+    ev: Response
+    Wh: np.ndarray
+    M: object  # the engine's BlockInformation at the estimate
     iterations: int
     converged: bool
     stop: str
 
+    @property
+    def R(self) -> np.ndarray:
+        return 1 / np.diag(self.Wh) ** 2
 
-def _solve(prob: _Problem, beta: np.ndarray, max_iter: int) -> _Fit:
-    """Levenberg-Marquardt with noise-covariance relaxation, from ``beta``."""
+    def coloured(self):
+        """The engine's coloured-residual covariance (Morelli & Klein, residuals corrected for the
+        fit's projection): ``(BlockCovariance, rho)``, rho (L, ny) the whitened noise autocorrelation."""
+        cov, rho, _ = self.prob.coloured_information(self.ev, self.Wh, self.M)
+        return cov, rho
+
+
+def _solve(prob: KinematicProblem, beta: np.ndarray, max_iter: int) -> _Fit:
+    """ML's Levenberg-Marquardt with noise-covariance relaxation (the engine's solver), from ``beta``."""
     ev = prob.evaluate(beta)
-    R = _relaxed(ev)
-    M, g = prob.information(ev, R)
-    lam, it, stop, converged = 1e-3, 0, "max_iter", False
-    r_change = np.inf
-    while it < max_iter:
-        step0 = M.solve(g, 0.0)
-        in_se = math.sqrt(max(float(g @ step0), 0.0))
-        if in_se < STEP_TOL_SE and r_change < R_CHANGE_TOL:
-            converged, stop = True, f"gradient: the next step is {in_se:.1e} standard errors"
-            break
-        cost = _cost(ev, R)
-        while lam < 1e8:
-            trial = beta + M.solve(g, lam)
-            try:
-                t_ev = prob.evaluate(trial, jacobian=False)
-                c = _cost(t_ev, R)
-            except EstimationError:
-                c = np.inf
-            if c < cost:
-                break
-            lam *= 10
-        else:
-            converged = in_se < 10 * STEP_TOL_SE
-            stop = f"no step lowers the cost (next step {in_se:.1e} standard errors)"
-            break
-        it += 1
-        beta, lam = trial, max(lam / 10, 1e-9)
-        ev = prob.evaluate(beta)
-        R_new = _relaxed(ev)
-        r_change = float(np.max(np.abs(R_new / R - 1)))
-        R = R_new
-        M, g = prob.information(ev, R)
-    return _Fit(beta, ev, R, M, it, converged, stop)
+    sv = _EngineSolver(_Settings(max_iter), prob, ev, [d.z for d in prob.data])
+    sv.run()
+    return _Fit(prob, sv.beta, sv.ev, sv.Wh, sv.M, sv.iterations, sv.converged, sv.stop)
+
+
+class _EngineSolver(OutputErrorSolver):
+    requires_parameters = False  # the first fit holds no sensor error: initial states alone
+
+
+def _shifted(y: np.ndarray, t: np.ndarray, tau: float, axis: int = -1) -> np.ndarray:
+    """``y(t - tau)`` along ``axis`` (samples at ``t``) by a cubic spline through the samples,
+    extrapolated by its end pieces for the few samples a skew reaches beyond the record. Smooth in
+    ``tau`` throughout: linear interpolation, or values held at the ends, make the cost piecewise
+    quadratic with a kink at every whole sample, and an estimate on a kink stalled the solver (no
+    step lowers the cost although a one-sided slope says one should); a skew is a continuous-time
+    delay anyway."""
+    from scipy.interpolate import CubicSpline
+
+    return CubicSpline(t, y, axis=axis)(t - tau)
+
+
+def _skew_sensitivity(y: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+    """``d/dtau`` of :func:`_shifted` (``y`` (N,)): minus the spline's slope at ``t - tau``. Exact:
+    a central difference of the shifted output (a smoothed slope) moved the Gauss-Newton fixed
+    point off the cost's minimum by 0.1 standard error."""
+    from scipy.interpolate import CubicSpline
+
+    return -CubicSpline(t, y)(t - tau, 1)
+
+
+def _input_matrix(states: np.ndarray, inputs: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """``df/da`` (N, 7, 6) of the kinematics along a trajectory (states (N, 7), inputs (N, 6))."""
+    out = np.empty((len(states), 7, 6))
+    for i in range(6):
+        step = np.zeros(6)
+        step[i] = h
+        out[:, :, i] = (K.derivatives(states.T, (inputs + step).T)
+                        - K.derivatives(states.T, (inputs - step).T)).T / (2 * h)
+    return out
+
+
+def input_noise_variance(prob: KinematicProblem) -> np.ndarray:
+    """Variance (6,) of the accelerometers' and gyros' white noise, from their fifth differences
+    (var = 252 sigma^2 for white noise, in which the motion, even turbulence's with its
+    random-walk-like increments, counts about 12 times less than in third differences), robustly
+    (median absolute value / 0.6745: the steps of a control input's response do not count)."""
+    d5 = np.vstack([np.diff(d.inputs, 5, axis=0) for d in prob.data])
+    return (np.median(np.abs(d5), axis=0) / 0.6745) ** 2 / 252
+
+
+def _input_noise_information(prob: KinematicProblem, ev: Response, Wh: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``J^T W G Q G^T W J`` as local blocks (S, k, k): what the noise of the measured inputs
+    (variances ``q`` (6,)), integrated through the kinematics, adds to the residuals' covariance
+    (errors in the variables: the inputs are measured, not known). ``G`` is the response of the
+    outputs to a noise sample w_k of the inputs at sample k, ``dy/dx0(t) Phi(k)^-1 B_k dt`` for
+    t > k (Phi(k) the state transition from the segment's start, B_k = df/da there), so
+    ``G_k^T W J = dt B_k^T Phi(k)^-T sum_{t>k} (dy/dx0)^T W J`` (and half the term t = k, from the
+    interpolation of the inputs between samples): a reverse cumulative sum per
+    segment, no (N x N) matrix. The outputs it couples (an integrated q noise moves theta and
+    alpha alike) are what the per-output Toeplitz of the coloured bounds cannot describe."""
+    Jloc = prob.local_jacobian(ev, Wh)  # (S, L, ny, k)
+    p, k = prob.p, Jloc.shape[-1]
+    local = np.zeros((len(Jloc), k, k))
+    for s, N in enumerate(prob.layout.length):
+        J = Jloc[s, :N]
+        A = np.einsum("tyi,tyk->tik", J[:, :, p:p + 7], J)  # (N, 7, k)
+        # RK4 with the inputs linear between samples: a sample drives the interval before it
+        # (half, reaching x(k)) and the one after it (half, from x(k+1)); the ends drive one each
+        after = np.zeros_like(A)
+        after[:-1] = np.cumsum(A[::-1], axis=0)[::-1][1:]  # sum over t > k
+        after[1:] += 0.5 * A[1:]
+        after[0] *= 0.5
+        X = np.linalg.solve(ev.dx_x0[s, :N].transpose(0, 2, 1), after)  # Phi(k)^-T (N, 7, k)
+        v = prob.dt * np.einsum("tji,tjk->tik", _input_matrix(ev.states[s, :N], ev.drive[s, :N]), X)
+        local[s] = np.einsum("tik,i,til->kl", v, q, v)
+    return local
+
+
+def _spectrum(rho: np.ndarray, n_fft: int) -> np.ndarray:
+    """Spectrum (F, ny) of the even autocorrelation ``rho`` (L, ny, lag 0 first) over ``n_fft``
+    points, for :func:`identify.estimators.colour.toeplitz_apply`."""
+    L = len(rho)
+    seq = np.zeros((n_fft, rho.shape[1]))
+    seq[:L] = rho
+    seq[n_fft - L + 1:] = rho[1:][::-1]
+    return np.fft.rfft(seq, axis=0).real
 
 
 @dataclass
 class CompatResult:
     """Estimated sensor errors: ``errors`` (names), ``value`` (as reported: scale factors as K),
-    ``std`` (Cramér-Rao corrected for coloured residuals, Morelli & Klein), ``steps`` of the selection, per-output residual RMS
-    ``rms_before`` (no sensor error modelled) and ``rms_after``, ``noise_std`` per output,
+    ``std`` (the outputs' coloured noise, Morelli & Klein, and the inputs' integrated noise),
+    ``steps`` of the selection, per-output residual RMS ``rms_before`` (no sensor error modelled)
+    and ``rms_after``, ``noise_std`` per output,
     per-run initial states and the convergence of the final fit."""
 
     errors: list[SensorError]
@@ -320,7 +381,7 @@ class CompatResult:
             for y in self.outputs:
                 tau, k, b = theta.get(f"tau_{y}", 0.0), theta.get(f"K_{y}", 1.0), theta.get(f"b_{y}", 0.0)
                 if tau or k != 1.0 or b:
-                    ch[y] = (np.interp(t + tau, t, ch[y]) - b) / k
+                    ch[y] = (_shifted(ch[y], t, -tau) - b) / k
                     shift = max(shift, abs(tau))
             keep = np.ones(len(t), bool)
             taus = [theta.get(f"tau_{y}", 0.0) for y in self.outputs]
@@ -357,14 +418,19 @@ class Compat:
     ``theta``, ``psi`` rad, ``h`` m): those present are compared. ``errors``: sensor errors to
     estimate without selection (names such as ``b_q``, ``K_alpha``, ``tau_alpha``); None (default)
     selects them with score tests at family-wise level ``alpha`` from ``candidates`` (default the
-    whole :func:`~identify.compat.sensors.catalogue`), at most ``max_steps``.
+    whole :func:`~identify.compat.sensors.catalogue`), at most ``max_steps``. ``input_noise``:
+    standard deviations of the inertial sensors' white noise by channel (SI, e.g. from the data
+    sheet) for the bounds; channels not given are estimated from the data (:func:`input_noise_variance`,
+    which counts high-frequency motion such as rough turbulence in ``a_z`` as noise: conservative).
     """
 
     def __init__(self, errors=None, *, alpha: float = 0.01, candidates=None, max_steps: int = 12,
-                 max_iter: int = 30, segment: float = SEGMENT, progress=None):
+                 max_iter: int = 30, segment: float = SEGMENT, input_noise: dict | None = None, progress=None):
         self.errors, self.alpha, self.candidates, self.segment = errors, alpha, candidates, segment
         self.max_steps, self.max_iter, self.progress = max_steps, max_iter, progress
+        self.input_noise = input_noise
         self.result_: CompatResult | None = None
+        self.problem_ = self.beta_ = self.weighting_ = None  # the final fit on the engine: problem, unknowns, Wh
 
     def _data(self, runs: list[Run]) -> tuple[list[_RunData], list[str]]:
         runs = [runs] if isinstance(runs, Run) else list(runs)
@@ -380,13 +446,13 @@ class Compat:
         if len({round(r.dt, 9) for r in runs}) > 1:
             raise EstimationError("compat: the runs have different sample intervals: resample them to one")
         data = []
-        for r in runs:
+        for i, r in enumerate(runs):
             z = np.column_stack([np.unwrap(r[y]) if y == "psi" else r[y] for y in outputs])
             n_seg = max(1, int(round(r.duration / self.segment))) if math.isfinite(self.segment) else 1
             for k, rows in enumerate(np.array_split(np.arange(len(r)), n_seg)):
                 where = r.source if n_seg == 1 else f"{r.source} [{r.time[rows[0]]:g}..{r.time[rows[-1]]:g} s]"
-                data.append(_RunData(where, r.time[rows] - r.time[rows[0]], r.dt, r.matrix(list(K.INPUTS))[rows],
-                                     z[rows]))
+                data.append(_RunData(where, i, r.time[rows] - r.time[rows[0]], r.dt,
+                                     r.matrix(list(K.INPUTS))[rows], z[rows]))
         return data, outputs
 
     def fit(self, runs) -> "Compat":
@@ -399,67 +465,68 @@ class Compat:
             pool = [by_name(n, K.INPUTS, outputs) for n in self.candidates]
         chosen = [by_name(n, K.INPUTS, outputs) for n in (self.errors or [])]
         x0 = np.concatenate([K.initial_state(dict(zip(outputs, d.z[0]))) for d in data])
-        before = _solve(_Problem(data, outputs, []), x0, self.max_iter)
+        before = _solve(KinematicProblem(data, outputs, []), x0, self.max_iter)
         if self.errors is not None:
-            prob = _Problem(data, outputs, chosen)
-            fit = _solve(prob, np.r_[np.zeros(len(chosen)), before.beta], self.max_iter) if chosen else before
+            fit = _solve(KinematicProblem(data, outputs, chosen), np.r_[np.zeros(len(chosen)), before.beta],
+                         self.max_iter) if chosen else before
             steps = []
         else:
             # the residuals' colour comes from the richest model the white-noise scores select (its
             # residuals are the noise, not unmodelled sensor errors); the selection is then made
             # again with the scores that colour gives
             fits = {}  # by the errors in the model, in order: the second pass refits none the first made
-            prob, fit, _ = self._select(data, outputs, pool, before, None, fits)
-            kernels = [_coloured_kernel(e, int(MAX_LAG_SHARE * len(e))) for e in fit.ev.e]
-            prob, fit, steps = self._select(data, outputs, pool, before, kernels, fits)
-        self.result_ = self._result(runs, prob, before, fit, steps)
+            fit, _ = self._select(data, outputs, pool, before, None, fits)
+            _, rho = fit.coloured()
+            fit, steps = self._select(data, outputs, pool, before, rho, fits)
+        self.result_ = self._result(runs, before, fit, steps)
+        self.problem_, self.beta_, self.weighting_ = fit.prob, fit.beta, fit.Wh
         return self
 
-    def _select(self, data, outputs, pool, before: _Fit, kernels, fits: dict):
-        """Forward selection from no sensor error: ``(problem, fit, steps)``; ``kernels`` the
-        residual covariance per run (None: white)."""
+    def _select(self, data, outputs, pool, before: _Fit, rho, fits: dict):
+        """Forward selection from no sensor error: ``(fit, steps)``; ``rho`` the whitened noise
+        autocorrelation per output (L, ny) (None: white)."""
         from scipy import stats
 
-        prob, fit, steps = _Problem(data, outputs, []), before, []
+        fit, steps = before, []
         while len(steps) < self.max_steps:
-            left = [e for e in pool if e not in prob.errors]
+            left = [e for e in pool if e not in fit.prob.errors]
             if not left:
                 break
-            best, stat, threshold = self._score(prob, fit, left, kernels)
+            best, stat, threshold = self._score(fit, left, rho)
             if self.progress:
-                self.progress(f"compat ({'white' if kernels is None else 'coloured'} scores): best candidate "
+                self.progress(f"compat ({'white' if rho is None else 'coloured'} scores): best candidate "
                               f"{best.name}: score {stat:.4g} (threshold {threshold:.4g})")
             if not stat > threshold:
                 break
             steps.append({"step": len(steps) + 1, "error": best.name, "statistic": stat, "threshold": threshold,
                           "p_value": float(stats.chi2.sf(stat, 1)), "candidates": len(left)})
-            key = tuple(e.name for e in (*prob.errors, best))
+            key = tuple(e.name for e in (*fit.prob.errors, best))
             if key not in fits:
-                theta, xs = prob.split(fit.beta)
-                new = _Problem(data, outputs, [*prob.errors, best])
-                fits[key] = new, _solve(new, np.r_[theta, 0.0, xs.ravel()], self.max_iter)
-            prob, fit = fits[key]
-        return prob, fit, steps
+                theta, xs = fit.prob.split(fit.beta)
+                fits[key] = _solve(KinematicProblem(data, outputs, [*fit.prob.errors, best]),
+                                   np.r_[theta, 0.0, xs.ravel()], self.max_iter)
+            fit = fits[key]
+        return fit, steps
 
-    def _score(self, prob: _Problem, fit: _Fit, left: list[SensorError], kernels):
-        """The candidate with the largest score statistic, it and the Šidák threshold; ``kernels``
-        the residual autocovariance per run (unweighted, (ny, 2L+1)), None for white residuals."""
+    def _score(self, fit: _Fit, left: list[SensorError], rho):
+        """The candidate with the largest score statistic, it and the Šidák threshold; ``rho`` the
+        whitened noise autocorrelation (L, ny) from the engine's coloured bounds, None for white."""
         from ..refine.diagnostics import ScoreBase, sidak_threshold
 
+        prob = fit.prob
         ev = prob.evaluate(fit.beta, extra=left)
-        sigma = np.sqrt(fit.R)
-        k = prob.p + 7
-        base = np.zeros((sum(e.size for e in ev.e), prob.p + 7 * prob.S))
+        sigma = 1 / np.diag(fit.Wh)
+        e = prob.segments(ev.e)
+        base = np.zeros((sum(x.size for x in e), prob.n_beta))
         row = 0
-        for r, J in enumerate(ev.J):  # parameters shared by every run, initial states per run
-            m = J.shape[0] * J.shape[1]
-            flat = J.reshape(m, k)
-            base[row:row + m, :prob.p] = flat[:, :prob.p]
-            base[row:row + m, prob.p + 7 * r:prob.p + 7 * r + 7] = flat[:, prob.p:]
+        for s, n_s in enumerate(prob.layout.length):  # sensor errors shared, initial states per segment
+            m = n_s * prob.ny
+            base[row:row + m, :prob.p] = ev.held[:n_s, :, :, s].reshape(m, prob.p)
+            base[row:row + m, prob.p + 7 * s:prob.p + 7 * s + 7] = ev.dy_x0[:n_s, :, :, s].reshape(m, 7)
             row += m
-        sb = ScoreBase.build(ev.e, base, sigma)
+        sb = ScoreBase.build(e, base, sigma)
         # refine's score, g^2 / (c' c) for the candidate column c orthogonal to the model's, with
-        # the residual's own covariance in the denominator, g^2 / (c' T c): the same statistic for
+        # the noise's own covariance in the denominator, g^2 / (c' T c): the same statistic for
         # white residuals, chi-square(1) also for the coloured ones a kinematic fit leaves
         w = 1 / sigma
         Jc = np.concatenate([(X * w[None, :, None]).reshape(-1, X.shape[2]) for X in ev.extra])
@@ -467,57 +534,59 @@ class Compat:
         e_perp = sb.e - sb.Q @ (sb.Q.T @ sb.e)
         g = perp.T @ e_perp
         var = np.zeros(len(left))
+        n_fft = 2 * prob.layout.L
+        spectrum = None if rho is None else _spectrum(rho, n_fft)
         row = 0
-        for r, e in enumerate(ev.e):
-            m = e.size
-            P = perp[row:row + m].reshape(e.shape[0], e.shape[1], -1)
-            var += np.einsum("nyk,nyk->k", P, P if kernels is None else
-                             _toeplitz_apply(kernels[r] * (w ** 2)[:, None], P))
-            row += m
+        for x in e:
+            P = perp[row:row + x.size].reshape(x.shape[0], x.shape[1], -1)
+            var += np.einsum("nyk,nyk->k", P, P if rho is None else toeplitz_apply(spectrum, P, n_fft))
+            row += x.size
         scores = np.where(var > 0, g ** 2 / np.maximum(var, 1e-300), 0.0)
         i = int(np.argmax(scores))
         return left[i], float(scores[i]), sidak_threshold(self.alpha, len(left), 1)
 
-    @staticmethod
-    def _coloured_covariance(prob: _Problem, fit: _Fit) -> np.ndarray:
-        """``M^-1 B M^-1`` (Morelli & Klein) for the sensor errors: ``B = J' R^-1/2 T R^-1/2 J``
-        with ``T`` the residuals' own (tapered) covariance, M the information matrix."""
-        k, w = prob.p + 7, 1 / np.sqrt(fit.R)
-        J = np.zeros((prob.n_beta, prob.n_beta))
-        B = np.zeros_like(J)
-        for r, (Jr, e) in enumerate(zip(fit.ev.J, fit.ev.e)):
-            Jw = Jr * w[None, :, None]
-            idx = np.r_[np.arange(prob.p), prob.p + 7 * r + np.arange(7)]
-            kernel = _coloured_kernel(e * w, int(MAX_LAG_SHARE * len(e)))
-            J[np.ix_(idx, idx)] += np.einsum("nyk,nyl->kl", Jw, Jw)
-            B[np.ix_(idx, idx)] += np.einsum("nyk,nyl->kl", Jw, _toeplitz_apply(kernel, Jw))
-        active = np.diag(J) > 0
-        Minv = np.zeros_like(J)
-        Minv[np.ix_(active, active)] = np.linalg.pinv(J[np.ix_(active, active)], hermitian=True)
-        return (Minv @ B @ Minv)[:prob.p, :prob.p]
-
-    def _result(self, runs, prob: _Problem, before: _Fit, fit: _Fit, steps) -> CompatResult:
+    def _result(self, runs, before: _Fit, fit: _Fit, steps) -> CompatResult:
+        prob = fit.prob
         P = prob.p
-        cov, ill = np.zeros((0, 0)), False
+        cov, ill, white, coloured, inputs = np.zeros((0, 0)), False, np.zeros(0), np.zeros(0), np.zeros(0)
+        given = dict(self.input_noise or {})
+        unknown = set(given) - set(K.INPUTS)
+        if unknown:
+            raise EstimationError(f"compat: input_noise: {', '.join(sorted(unknown))} not an inertial sensor "
+                                  f"(known: {', '.join(K.INPUTS)})")
+        q = np.where([c in given for c in K.INPUTS], [float(given.get(c, 0.0)) ** 2 for c in K.INPUTS],
+                     input_noise_variance(prob))
         if P:
-            cov = self._coloured_covariance(prob, fit)
-            ill = fit.M.covariance()[1]
+            cov_c = fit.coloured()[0].gg[:P, :P]
+            cov_i = fit.M.sandwich(_input_noise_information(prob, fit.ev, fit.Wh, q)).gg[:P, :P]
+            cov = cov_c + cov_i  # the outputs' own (coloured) noise and the inputs' noise integrated
+            cov_white, ill = fit.M.covariance()
+            white, coloured, inputs = (np.sqrt(np.clip(np.diag(c)[:P], 0, None))
+                                       for c in (cov_white.gg[:P, :P], cov_c, cov_i))
         d = np.diag(cov)
         std = np.where(d > 0, np.sqrt(np.where(d > 0, d, 0.0)), np.nan)
         theta, xs = prob.split(fit.beta)
         value = np.array([e.display(v) for e, v in zip(prob.errors, theta)])
+        names = [e.name for e in prob.errors]
 
-        def rms(ev):
-            e = np.vstack(ev.e)
+        def rms(f: _Fit):
+            e = np.vstack(prob.segments(f.ev.e))
             return {y: float(np.sqrt(np.mean(e[:, j] ** 2))) for j, y in enumerate(prob.outputs)}
 
         return CompatResult(
             errors=list(prob.errors), value=value, std=std, covariance=cov, outputs=prob.outputs, steps=steps,
-            rms_before=rms(before.ev), rms_after=rms(fit.ev),
+            rms_before=rms(before), rms_after=rms(fit),
             noise_std={y: float(np.sqrt(v)) for y, v in zip(prob.outputs, fit.R)},
             x0=[dict(zip(K.STATES, map(float, x))) for x in xs], converged=fit.converged, stop=fit.stop,
             iterations=fit.iterations, runs=[r.source for r in runs], alpha=self.alpha,
-            info={"ill_conditioned": bool(ill), "method": "output error (ML, relaxed noise covariance) on the "
-                  "rigid-body kinematics; finite-difference sensitivities; Levenberg-Marquardt on the "
-                  "engine's block information matrix"},
-            residuals_before=before.ev.e, residuals_after=fit.ev.e, time=[d.time for d in prob.data])
+            info={"ill_conditioned": bool(ill), "method": "the output-error engine (ML, relaxed noise covariance, "
+                  "multiple shooting, Levenberg-Marquardt) on the rigid-body kinematics; finite-difference "
+                  "sensitivities; coloured-residual bounds (Morelli & Klein)",
+                  "std_white": dict(zip(names, map(float, white))),
+                  "std_coloured": dict(zip(names, map(float, coloured))),
+                  "std_input_noise": dict(zip(names, map(float, inputs))),
+                  "input_noise_std": dict(zip(K.INPUTS, map(float, np.sqrt(q)))),
+                  "input_noise_source": {c: "given" if c in given else "estimated"
+                                         for c in K.INPUTS}},
+            residuals_before=prob.segments(before.ev.e), residuals_after=prob.segments(fit.ev.e),
+            time=[d.time for d in prob.data])

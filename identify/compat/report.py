@@ -50,7 +50,10 @@ def markdown(result: CompatResult, names: list[str], figures: list[str], prov: d
     if not result.steps:
         lines.append("| - | none: the measurements agree with the kinematics within their noise | | |")
     lines += ["", "## Estimated sensor errors", "",
-              "Standard errors: Cramér-Rao, corrected for coloured residuals (Morelli & Klein).", "",
+              "Standard errors: the outputs' noise, corrected for coloured residuals (Morelli & Klein), and "
+              "the inertial sensors' noise integrated through the kinematics (errors in the variables; noise std "
+              + ", ".join(f"{c} {v:.3g} ({result.info.get('input_noise_source', {}).get(c, '')})"
+                          for c, v in result.info.get("input_noise_std", {}).items()) + ").", "",
               "| sensor error | estimate | std error | unit | in degrees |", "| --- | ---: | ---: | --- | ---: |"]
     for name, p in result.parameters().items():
         deg = f"{p['value_deg']:.4g} ± {p['std_deg']:.2g}" if "value_deg" in p else ""

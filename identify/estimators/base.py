@@ -28,7 +28,9 @@ subclassing :class:`Estimator` and overriding what differs:
     and what refine tests: by default output error (the model simulated from the inputs, each
     segment's initial state and zero shifts fitted; state-built pseudo-inputs from the simulated
     states, ``start`` runs holding a nearby model's). A filter-error estimator returns its
-    one-step-ahead innovations instead.
+    one-step-ahead innovations instead, with the noise parameters it fitted in ``ModelFit.noise``;
+    refine passes those back as ``noise=`` to predict held-out runs with the fitted model's noise
+    (its filter gain) held (only estimators that fill ``ModelFit.noise`` are asked so).
 ``sensitivities(profile, runs, null, *, zero_shifts, segment)``
     the prediction of an extended ``profile`` (its added parameters at their null values) with
     ``dy`` (its residuals' sensitivities to the parameters) and ``nuisance`` (to the nuisance):

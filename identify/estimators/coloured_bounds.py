@@ -120,8 +120,10 @@ class ColouredBounds:
             for c in self.chunks(J.q):
                 FJ, FG = self.spectra(s, c, J, cov_ii)
                 # the initial-state and zero-shift columns of segments of one length are the same
-                # (C Phi^k and Wh): their T J is computed once per length (held segments)
-                n_own = int(keep[:self.prob.p].sum()) if self.held is not None and c == slice(None) else len(FJ)
+                # (C Phi^k and Wh): their T J is computed once per length (held segments; not for a
+                # nonlinear model, whose initial-state response is each segment's own: dy_x0 (L, ny, n, S))
+                shared_x0 = self.held is not None and c == slice(None) and self.ev.dy_x0.ndim == 3
+                n_own = int(keep[:self.prob.p].sum()) if shared_x0 else len(FJ)
                 parts = [(slice(0, n_own), self._toeplitz_times(FJ, J, c, slice(0, n_own), spectrum, rho, white))]
                 if n_own < len(FJ):
                     key = (J.length, keep.tobytes())

@@ -186,10 +186,13 @@ class FEM(Estimator):
         return math.inf
 
     def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
-                   start=None):
+                   start=None, noise: dict | None = None):
         """The profile's one-step-ahead prediction of ``runs``: residuals are the innovations, with
-        the nuisance (F, R, each run's initial state and zero shifts) fitted, the derivatives held."""
-        return self._innovations(profile, runs, zero_shifts, jacobian=False)[0]
+        the nuisance (F, R, each run's initial state and zero shifts) fitted, the derivatives held.
+        ``noise``: the ``ModelFit.noise`` (F and R) of the same profile's prediction of the fitting
+        runs, held: the prediction of held-out data by the fitted model, its filter gain included
+        (only each run's initial state and zero shifts are fitted there)."""
+        return self._innovations(profile, runs, zero_shifts, jacobian=False, noise=noise)[0]
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
@@ -215,12 +218,14 @@ class FEM(Estimator):
         x = propagate(Phi - Kp @ model.C, (Gamma - Kp @ Dh) @ U, np.zeros((prob.n, prob.n_runs)))
         return prob.per_run(model.C @ x + Dh @ U)
 
-    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool):
+    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool, noise: dict | None = None):
         """``(ModelFit, problem, filtered)`` of the profile's derivatives on ``runs``, the nuisance
-        fitted (cached per profile and runs: refine asks for the same prediction several ways)."""
+        fitted, F and R too unless ``noise`` holds them (cached per profile and runs: refine asks
+        for the same prediction several ways)."""
         from .prediction import ModelFit  # the protocol's result type
 
-        key = (profile.to_toml(), zero_shifts, jacobian,
+        held = None if noise is None else (tuple(map(float, noise["f"])), tuple(map(float, noise["r"])))
+        key = (profile.to_toml(), zero_shifts, jacobian, held,
                tuple((r.source, len(r), hash(r.matrix(profile.channels).tobytes())) for r in runs))
         cache = self.__dict__.setdefault("_innovation_cache", {})
         if key in cache:
@@ -232,16 +237,22 @@ class FEM(Estimator):
         runs = est.check_runs(runs)
         prob, beta, active = est._problem(runs)
         active[prob.index["theta"]] = False
-        solver = _Solver(est, prob, beta, active, nuisance_only=True)
+        if held is not None:  # the fitted model's noise, hence its filter gain, on held-out data
+            for part, values in zip(("f", "r"), held):
+                if len(values) != len(prob.index[part]):
+                    raise EstimationError(f"FEM: the held noise has {len(values)} values of {part.upper()}, "
+                                          f"the profile {len(prob.index[part])}")
+                beta[prob.index[part]], active[prob.index[part]] = values, False
+        solver = _Solver(est, prob, beta, active, nuisance_only=True, hold_noise=held is not None)
         solver.run()
         try:
             ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
         except (np.linalg.LinAlgError, ValueError):
             raise EstimationError(f"FEM: the prediction's noise fit failed ({solver.stop})") from None
-        _, _, x0, b, _ = prob.unpack(solver.beta)
+        _, f, x0, b, rv = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
-                       runs=runs)
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy()})
         if jacobian:
             G, n, ny = prob.G, prob.n, prob.ny
             L, _, k, R = ev.dnu.shape
@@ -549,8 +560,10 @@ class _Solver:
     relaxation from the innovations (ML's trust-region rules and convergence test,
     :class:`identify.estimators.ml._Solver`)."""
 
-    def __init__(self, fem: FEM, prob: FilterProblem, beta, active, nuisance_only: bool = False):
+    def __init__(self, fem: FEM, prob: FilterProblem, beta, active, nuisance_only: bool = False,
+                 hold_noise: bool = False):
         self.fem, self.prob, self.beta = fem, prob, beta.copy()
+        self.hold_noise = hold_noise  # F and R given (a held-out prediction): never relaxed nor released
         self.history, self.step_history = [], []
         self.iterations, self.converged, self.stop, self.lam, self.rejected = 0, False, "max_iter", 0.0, 0
         self.radius = MAX_REL_STEP
@@ -592,6 +605,9 @@ class _Solver:
     def _relax(self) -> None:
         """R's start: the innovations' mean squares minus the process noise's share (C P C^T)."""
         prob, ev = self.prob, self.ev
+        if self.hold_noise:
+            self.r_floor = np.zeros(prob.ny)
+            return
         ms = np.einsum("kir,kir->i", ev.nu, ev.nu) / prob.N
         C = ev.model.C
         self.r_floor = R_FLOOR * np.maximum(ms, 1e-300)
@@ -704,6 +720,8 @@ class _Solver:
     def _release(self, g) -> None:
         """... until the gradient points back inside (the likelihood rises with the variance):
         an active set, so that an early, wild step cannot pin a variance to its floor."""
+        if self.hold_noise:
+            return
         r = self.prob.index["r"]
         self.active[r] |= g[r] > 0
 

@@ -273,6 +273,8 @@ def _solve_batched(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _inverse(A: np.ndarray) -> tuple[np.ndarray, bool]:
+    if not A.size:  # no globals: initial states alone (compat's first fit)
+        return A.copy(), False
     ill = bool(np.linalg.cond(A) > ILL_CONDITIONED)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

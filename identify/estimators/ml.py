@@ -256,7 +256,12 @@ class _Solver:
     than ``STEP_TOL_SE`` of its standard error (or no parameter by more than ``tol`` relative),
     with the relaxed noise covariance settled. Anything else is not convergence: ``max_iter``
     reached, or no step lowering the cost while the gradient still predicts a decrease.
+
+    ``ml`` supplies the settings (``noise_cov_``, ``max_iter``, ``tol``, ``progress``,
+    ``verbose``); ``prob`` any problem on the engine's seam (:mod:`.output_error`).
     """
+
+    requires_parameters = True  # ML: a fit of initial states alone is an error (compat's first fit is one)
 
     def __init__(self, ml: ML, prob: OutputError, ev, z):
         self.ml, self.prob, self.ev, self.beta = ml, prob, ev, ev.beta.copy()
@@ -269,7 +274,7 @@ class _Solver:
         M, _ = prob.information(ev, self.Wh)
         # a parameter no input excites has no influence at all: hold it, report std = inf
         self.active = M.active
-        if not self.active[:prob.p].any():
+        if self.requires_parameters and not self.active[:prob.p].any():
             raise EstimationError("ML: no free parameter influences the outputs of these runs "
                                   "(are the inputs all zero?)")
         self.M = M
@@ -325,7 +330,7 @@ class _Solver:
         # the step's length in the information metric bounds every unknown's move in standard
         # errors (|step_i| / sigma_i <= sqrt(step^T M step), Cauchy-Schwarz); twice the predicted decrease
         in_se = math.sqrt(max(float(g @ step), 0.0))
-        rel = float(np.max(np.abs(step[:P]) / (np.abs(self.beta[:P]) + 1e-6)))
+        rel = float(np.max(np.abs(step[:P]) / (np.abs(self.beta[:P]) + 1e-6), initial=np.inf))  # none: in_se decides
         self.step_history.append(in_se)
         if in_se < STEP_TOL_SE:
             return f"gradient: the next step is {in_se:.1e} standard errors"
@@ -377,7 +382,7 @@ class _Solver:
                 break
             rho = (cost - c) / pred
             self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
-            rel_step = float(np.max(np.abs(step[:P]) / self._scale(M)))
+            rel_step = float(np.max(np.abs(step[:P]) / self._scale(M), initial=0.0))
             self.max_rel_step = max(self.max_rel_step, rel_step)
             if rho > 0.75 and rel_step >= 0.99 * self.radius:
                 self.radius = min(2 * self.radius, MAX_REL_STEP)
@@ -409,7 +414,7 @@ class _Solver:
         P = self.prob.p
         cov, _ = M.covariance()
         rel = np.sqrt(np.clip(cov.diag()[:P], 0, None)) / np.maximum(np.abs(self.beta[:P]), 1e-300)
-        bad = [self.prob.model0.names[i] for i in np.argsort(-rel)[:4] if rel[i] > 10]
+        bad = [self.prob.names()[i] for i in np.argsort(-rel)[:4] if rel[i] > 10]
         return (f"; not determined by these runs (std error > 10 x estimate), the likelihood may rise "
                 f"without bound along them: {', '.join(bad)}" if bad else "")
 
@@ -430,7 +435,7 @@ class _Solver:
         while self.lam <= MAX_DAMPING:
             step = self._step(M, g, self.active, self.lam)
             # bounded relative step: shorten along the same (descent) direction, keep the damping
-            step *= min(1.0, self.radius / max(float(np.max(np.abs(step[:P]) / scale)), 1e-300))
+            step *= min(1.0, self.radius / max(float(np.max(np.abs(step[:P]) / scale, initial=0.0)), 1e-300))
             pred = self._predicted(M, g, step)
             if pred > 0:
                 ev, c = self._try(self.beta + step)
@@ -446,6 +451,9 @@ class _Solver:
         self.wls_history.append(float(cost))
         self.log_det_history.append(log_det)
         self.history.append(float(cost) + 0.5 * float(self.prob.mask.sum()) * log_det)
+
+
+OutputErrorSolver = _Solver  # the public name for problems on the engine's seam (identify.compat)
 
 
 # -- helpers ---------------------------------------------------------------------------------------

@@ -22,6 +22,15 @@ a trailing axis), as are the parameter sensitivities: one time recursion per ite
 many parameters and segments. The normal equations are accumulated segment by segment from the
 small local Jacobian ``[dy/dtheta, dy/dx0_s, dy/db]``, so the big, mostly empty global Jacobian
 is never formed.
+
+The seam for nonlinear models: everything after the simulation (cost, normal equations,
+:class:`~identify.estimators.information.BlockInformation`, the coloured-residual bounds, ML's
+solver) reads only the layout attributes set in ``__init__`` (``p, n, ny, layout, Z, mask,
+n_runs, local_index, n_beta, estimate_x0, estimate_bias``) and the :class:`Response` of
+:meth:`OutputError.evaluate`. A subclass that sets those and supplies ``evaluate`` (prediction and
+sensitivities of every segment; ``dy_x0`` per segment, (L, ny, n, S), when a nonlinear model's
+initial-state response differs from segment to segment) and ``names`` plugs a nonlinear problem
+into the engine: :class:`identify.compat.fit.KinematicProblem` (flight-path reconstruction).
 """
 from __future__ import annotations
 
@@ -115,7 +124,8 @@ def simulate_segments(Phi: np.ndarray, forcing: np.ndarray, x_start: np.ndarray,
 @dataclass
 class Response:
     """Model response at one ``beta``: ``e`` (L, ny, S) residual z - y (0 on padding), ``y`` (L, ny, S);
-    with the Jacobian: ``dy_x0`` (L, ny, n) (shared by all segments) and the parameter
+    with the Jacobian: ``dy_x0`` (L, ny, n) (shared by all segments; (L, ny, n, S) per segment for
+    a nonlinear model) and the parameter
     sensitivities ``dy_theta`` (L, ny, p, S), held (``held``) or, for many segments, recomputed a
     group of segments at a time by ``compute(segments)`` (:meth:`theta_sensitivities`) so that
     they never exist whole (an hour in 3 s segments: 460 MB)."""
@@ -333,7 +343,11 @@ class OutputError:
         Jloc = np.empty((S, l, ny, p + n + ny))
         Jloc[..., :p] = ((Wh @ dy_theta[k0:k1].reshape(l, ny, p * S)).reshape(l, ny, p, S)
                          .transpose(3, 0, 1, 2))
-        Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1])[None]
+        if ev.dy_x0.ndim == 4:  # a nonlinear model: each segment its own initial-state response
+            Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1, :, :, segs].reshape(l, ny, -1)).reshape(
+                l, ny, n, S).transpose(3, 0, 1, 2)
+        else:
+            Jloc[..., p:p + n] = (Wh @ ev.dy_x0[k0:k1])[None]
         Jloc[..., p + n:] = Wh
         Jloc[self.mask[k0:k1, segs].T == 0] = 0.0  # not a product: padding may hold inf
         return Jloc

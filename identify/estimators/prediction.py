@@ -54,6 +54,7 @@ class ModelFit:
     dy: list[np.ndarray] | None = None
     nuisance: list[np.ndarray] | None = None
     runs: list[Run] | None = None  # the runs as simulated (state-built pseudo-inputs from the model)
+    noise: dict | None = None  # noise parameters the prediction fitted (a filter's F and R), else None
 
 
 def _problem(profile: Profile, runs: list[Run], segment: float, zero_shifts: bool, inputs=None) -> OutputError:

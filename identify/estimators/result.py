@@ -95,8 +95,14 @@ class IdentificationResult:
             if not (s > 0):  # 0, negative or NaN (inf stays: a parameter no input excites)
                 reasons.setdefault(self.names[i], "variance not positive (the covariance is not positive definite: "
                                    "a fit stopped before its minimum or a singular information matrix)")
-        if self.info.get("zero_shift_std") is not None:  # per-run zero shifts were estimated
+        zero_shift_std = self.info.get("zero_shift_std") or []
+        # only outputs whose zero shift was estimated in some run (a held one has an infinite std; FEM
+        # lists them all, held ones too)
+        shifted = {y for run in zero_shift_std for y, s in run.items() if not np.isinf(s)}
+        if shifted:
             for name, y in identifiability.zero_shift_duplicates(self.model).items():
+                if y not in shifted:
+                    continue
                 reasons[name] = (f"a declared output bias on '{y}' duplicating the zero shift fitted per run "
                                  f"(only their sum is determined: drop the bias or fit without zero shifts)")
         if self.covariance is not None and len(self.names) > 1:

@@ -45,12 +45,20 @@ class Fitting:
 
     def prediction(self, p: Profile, data: str = "fit") -> ModelFit:
         """The profile's prediction of one data set (``fit``, ``choosing``, ``validation``) with the
-        shared segments and nuisance; each (model, data set) pair computed once."""
+        shared segments and nuisance; each (model, data set) pair computed once.
+
+        Held-out data are predicted by the model fitted on the fitting runs, its noise parameters
+        included (``ModelFit.noise``, a filter's F and R, hence its gain): re-fitted on the held-out
+        data, a filter without an effect raises its process noise there until it tracks what the
+        effect explains, and the held-out check then measures the effect against a model partly
+        fitted to the data that judge it. Only each run's own nuisance (initial state, zero shifts)
+        is fitted on held-out runs."""
         key = (p.to_toml(), data)
         if key not in self.cache:
+            noise = self.prediction(p, "fit").noise if data != "fit" else None
             self.evaluations += 1
             self.cache[key] = self.estimator.prediction(p, prepare(p, self.data[data]), zero_shifts=self.zero_shifts,
-                                                        segment=self.segment)
+                                                        segment=self.segment, **({"noise": noise} if noise else {}))
         return self.cache[key]
 
     def residuals(self, p: Profile, data: str = "fit"):

@@ -92,6 +92,26 @@ def test_a_declared_output_bias_duplicating_the_zero_shift_is_said():
     assert "b_q: a declared output bias on 'q' duplicating the zero shift" in res.summary()
 
 
+def test_a_declared_output_bias_without_zero_shifts_keeps_its_bound_under_fem():
+    """FEM lists every zero shift, held ones (std inf) too: without zero shifts the declared bias
+    duplicates nothing and keeps its bound (it was NaN with a false 'duplicating' reason)."""
+    from identify.estimators.filter_error import FEM
+
+    text = LONGITUDINAL.replace("[fixed]", "b_q = 0.01\n[ties]\nb_q = { \"q:one\" = 1.0 }\n[fixed]")
+    text = text.replace('inputs = { de = "rad" }', 'inputs = { de = "rad", one = "1" }')
+    text += "\n[meta.pseudo_inputs]\none = { constant = 1.0 }\n"
+    p = parse_profile(text)
+    t = np.arange(0, 15.0, 0.05)
+    run = simulate_run(LinearModel(parse_profile(LONGITUDINAL)), t, steps_3211(t, 0.5, width=1.0, amp=0.02)[:, None],
+                       noise=NOISE, seed=3, bias={"q": 0.004})
+    res = FEM(p, process_noise={}, estimate_bias=False, max_iter=30).fit(run).result_
+    i = p.free_names.index("b_q")
+    assert all(np.isinf(s) for run_std in res.info["zero_shift_std"] for s in run_std.values())
+    assert np.isfinite(res.std[i]) and res.std[i] > 0
+    assert "b_q" not in res.info.get("not_determined", {})
+    assert abs(res.theta[i] - 0.004) < 4 * res.std[i]
+
+
 def test_ml_initial_state_and_zero_shift_stds_are_nan_where_the_variance_is_not_positive():
     """Every standard error ML reports (parameters, initial states, zero shifts) is NaN, never 0,
     where its variance is not positive; held entries stay inf."""
