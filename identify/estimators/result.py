@@ -146,12 +146,12 @@ class IdentificationResult:
     @property
     def correlation(self) -> np.ndarray:
         """(p, p) parameter correlation matrix (identity where only the stds are known)."""
-        return identifiability.correlation(self._cov())
+        return identifiability.correlation(self.parameter_covariance())
 
     def identifiability(self) -> dict:
         """Correlated pairs, poorly determined parameters and modes whose stability these runs do
         not determine (:func:`identify.identifiability.assess`)."""
-        check = identifiability.assess(self.names, self.theta, self.std, self._cov(), self.model)
+        check = identifiability.assess(self.names, self.theta, self.std, self.parameter_covariance(), self.model)
         held = {n for names in self.info.get("held", {}).values() for n in names}
         if held:  # held at the a priori, said on their own line: not "poorly determined"
             check["poorly_determined"] = [n for n in check["poorly_determined"] if n not in held]
@@ -160,7 +160,7 @@ class IdentificationResult:
     @property
     def insensitivity(self) -> np.ndarray:
         """Tischler & Remple's insensitivity (p,), units of theta: see :func:`insensitivity`."""
-        return insensitivity(self._cov())
+        return insensitivity(self.parameter_covariance())
 
     def accuracy(self) -> dict[str, dict]:
         """Per parameter the Cramér-Rao % and insensitivity % of the estimate and the guidelines
@@ -188,7 +188,9 @@ class IdentificationResult:
                      else "all parameters within the guidelines")
         return lines
 
-    def _cov(self) -> np.ndarray:
+    def parameter_covariance(self) -> np.ndarray:
+        """(p, p) covariance of the estimates: the full matrix, or the stds' diagonal where only
+        they are known."""
         return np.diag(self.std ** 2) if self.covariance is None else self.covariance
 
     def parameters(self) -> dict[str, float]:

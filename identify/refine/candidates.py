@@ -343,7 +343,7 @@ def _with_estimate_error(fitting, noise, prof, res, plus, minus, step: float, cu
         name, d = res.names[i], float(res.std[i])
         up, down = (replace(prof, free={**prof.free, name: prof.free[name] + s * d}) for s in (1.0, -1.0))
         vJ[k] = v @ (white(up) - white(down)) / (2 * d)
-    C = res._cov()[np.ix_(free, free)]
+    C = res.parameter_covariance()[np.ix_(free, free)]
     extra = float(vJ @ C @ vJ) / curv ** 2
     return math.sqrt(1 / curv + extra) if math.isfinite(extra) else math.inf
 
