@@ -218,3 +218,15 @@ def test_lazy_names_resolve():
         assert getattr(identify, name) is not None, name
     for name in signaldesign.__all__:
         assert getattr(signaldesign, name) is not None, name
+
+
+def test_the_architecture_page_is_the_import_graph():
+    """docs/architecture.md holds the picture docs/architecture.py draws from the source: a new
+    import that changes the picture must regenerate the page (``python docs/architecture.py --write``)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("architecture", ROOT / "docs" / "architecture.py")
+    arch = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(arch)
+    page = (ROOT / "docs" / "architecture.md").read_text()
+    held = page.partition(arch.BEGIN)[2].partition(arch.END)[0].strip()
+    assert held == arch.picture(ig.graph(ROOT)).strip(), "regenerate: python docs/architecture.py --write"
