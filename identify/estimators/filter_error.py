@@ -293,6 +293,7 @@ class FEM(Estimator):
         boundary[ix["f"]] = ~bounded[ix["f"]]
         boundary[ix["r"]] = ~bounded[ix["r"]]
         std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
+        std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
         self.covariance_ = cov[:P, :P].copy()
         theta, f, x0, b, r = prob.unpack(beta)
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
@@ -332,7 +333,7 @@ class FEM(Estimator):
             "ill_conditioned": ill,
             "standard_errors": ("coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds" if self.coloured
                                 else "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"),
-            "std_white": np.where(bounded, std_white, np.nan)[:P],
+            "std_white": std_white[:P],
             "std_coloured": None if std_col is None else std_col[:P],
             "noise_autocorrelation": acf,  # of the whitened innovations (L, ny), lag 0 first
             "colour_passes": passes,
@@ -584,8 +585,11 @@ class _Innovations:
     """The filter-error problem as :class:`~identify.estimators.coloured_bounds.ColouredBounds`
     sees an output-error one (the seam): residuals ``e`` = the innovations (L, ny, R), the local
     Jacobian = the whitened innovation sensitivities over each run's local unknowns ``[theta, F,
-    R, x0, zero shifts]`` (``p`` = the globals G), every run one segment; ``local`` (R, k, k) their
-    Gram matrices and ``extra`` the information in S (on the first run's globals)."""
+    R, x0, zero shifts]`` (``p`` = the globals G), every run one segment; ``local`` (R, k, k) the
+    information (its Gram matrices, plus the information in S on the first run's globals). The
+    columns of F and R are zero in the Jacobian the sandwich sees: their sensitivities are
+    functions of the noise itself (the gain's), so their rows and columns of B, and S's
+    information, are taken as the Cramér-Rao ones (``extra``)."""
 
     def __init__(self, prob: FilterProblem, ev: Filtered):
         self.fp, self.ev_ = prob, ev
