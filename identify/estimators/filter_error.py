@@ -604,11 +604,12 @@ class _Innovations:
         self.local = J.transpose(0, 2, 1) @ J  # the innovations' part of M
         SdS = np.linalg.solve(ev.S, ev.dS)
         G = prob.G
-        self.local[0, :G, :G] += 0.5 * prob.N * np.einsum("iab,jba->ij", SdS, SdS)  # and S's
+        in_S = 0.5 * prob.N * np.einsum("iab,jba->ij", SdS, SdS)  # the information in S (as M's)
+        self.local[0, :G, :G] += in_S
         noise = np.zeros(k, bool)
         noise[prob.p:G] = True
         self.extra = self.local * (noise[:, None] | noise[None, :])
-        self.extra[0, :G, :G] += 0.5 * prob.N * np.einsum("iab,jba->ij", SdS, SdS) * ~noise[:G, None] * ~noise[None, :G]
+        self.extra[0, :G, :G] += in_S * ~noise[:G, None] * ~noise[None, :G]
 
     def local_jacobian(self, ev, Wh: np.ndarray, k0: int = 0, k1: int | None = None, segment=None,
                        structural: bool = True) -> np.ndarray:
