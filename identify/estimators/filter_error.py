@@ -284,10 +284,15 @@ class FEM(Estimator):
         M, _ = prob.information(ev)
         cov, ill = _covariance(M, bounded)
         std = std_white = np.sqrt(np.clip(np.diag(cov), 0, None))
-        std_col, acf, passes = None, None, 0
+        std_col, acf, passes, colour_failed = None, None, 0, None
         if self.coloured:  # once, at the estimate
-            cov, acf, passes = prob.coloured(ev, bounded)
-            std = std_col = np.sqrt(np.clip(np.diag(cov), 0, None))
+            cov_c, acf, passes = prob.coloured(ev, bounded)
+            colour_failed = _colour_failure(cov_c, cov, bounded)
+            if colour_failed is None:
+                cov = cov_c
+                std = std_col = np.sqrt(np.clip(np.diag(cov), 0, None))
+            else:
+                warnings.warn(f"FEM: {colour_failed}; the Cramér-Rao bounds are reported", stacklevel=3)
         std[~bounded] = np.inf  # a derivative no input excites, a held x0 or zero shift
         boundary = np.zeros_like(bounded)
         boundary[ix["f"]] = ~bounded[ix["f"]]
@@ -331,8 +336,10 @@ class FEM(Estimator):
                                **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
                                   for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_}},
             "ill_conditioned": ill,
-            "standard_errors": ("coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds" if self.coloured
-                                else "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"),
+            "standard_errors": ("coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds"
+                                if std_col is not None else
+                                "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"),
+            "coloured_failed": colour_failed,  # why the coloured correction was not used (None: it was, or not asked)
             "std_white": std_white[:P],
             "std_coloured": None if std_col is None else std_col[:P],
             "noise_autocorrelation": acf,  # of the whitened innovations (L, ny), lag 0 first
@@ -847,6 +854,23 @@ def _stacked(mats: np.ndarray, series: np.ndarray) -> np.ndarray:
     """``mats`` (G, a, b) times ``series`` (L, b, R) for every g at once: (L, G, a, R), one matmul."""
     G, a, b = mats.shape
     return (mats.reshape(G * a, b) @ series).reshape(series.shape[0], G, a, series.shape[2])
+
+
+COLOUR_FACTOR_LIMIT = 100.0  # a coloured std beyond this factor of the white one: the sandwich blew up
+
+
+def _colour_failure(cov_c: np.ndarray, cov: np.ndarray, bounded: np.ndarray) -> str | None:
+    """Why the coloured covariance ``cov_c`` cannot be used (None: it can): not finite, or a
+    standard error off the Cramér-Rao one (``cov``) by more than COLOUR_FACTOR_LIMIT either way
+    (an ill-conditioned sandwich, measured once on the piloted S 61: 1e24)."""
+    c, w = np.diag(cov_c)[bounded], np.diag(cov)[bounded]
+    if not np.all(np.isfinite(cov_c)):
+        return "the coloured-innovation correction is not finite"
+    ratio = np.sqrt(np.clip(c, 0, None) / np.maximum(w, 1e-300))
+    if np.any((ratio > COLOUR_FACTOR_LIMIT) | (ratio < 1 / COLOUR_FACTOR_LIMIT)):
+        return (f"the coloured-innovation correction changed a standard error by a factor "
+                f"{ratio.min():.3g}..{ratio.max():.3g} (an ill-conditioned sandwich)")
+    return None
 
 
 def _covariance(M: np.ndarray, active: np.ndarray):

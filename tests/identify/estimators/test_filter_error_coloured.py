@@ -141,3 +141,26 @@ def test_white_measurement_noise_gives_a_factor_near_one():
     theta = slice(0, 4)
     np.testing.assert_allclose(dense[theta] / white[theta], 1.0, rtol=0.15)  # turbulence only: nearly white
     np.testing.assert_allclose(col[theta] / wht, 1.0, rtol=0.2)
+
+
+def test_a_coloured_correction_that_blows_up_is_refused_and_said(monkeypatch):
+    from identify import simulate_run
+    from identify.estimators import filter_error
+    profile = parse_profile(TOML)
+    rng = np.random.default_rng(0)
+    t = np.arange(N) * DT
+    u = np.repeat(rng.choice([-1.0, 0.0, 1.0], size=N // 25 + 1), 25)[:N] * 0.05
+    runs = [simulate_run(LinearModel(profile), t, u[:, None], noise_fraction=0.01, seed=0,
+                         process_noise=np.array([0.05, 0.1, 0.0]))]
+    real = filter_error.FilterProblem.coloured
+
+    def blown(self, ev, active):
+        cov, acf, passes = real(self, ev, active)
+        return cov * 1e48, acf, passes
+
+    monkeypatch.setattr(filter_error.FilterProblem, "coloured", blown)
+    with pytest.warns(UserWarning, match="coloured-innovation correction changed a standard error"):
+        fem = FEM(profile, process_noise={"u": None, "q": None}).fit(runs)
+    info = fem.result_.info
+    assert "ill-conditioned" in info["coloured_failed"] and info["std_coloured"] is None
+    np.testing.assert_array_equal(fem.std_, info["std_white"])
