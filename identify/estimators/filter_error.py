@@ -107,9 +107,11 @@ class FEM(Estimator):
     ``[initial_state]``); ``estimate_x0``/``estimate_bias`` as ML (False holds all of them;
     per-output zero shifts follow the profile's ``[zero_shifts]``). ``max_iter``, ``tol``,
     ``progress``, ``verbose`` as ML. ``coloured``: standard errors corrected for coloured
-    innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`;
-    default True) or the plain Cramér-Rao bounds; both are in ``info["std_coloured"]`` and
-    ``info["std_white"]`` (theta only).
+    innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`)
+    or (default) the plain Cramér-Rao bounds; both are then in ``info["std_coloured"]`` and
+    ``info["std_white"]`` (theta only). Opt-in: measured, it helps with coloured measurement noise
+    but over-widens the velocity derivatives' bounds (median 1.6-1.9x) on the piloted S 61 case of
+    benchmarks/filter_error.py, where the plain bounds are calibrated (docs/filter_error.md).
 
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
@@ -124,7 +126,7 @@ class FEM(Estimator):
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
-                 progress=None, verbose: bool = False, coloured: bool = True):
+                 progress=None, verbose: bool = False, coloured: bool = False):
         super().__init__(profile)
         self.process_noise, self.x0, self.coloured = process_noise, x0, coloured
         self.max_iter, self.tol = max_iter, tol

@@ -60,7 +60,7 @@ def test_without_process_noise_fem_is_output_error_ml(navion):
     truth = LinearModel(navion)
     runs = _runs(truth, {}, (3,), duration=20.0)
     ml = ML(_off(navion), segment="plain").fit(runs)
-    fem = FEM(_off(navion), process_noise={}).fit(runs)
+    fem = FEM(_off(navion), process_noise={}, coloured=True).fit(runs)
     assert fem.result_.info["converged"] and not fem.result_.info["process_noise"]
     np.testing.assert_array_less(np.abs(fem.theta_ - ml.theta_), 0.01 * ml.std_)
     # R estimated jointly: a little more uncertain; the coloured-residual bounds are ML's (the

@@ -78,7 +78,7 @@ def _fit(pole, seed=3):
          COLOURED * signal.lfilter(b_ar, [1.0, -pole], rng.standard_normal((N, 3)), axis=0)) * SCALE
     z = y + v
     run = Run(np.arange(N) * DT, {"eta": u[:, 0], **{c: z[:, i] for i, c in enumerate(("u", "q", "theta"))}})
-    fem = FEM(profile, process_noise=F_TRUE).fit([run])
+    fem = FEM(profile, process_noise=F_TRUE, coloured=True).fit([run])
 
     # Sigma_z X: turbulence response (Tw Qd Tw^T) and measurement noise (white + AR(1) from rest)
     ar = signal.lfilter(b_ar, [1.0, -pole], np.eye(N), axis=0)  # (N, N): column j the response to an impulse at j
@@ -160,7 +160,7 @@ def test_a_coloured_correction_that_blows_up_is_refused_and_said(monkeypatch):
 
     monkeypatch.setattr(filter_error.FilterProblem, "coloured", blown)
     with pytest.warns(UserWarning, match="coloured-innovation correction changed a standard error"):
-        fem = FEM(profile, process_noise={"u": None, "q": None}).fit(runs)
+        fem = FEM(profile, process_noise={"u": None, "q": None}, coloured=True).fit(runs)
     info = fem.result_.info
     assert "ill-conditioned" in info["coloured_failed"] and info["std_coloured"] is None
     np.testing.assert_array_equal(fem.std_, info["std_white"])
