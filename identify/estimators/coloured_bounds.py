@@ -26,6 +26,8 @@ class ColouredBounds:
 
     ``prob``: the :class:`~identify.estimators.output_error.OutputError`; ``ev`` its response with
     sensitivities at the estimate; ``Wh`` the whitening (ny, ny); ``info`` the information there.
+    The filter-error method passes its innovations through the same interface
+    (:class:`identify.estimators.filter_error._Innovations`), its innovation sensitivities for J.
     :meth:`solve` returns the covariance, the noise autocorrelation and the number of passes.
 
     The fixed point for the noise autocorrelation is linear (but for the clip to a non-negative
@@ -40,8 +42,11 @@ class ColouredBounds:
     (COLOUR_CACHE), else recomputed, so an hour at 100 Hz stays within a few hundred MB.
     """
 
-    def __init__(self, prob, ev, Wh: np.ndarray, info: BlockInformation):
+    def __init__(self, prob, ev, Wh: np.ndarray, info: BlockInformation, extra: np.ndarray | None = None):
         self.prob, self.ev, self.Wh, self.info = prob, ev, Wh, info
+        # ``extra`` (S, k, k): local information that is not the residuals' (the filter-error
+        # method's information in its innovation covariance), taken as it is into B
+        self.extra = extra
         L, ny, S = ev.e.shape
         self.L, self.ny, self.S = L, ny, S
         self.n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
@@ -111,7 +116,7 @@ class ColouredBounds:
         correction (ny, F), ``rho`` given by its spectrum (F, ny). For white ``rho`` (the first
         pass, constant spectrum) ``T J = rho(0) J`` needs no FFT."""
         spectrum = np.clip(rho, 0.0, None).T  # a covariance: PSD, (ny, F)
-        Bl = np.zeros((self.S, self.k_loc, self.k_loc))
+        Bl = np.zeros((self.S, self.k_loc, self.k_loc)) if self.extra is None else self.extra.copy()
         corr = np.zeros((self.ny, self.F))
         shared = {}
         for s, keep, J in self.segments():
@@ -134,7 +139,7 @@ class ColouredBounds:
                     block[:, c][:, cols] = J.gram(TJ)
                     corr += 2 * _real_inner(FG[cols], FTJ)
                 del FJ, FG, parts, TJ, FTJ  # before the next chunk's arrays exist
-            Bl[s][np.ix_(keep, keep)] = block
+            Bl[s][np.ix_(keep, keep)] += block
         return 0.5 * (Bl + Bl.transpose(0, 2, 1)), corr
 
     def _toeplitz_times(self, FJ, J, c, cols, spectrum, rho, white):

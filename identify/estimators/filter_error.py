@@ -83,6 +83,8 @@ from .base import Estimator
 from .filter_error_nonlinear import StateTerms
 from .ml import (INITIAL_DAMPING, MAX_DAMPING, MAX_REL_STEP, MIN_GAIN_RATIO, STALL_TOL_SE,
                  STEP_TOL_SE, common_dt, finite_channels)
+from .coloured_bounds import ColouredBounds
+from .information import BlockInformation
 from .output_error import cut, pad
 from .result import IdentificationResult, fit_metrics
 
@@ -104,7 +106,12 @@ class FEM(Estimator):
     ``x0``: ``{state: value}`` initial states held fixed in every run (with the profile's
     ``[initial_state]``); ``estimate_x0``/``estimate_bias`` as ML (False holds all of them;
     per-output zero shifts follow the profile's ``[zero_shifts]``). ``max_iter``, ``tol``,
-    ``progress``, ``verbose`` as ML.
+    ``progress``, ``verbose`` as ML. ``coloured``: standard errors corrected for coloured
+    innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`)
+    or (default) the plain Cramér-Rao bounds; both are then in ``info["std_coloured"]`` and
+    ``info["std_white"]`` (theta only). Opt-in: measured, it helps with coloured measurement noise
+    but over-widens the velocity derivatives' bounds (median 1.6-1.9x) on the piloted S 61 case of
+    benchmarks/filter_error.py, where the plain bounds are calibrated (docs/filter_error.md).
 
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
@@ -119,9 +126,9 @@ class FEM(Estimator):
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
-                 progress=None, verbose: bool = False):
+                 progress=None, verbose: bool = False, coloured: bool = False):
         super().__init__(profile)
-        self.process_noise, self.x0 = process_noise, x0
+        self.process_noise, self.x0, self.coloured = process_noise, x0, coloured
         self.max_iter, self.tol = max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.progress, self.verbose = progress, verbose
@@ -179,7 +186,7 @@ class FEM(Estimator):
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
         """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
-        return self.clone(profile, estimate_bias=zero_shifts)
+        return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured and bounds)
 
     def prediction_segment(self, model, duration: float) -> float:
         """Whole runs: the filter stabilises the prediction of an unstable model."""
@@ -278,12 +285,22 @@ class FEM(Estimator):
         bounded[ix["r"]] &= beta[ix["r"]] > sv.r_floor  # a variance on its floor has no bound
         M, _ = prob.information(ev)
         cov, ill = _covariance(M, bounded)
-        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        std = std_white = np.sqrt(np.clip(np.diag(cov), 0, None))
+        std_col, acf, passes, colour_failed = None, None, 0, None
+        if self.coloured:  # once, at the estimate
+            cov_c, acf, passes = prob.coloured(ev, bounded)
+            colour_failed = _colour_failure(cov_c, cov, bounded)
+            if colour_failed is None:
+                cov = cov_c
+                std = std_col = np.sqrt(np.clip(np.diag(cov), 0, None))
+            else:
+                warnings.warn(f"FEM: {colour_failed}; the Cramér-Rao bounds are reported", stacklevel=3)
         std[~bounded] = np.inf  # a derivative no input excites, a held x0 or zero shift
         boundary = np.zeros_like(bounded)
         boundary[ix["f"]] = ~bounded[ix["f"]]
         boundary[ix["r"]] = ~bounded[ix["r"]]
         std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
+        std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
         self.covariance_ = cov[:P, :P].copy()
         theta, f, x0, b, r = prob.unpack(beta)
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
@@ -321,7 +338,14 @@ class FEM(Estimator):
                                **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
                                   for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_}},
             "ill_conditioned": ill,
-            "standard_errors": "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)",
+            "standard_errors": ("coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds"
+                                if std_col is not None else
+                                "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"),
+            "coloured_failed": colour_failed,  # why the coloured correction was not used (None: it was, or not asked)
+            "std_white": std_white[:P],
+            "std_coloured": None if std_col is None else std_col[:P],
+            "noise_autocorrelation": acf,  # of the whitened innovations (L, ny), lag 0 first
+            "colour_passes": passes,
             "wall_time": wall,
         }
         return IdentificationResult(
@@ -543,9 +567,77 @@ class FilterProblem:
         g[:G] -= 0.5 * np.einsum("iab,ba->i", SdS, self.N * np.eye(ny) - Sinv @ outer)
         return M, g
 
+    def coloured(self, ev: Filtered, active: np.ndarray):
+        """The covariance (n_beta, n_beta) corrected for coloured innovations, the whitened
+        innovations' autocorrelation (L, ny) and the number of passes: ML's sandwich ``M^-1 B M^-1``
+        (:class:`~identify.estimators.coloured_bounds.ColouredBounds`) with the innovations for the
+        residuals and their sensitivities for J; the information in S (the noise variances') enters
+        B as it is. White innovations: the Cramér-Rao bound within the scatter of their
+        autocorrelation."""
+        adapter = _Innovations(self, ev)
+        info = BlockInformation(adapter.local, self.local_index, self.n_beta,
+                                self.index["x0"], active)
+        cov, acf, passes = ColouredBounds(adapter, adapter, adapter.Wh, info, adapter.extra).solve()
+        dense = np.zeros((self.n_beta, self.n_beta))
+        g = info.g_index
+        dense[np.ix_(g, g)] = cov.gg  # every run's x0 but with the globals (the blocks read)
+        for r, xs in enumerate(info.x_index):
+            dense[np.ix_(g, xs)], dense[np.ix_(xs, g)], dense[np.ix_(xs, xs)] = cov.gx[r], cov.gx[r].T, cov.xx[r]
+        return dense, acf, passes
+
     def per_run(self, arr: np.ndarray) -> list[np.ndarray]:
         """(L, ny, R) back to one (N_r, ny) array per run."""
         return [arr[:n_r, :, r].copy() for r, n_r in enumerate(self.layout.length)]
+
+
+class _Innovations:
+    """The filter-error problem as :class:`~identify.estimators.coloured_bounds.ColouredBounds`
+    sees an output-error one (the seam): residuals ``e`` = the innovations (L, ny, R), the local
+    Jacobian = the whitened innovation sensitivities over each run's local unknowns ``[theta, F,
+    R, x0, zero shifts]`` (``p`` = the globals G), every run one segment; ``local`` (R, k, k) the
+    information (its Gram matrices, plus the information in S on the first run's globals). The
+    columns of F and R are zero in the Jacobian the sandwich sees: their sensitivities are
+    functions of the noise itself (the gain's), so their rows and columns of B, and S's
+    information, are taken as the Cramér-Rao ones (``extra``)."""
+
+    def __init__(self, prob: FilterProblem, ev: Filtered):
+        self.fp, self.ev_ = prob, ev
+        self.mask, self.layout, self.local_index = prob.mask, prob.layout, prob.local_index
+        self.p, self.n = prob.G, prob.n
+        self.e = ev.nu
+        self.dy_x0 = np.zeros((0, 0, 0, 0))  # ndim 4: each run's own initial-state response
+        self.Wh = np.linalg.cholesky(np.linalg.inv(ev.S)).T  # Wh^T Wh = S^-1
+        J = self.local_jacobian(self, self.Wh, structural=False)
+        R, L, ny, k = J.shape
+        J = J.reshape(R, L * ny, k)
+        self.local = J.transpose(0, 2, 1) @ J  # the innovations' part of M
+        SdS = np.linalg.solve(ev.S, ev.dS)
+        G = prob.G
+        in_S = 0.5 * prob.N * np.einsum("iab,jba->ij", SdS, SdS)  # the information in S (as M's)
+        self.local[0, :G, :G] += in_S
+        noise = np.zeros(k, bool)
+        noise[prob.p:G] = True
+        self.extra = self.local * (noise[:, None] | noise[None, :])
+        self.extra[0, :G, :G] += in_S * ~noise[:G, None] * ~noise[None, :G]
+
+    def local_jacobian(self, ev, Wh: np.ndarray, k0: int = 0, k1: int | None = None, segment=None,
+                       structural: bool = True) -> np.ndarray:
+        """``Wh dnu`` (S, k1 - k0, ny, k) of the runs ``segment`` (an index, a slice, all); the
+        columns of F and R zero when ``structural``."""
+        segs = segment if isinstance(segment, slice) else \
+            slice(None) if segment is None else slice(segment, segment + 1)
+        d = self.ev_.dnu[k0:k1, :, :, segs]
+        l, ny, k, S = d.shape
+        J = (Wh @ d.reshape(l, ny, k * S)).reshape(l, ny, k, S).transpose(3, 0, 1, 2)
+        if structural:
+            J[..., self.fp.p:self.fp.G] = 0.0
+        return J
+
+    def segment_groups(self) -> list[tuple[int, int]]:
+        return [(0, self.fp.n_runs)]
+
+    def blocks(self, columns: int):
+        return [(0, self.layout.L)]
 
 
 class NonlinearFilterProblem(StateTerms, FilterProblem):
@@ -764,6 +856,23 @@ def _stacked(mats: np.ndarray, series: np.ndarray) -> np.ndarray:
     """``mats`` (G, a, b) times ``series`` (L, b, R) for every g at once: (L, G, a, R), one matmul."""
     G, a, b = mats.shape
     return (mats.reshape(G * a, b) @ series).reshape(series.shape[0], G, a, series.shape[2])
+
+
+COLOUR_FACTOR_LIMIT = 100.0  # a coloured std beyond this factor of the white one: the sandwich blew up
+
+
+def _colour_failure(cov_c: np.ndarray, cov: np.ndarray, bounded: np.ndarray) -> str | None:
+    """Why the coloured covariance ``cov_c`` cannot be used (None: it can): not finite, or a
+    standard error off the Cramér-Rao one (``cov``) by more than COLOUR_FACTOR_LIMIT either way
+    (an ill-conditioned sandwich, measured once on the piloted S 61: 1e24)."""
+    c, w = np.diag(cov_c)[bounded], np.diag(cov)[bounded]
+    if not np.all(np.isfinite(cov_c)):
+        return "the coloured-innovation correction is not finite"
+    ratio = np.sqrt(np.clip(c, 0, None) / np.maximum(w, 1e-300))
+    if np.any((ratio > COLOUR_FACTOR_LIMIT) | (ratio < 1 / COLOUR_FACTOR_LIMIT)):
+        return (f"the coloured-innovation correction changed a standard error by a factor "
+                f"{ratio.min():.3g}..{ratio.max():.3g} (an ill-conditioned sandwich)")
+    return None
 
 
 def _covariance(M: np.ndarray, active: np.ndarray):
