@@ -24,7 +24,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests
 
-# `make benchmarks`: every script in benchmarks/ at a reduced size (about 30 min on 2 cores; the
+# `make benchmarks`: every script in benchmarks/ at a reduced size (18 min on an idle 2-core machine; the
 # measured list is in docs/benchmarks.md). Run alone, each script keeps its full-size default;
 # `make benchmarks BENCH_FULL=1` runs them all at full size (about 2 h), `BENCHES="benchmarks/x.py ..."`
 # a selection. Each script's output folder under benchmarks/output/ is removed first, so resumable
