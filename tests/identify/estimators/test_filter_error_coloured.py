@@ -14,24 +14,10 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from identify import LinearModel, Run, discretize, parse_profile
+from identify import LinearModel, Run, discretize
 from identify.estimators.filter_error import FEM
+from tests.identify.refine.test_refine import DT, N, PROFILE
 
-TOML = """
-name = "pitch (test)"
-states = { u = "m/s", q = "rad/s", theta = "rad" }
-inputs = { eta = "rad" }
-outputs = ["u", "q", "theta"]
-[free]
-X_u = -0.5
-M_q = -2.0
-M_theta = -4.0
-M_eta = 5.0
-[fixed]
-X_theta = -9.81
-theta_q = 1.0
-"""
-DT, N = 0.02, 1001
 F_TRUE = {"u": 0.007, "q": 0.014}  # m/s / sqrt(s), rad/s / sqrt(s): the refine tests' turbulence
 WHITE, COLOURED, POLE = 0.001, 0.01, 0.8  # per output (u, q, theta are scaled below)
 SCALE = np.array([1.0, 0.5, 0.5])
@@ -58,7 +44,7 @@ def _adjoint(Phi, In, Out, X):
 
 
 def _fit(pole, seed=3):
-    profile = parse_profile(TOML)
+    profile = PROFILE
     model = LinearModel(profile)
     rng = np.random.default_rng(seed)
     u = np.repeat(rng.choice([-1.0, 0.0, 1.0], size=N // 25 + 1), 25)[:N, None] * 0.05
@@ -146,7 +132,7 @@ def test_white_measurement_noise_gives_a_factor_near_one():
 def test_a_coloured_correction_that_blows_up_is_refused_and_said(monkeypatch):
     from identify import simulate_run
     from identify.estimators import filter_error
-    profile = parse_profile(TOML)
+    profile = PROFILE
     rng = np.random.default_rng(0)
     t = np.arange(N) * DT
     u = np.repeat(rng.choice([-1.0, 0.0, 1.0], size=N // 25 + 1), 25)[:N] * 0.05

@@ -17,6 +17,13 @@ DEG = np.pi / 180
 NOISE = {"u": 0.05, "v": 0.05, "p": 0.05 * DEG, "q": 0.05 * DEG, "theta": 0.05 * DEG, "phi": 0.05 * DEG}
 
 
+def sweep_run(truth, t, axis: int, seed: int):
+    """A 0.2 deg logarithmic sweep, 0.1-2 Hz, on input ``axis`` of the S 61 4-DOF (the other held)."""
+    U = np.zeros((len(t), 2))
+    U[:, axis] = np.deg2rad(0.2) * chirp(t, 0.1, t[-1], 2.0, method="logarithmic", phi=-90)
+    return simulate_run(truth, t, U, noise=NOISE, seed=seed)
+
+
 @pytest.fixture(scope="module")
 def flights():
     """A 'real' S 61 (the a priori 30 % off), a sweep and a 3211 per axis, and a held-out run of
@@ -26,9 +33,7 @@ def flights():
     t = np.arange(0, 20, DT)
     sweeps = []
     for j in range(2):
-        U = np.zeros((len(t), 2))
-        U[:, j] = np.deg2rad(0.2) * chirp(t, 0.1, t[-1], 2.0, method="logarithmic", phi=-90)
-        sweeps.append(simulate_run(truth, t, U, noise=NOISE, seed=j))
+        sweeps.append(sweep_run(truth, t, j, seed=j))
         U = np.zeros((len(t), 2))
         U[:, j] = m3211(1.0, np.deg2rad(0.3), p.input_names[j], delay=1.0)(t)
         sweeps.append(simulate_run(truth, t, U, noise=NOISE, seed=20 + j))

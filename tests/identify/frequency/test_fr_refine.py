@@ -1,25 +1,16 @@
 """refine with the frequency-response estimator: what CIFER's gates cannot determine is held first."""
 import numpy as np
-from scipy.signal import chirp
 
-from identify import ML, LinearModel, load_profile, perturbed_model, simulate_run
+from identify import ML, LinearModel, load_profile, perturbed_model
 from identify.estimators.frequency.response_fit import FR
 from identify.refine.loop import Refine
-
-DT = 0.02
-DEG = np.pi / 180
-NOISE = {"u": 0.05, "v": 0.05, "p": 0.05 * DEG, "q": 0.05 * DEG, "theta": 0.05 * DEG, "phi": 0.05 * DEG}
+from tests.identify.frequency.test_fr_cli import DT, sweep_run
 
 
 def test_refine_fr_holds_what_the_gates_cannot_determine():
     p = load_profile("s61_hover_4dof")
     truth = perturbed_model(LinearModel(p), 0.3, np.random.default_rng(4))
-    t = np.arange(0, 20, DT)
-    runs = []
-    for j in range(2):
-        U = np.zeros((len(t), 2))
-        U[:, j] = np.deg2rad(0.2) * chirp(t, 0.1, t[-1], 2.0, method="logarithmic", phi=-90)
-        runs.append(simulate_run(truth, t, U, noise=NOISE, seed=j))
+    runs = [sweep_run(truth, np.arange(0, 20, DT), j, seed=j) for j in range(2)]
     # the estimator decides, through its hook: the base (ML) holds nothing
     assert ML(p).determinable(p, runs) == (p, {})
     r = Refine(p, estimator=FR(p, n_draws=0), max_steps=1, kinds=("scale",)).fit(runs)
@@ -44,12 +35,7 @@ def test_bootstrap_is_scaled_for_the_correction_ratio():
     keep = ("L_p", "L_theta_c", "M_theta_s")  # what FR's gates keep on such runs (benchmarks/frequency_fit.py)
     p = fix(p, [n for n in p.free if n not in keep]).with_values({"L_p": -1.4, "L_theta_c": 16.0, "M_theta_s": 3.3})
     truth = LinearModel(load_profile("s61_hover_4dof"))
-    t = np.arange(0, 20, DT)
-    runs = []
-    for j in range(2):
-        U = np.zeros((len(t), 2))
-        U[:, j] = np.deg2rad(0.2) * chirp(t, 0.1, t[-1], 2.0, method="logarithmic", phi=-90)
-        runs.append(simulate_run(truth, t, U, noise=NOISE, seed=j))
+    runs = [sweep_run(truth, np.arange(0, 20, DT), j, seed=j) for j in range(2)]
     r = FR(p, n_draws=8).fit(runs).result_
     gain = r.info["ratio_gain"]
     assert len(gain) == 3 and all(0.8 < g < 1.5 for g in gain), gain  # benchmark mean: 1.13, 1.01, 1.00
