@@ -27,9 +27,10 @@ test: $(STAMP)
 # `make benchmarks`: every script in benchmarks/ at a reduced size (18 min on an idle 2-core machine; the
 # measured list is in docs/benchmarks.md). Run alone, each script keeps its full-size default;
 # `make benchmarks BENCH_FULL=1` runs them all at full size (about 2 h), `BENCHES="benchmarks/x.py ..."`
-# a selection. Each script's output folder under benchmarks/output/ is removed first, so resumable
-# stores (filter_error, frequency_fit, campaign) are recomputed, not resumed.
-BENCHES ?= $(sort $(wildcard benchmarks/*.py))
+# a selection (benchmarks/_*.py are helpers, not benchmarks; `python benchmarks/x.py --help` lists a
+# script's options). Each script's output folder under benchmarks/output/ is removed first, so
+# resumable stores (filter_error, frequency_fit, campaign) are recomputed, not resumed.
+BENCHES ?= $(sort $(filter-out benchmarks/_%,$(wildcard benchmarks/*.py)))
 BENCH_ARGS_campaign := 100
 BENCH_ARGS_compat := 4
 BENCH_ARGS_demo_under_load := --estimate

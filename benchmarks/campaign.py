@@ -17,7 +17,7 @@ process (``python -m campaign identify``), the machine's load average printed be
 5. ``campaign stitch --hold-out 3``: the stitched model on 3 held-out airspeeds against each
    point's own model (target: within 10 %).
 
-    nice -n 10 .venv/bin/python benchmarks/campaign.py [POINTS] > campaign-bench.txt 2>&1
+    nice -n 10 .venv/bin/python benchmarks/campaign.py [POINTS] > campaign-bench.txt 2>&1   # --help: options
 
 Writes about 130 MB (the synthetic runs, kept for a re-run, and every executor's records) under
 benchmarks/output/campaign/.
@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from campaign.synthetic import write_campaign  # noqa: E402
+from _cli import counted  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "output" / "campaign"
 SMALL = 50
@@ -192,5 +193,9 @@ def main(n_points: int = 200) -> None:
     print(f"\nreport: {OUT / 'serial' / 'report.md'}; {load()}")
 
 
+def parser():
+    return counted(__doc__, "points", 200, f"test points in the campaign (the memory figure also at {SMALL})")
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 200)
+    main(parser().parse_args().points)

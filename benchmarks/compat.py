@@ -12,7 +12,7 @@ honest bounds, > 1 optimistic), the same over the bounds' parts (white: Cramér-
 engine's Morelli & Klein correction alone; white + the integrated input noise), how often the
 truth lies within 2 reported standard errors (about 95 % for honest bounds); then the false
 alarms (errors selected that are not there), the fits not converged and the wall time per fit.
-Written also to benchmarks/output/compat.json. Usage: python benchmarks/compat.py [SEEDS]
+Written also to benchmarks/output/compat.json. Usage: python benchmarks/compat.py [SEEDS] (--help: options)
 """
 import os
 
@@ -20,25 +20,24 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import json  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from _cli import counted  # noqa: E402
 from identify.compat import Compat  # noqa: E402
 from identify.compat.kinematics import INPUTS  # noqa: E402
 from identify.compat.synthetic import ERRORS, NOISE, flight  # noqa: E402
 
-SEEDS = int(sys.argv[1]) if len(sys.argv) > 1 else 25  # per level: 50 realisations in all
 # (deg RMS gust angle, the inertial sensors' noise given as a data sheet would, or None: estimated)
 CASES = ((0.1, None), (0.5, None), (0.5, {c: NOISE[c] for c in INPUTS}))
 OUT = Path(__file__).resolve().parent / "output"
 
 
-def realisations(gust: float, input_noise) -> list[dict]:
+def realisations(gust: float, input_noise, seeds: int) -> list[dict]:
     rows = []
-    for seed in range(SEEDS):
+    for seed in range(seeds):
         measured, _ = flight(seed=seed, gust_deg=gust)
         t0 = time.perf_counter()
         r = Compat(input_noise=input_noise).fit(measured).result_
@@ -76,11 +75,16 @@ def table(rows: list[dict]) -> list[str]:
     return lines
 
 
-def main():
-    print(f"identify compat: {SEEDS} seeds per turbulence level, truth {ERRORS}", flush=True)
+def parser():
+    return counted(__doc__, "seeds", 25, "realisations per case (seeds 0..SEEDS-1; 3 cases)")
+
+
+def main(argv=None):
+    seeds = parser().parse_args(argv).seeds
+    print(f"identify compat: {seeds} seeds per turbulence level, truth {ERRORS}", flush=True)
     saved = {}
     for gust, noise in CASES:
-        rows = realisations(gust, noise)
+        rows = realisations(gust, noise, seeds)
         key = f"{gust}" + (" inertial noise given" if noise else "")
         saved[key] = rows
         print(f"  gust angle {gust} deg RMS, inertial sensors' noise {'given' if noise else 'estimated'}: "
@@ -89,7 +93,7 @@ def main():
     print("  both turbulence levels, noise estimated (50 realisations by default):")
     print("\n".join(table([r for k, rows in saved.items() if "given" not in k for r in rows])))
     OUT.mkdir(exist_ok=True)
-    (OUT / "compat.json").write_text(json.dumps({"truth": ERRORS, "seeds": SEEDS, "runs": saved}, indent=1))
+    (OUT / "compat.json").write_text(json.dumps({"truth": ERRORS, "seeds": seeds, "runs": saved}, indent=1))
 
 
 if __name__ == "__main__":

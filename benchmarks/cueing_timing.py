@@ -8,7 +8,7 @@ per frame, and whether the low-frame-rate flag stays down. Baseline, measured in
 naive loop (pygame.time.Clock.tick(60), signal evaluated from the frame count) with the same drawing.
 
 Targets: logged rate within 0.5 % of nominal, jitter std under 1 ms, zero signal drift.
-Run: ``python benchmarks/cueing_timing.py`` (about 25 s).
+Run: ``python benchmarks/cueing_timing.py`` (about 25 s; no options).
 """
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ from cueing.flightlog import LOW_RATE, SYNC_INTERVAL, FrameLogWriter, frame_rate
 from cueing.runner import Runner, Schedule, Screen  # noqa: E402
 from cueing.sources import PilotSource  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
+from _cli import parser as cli_parser  # noqa: E402
 
 RATE = 60.0
 
@@ -78,7 +79,12 @@ def sync_period(folder: Path, seconds: float = 1.0) -> float:
     return elapsed / max(n, 1)
 
 
-def main() -> int:
+def parser():
+    return cli_parser(__doc__)  # no options: --help only
+
+
+def main(argv=None) -> int:
+    parser().parse_args(argv)
     pygame.display.init()
     signal = m3211(1.0, amplitude=0.02, delay=0.5)  # 7 s of signal
     with tempfile.TemporaryDirectory() as tmp:

@@ -19,6 +19,7 @@ environment sets no BLAS thread count, so that the command's own cap is what act
 Target (issue 11): under a competing load within 1.5 x the idle time. The machine may be shared
 with other users: the ratios are only as steady as their load, which this benchmark cannot control.
 """
+import argparse
 import os
 import subprocess
 import sys
@@ -26,11 +27,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from _cli import parser as cli_parser
+
 ROOT = Path(__file__).resolve().parent.parent
 LOAD = ("import numpy as np\n"
         "a = np.random.default_rng(0).random((1500, 1500))\n"
         "while True:\n    a = a @ a; a /= np.abs(a).max()\n")
 ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+WORKLOADS = {"full": "make demo (campaign demo)", "demo": "campaign demo --quick",
+             "estimate": "identify estimate --method ml, two 20 s S 61 runs (the demo's identification step)"}
 
 
 def clean_env() -> dict:
@@ -87,11 +92,20 @@ def with_load(fn, single: bool = False):
         loader.wait()
 
 
-def main():
-    kind = "demo" if "--demo" in sys.argv else "estimate" if "--estimate" in sys.argv else "full"
+def parser():
+    ap = cli_parser(__doc__)
+    ap.set_defaults(kind="full")
+    which = ap.add_mutually_exclusive_group()
+    for kind, what in WORKLOADS.items():
+        which.add_argument(f"--{kind}", dest="kind", action="store_const", const=kind, default=argparse.SUPPRESS,
+                           help=f"the workload: {what}{' (the default)' if kind == 'full' else ''}")
+    return ap
+
+
+def main(argv=None):
+    kind = parser().parse_args(argv).kind
     cores = os.cpu_count() or 1
-    what = {"full": "make demo (campaign demo)", "demo": "campaign demo --quick",
-            "estimate": "identify estimate --method ml, two 20 s S 61 runs (the demo's identification step)"}[kind]
+    what = WORKLOADS[kind]
     print(f"Under load: {what}, {cores} cores", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         runs = estimate_runs(Path(tmp)) if kind == "estimate" else []

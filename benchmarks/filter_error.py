@@ -58,6 +58,7 @@ from identify.errors import ConvergenceWarning, PseudostepError  # noqa: E402
 from identify.estimators.filter_error import FEM  # noqa: E402
 from identify.model.simulate import discretize  # noqa: E402
 from ml_speed import steps_3211  # noqa: E402  (this folder)
+from _cli import count, parser as cli_parser, positive  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent / "output"
 DT = 0.02
@@ -256,28 +257,39 @@ def report(case: Case, recs: list[dict], calm: list[dict]) -> None:
                 print(f"  calm air {m.upper()} median relative error {rel:.2f} %")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=50, help="turbulent realisations per case")
-    ap.add_argument("--calm", type=int, default=5, help="calm-air realisations per case")
-    ap.add_argument("--cases", default="navion,s61,s61_pilot")
-    ap.add_argument("--gust-corner", type=float, default=2.0, help="gust corner frequency, rad/s")
+def _cases(text: str) -> list[str]:
+    names = text.split(",")
+    if set(names) - set(CASES):
+        raise argparse.ArgumentTypeError(f"{text}: comma-separated among {', '.join(CASES)}")
+    return names
+
+
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("--n", type=count, default=50, help="turbulent realisations per case")
+    ap.add_argument("--calm", type=count, default=5, help="calm-air realisations per case")
+    ap.add_argument("--cases", type=_cases, default=",".join(CASES), help="the cases, comma-separated")
+    ap.add_argument("--gust-corner", type=positive, default=2.0, help="gust corner frequency, rad/s")
     ap.add_argument("--gust-share", type=float, default=0.2, help="gust response / input response (RMS)")
-    ap.add_argument("--length", type=float, default=1.0,
+    ap.add_argument("--length", type=positive, default=1.0,
                     help="record length factor: each run this many times as long, its manoeuvre repeated")
     ap.add_argument("--fem-model", choices=("dryden", "white"), default="dryden",
                     help="FEM's process-noise model: the gust states (corner known) or independent white "
                          "noise on every equation the gusts drive")
     ap.add_argument("--save", default=str(OUTPUT / "filter_error_mc.jsonl"),
-                    help="results file (appended; a rerun resumes); default in benchmarks/output/")
-    args = ap.parse_args()
+                    help="results file (appended; a rerun resumes)")
+    return ap
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
     path = Path(args.save)
     path.parent.mkdir(parents=True, exist_ok=True)
     done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     print(f"filter error vs output error, Monte Carlo: {args.n} turbulent + {args.calm} calm realisations per "
           f"case, gust corner {args.gust_corner} rad/s, {DT * 1000:.0f} ms samples, 2 % measurement noise, "
           f"records x {args.length:g}")
-    for name in args.cases.split(","):
+    for name in args.cases:
         case = Case(name, args.gust_corner, args.gust_share, args.length)
         case.share = args.gust_share
         case.fem_model = ("gust states " + ", ".join(f"{v}g" for v in case.spec["gusts"]) + f" (corner "

@@ -9,7 +9,7 @@ fit; output error (ML, the term from its own simulated states re-fitted until th
 settle, as ``identify estimate`` fits it) also counts the realisations in which it did not settle
 (or its simulation diverged).
 
-    .venv/bin/python benchmarks/filter_error_nonlinear.py [n_realisations, default 25]
+    .venv/bin/python benchmarks/filter_error_nonlinear.py [realisations, default 25]   # --help: options
 """
 import os
 import sys
@@ -29,6 +29,7 @@ from identify.estimators.filter_error import FEM  # noqa: E402
 from identify.estimators.prediction import fit_state_terms  # noqa: E402
 from identify.model.pseudo_inputs import prepare  # noqa: E402
 from tests.identify.estimators.test_filter_error_nonlinear import NOISE, TRUTH, nonlinear_profile, simulate  # noqa: E402
+from _cli import counted  # noqa: E402
 
 
 def fem(prof, runs):
@@ -73,5 +74,9 @@ def main(n: int = 25) -> None:
         print(f"{'  median rel. error':24s}" + "".join(f"{v:12.3f}" for v in np.median(rel, 0)))
 
 
+def parser():
+    return counted(__doc__, "realisations", 25, "noise realisations (2 runs of 20 s each)")
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 25)
+    main(parser().parse_args().realisations)

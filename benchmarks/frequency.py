@@ -16,7 +16,8 @@
 3. Writes the live display screenshot benchmarks/output/frequency/live_display.png (a frame after
    "complete" lit; copy it to docs/figures/live/ to renew the README's figure).
 
-Run: ``python benchmarks/frequency.py`` (about 6 minutes on two loaded cores; ``--quick`` for a short check).
+Run: ``python benchmarks/frequency.py`` (about 6 minutes on two loaded cores; ``--quick`` for a short check;
+``--help`` for the options).
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ from identify import ML, LinearModel, load_profile, simulate_run  # noqa: E402
 from identify.estimators.frequency.equation_error import FDEE  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
+from _cli import parser as cli_parser  # noqa: E402
 
 PROFILE = "s61_hover_4dof"
 RATE = 60.0
@@ -190,5 +192,13 @@ def main(quick: bool = False) -> None:
         live_fake_clock(signals, truth, Path(tmp), 3 if quick else 30)
 
 
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("--quick", action="store_true",
+                    help="a short check: 4 batch realisations instead of 20, 3 fake-clock flights instead of 30, "
+                         "and a design search of 300 iterations instead of 1500")
+    return ap
+
+
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    main(quick=parser().parse_args().quick)

@@ -9,7 +9,7 @@ logarithmic sweeps per cyclic (40 s, 0.2 deg, 2 s of trim either side) and one h
     identify hq       sweeps --with-model -> ADS-33 charts, short-period LOES
     identify loes     p/theta_c: first order + delay
 
-    python benchmarks/frequency_example.py     # -> benchmarks/output/frequency_example/
+    python benchmarks/frequency_example.py     # -> benchmarks/output/frequency_example/ (no options)
 """
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from identify import LinearModel, load_profile, simulate_run  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
+from _cli import parser as cli_parser  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "output" / "frequency_example"
 DT, DELAY = 0.02, 0.08
@@ -67,7 +68,12 @@ def identify(*args) -> None:
     subprocess.run([sys.executable, "-m", "identify", *map(str, args)], check=True, cwd=ROOT)
 
 
-def main() -> int:
+def parser():
+    return cli_parser(__doc__)  # no options: --help only
+
+
+def main(argv=None) -> int:
+    parser().parse_args(argv)
     OUT.mkdir(parents=True, exist_ok=True)
     sweeps, held, aircraft = simulate(OUT)
     identify("estimate", *sweeps, "--profile", "s61_hover_4dof", "--method", "ml", "--out", OUT / "ml")

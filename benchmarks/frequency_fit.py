@@ -29,7 +29,6 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -47,6 +46,7 @@ from identify import ML, LinearModel, load_profile, simulate_run  # noqa: E402
 from identify.estimators.frequency.equation_error import FDEE  # noqa: E402
 from identify.estimators.frequency.response_fit import FR  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
+from _cli import count, parser as cli_parser  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "output" / "frequency_fit"
 DT, RECORD, AMP, SEED = 0.02, 20.0, np.deg2rad(0.2), 22
@@ -179,13 +179,17 @@ def bootstrap_factors(profile, runs, n_draws: int = 10, seed: int = 0) -> np.nda
     return np.array([a.std(axis=0, ddof=1), b.std(axis=0, ddof=1), slope])
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--realisations", type=int, default=50)
-    ap.add_argument("--out", type=Path, default=OUT)
-    ap.add_argument("--factor-realisations", type=int, default=3,
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("--realisations", type=count, default=50, help="noise realisations (Monte Carlo)")
+    ap.add_argument("--out", type=Path, default=OUT, help="output folder (results.jsonl: a rerun resumes)")
+    ap.add_argument("--factor-realisations", type=count, default=3,
                     help="realisations on which the bootstrap's simplifications are measured (0: skip)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     base = load_profile("s61_hover_4dof")
     truth = LinearModel(base)

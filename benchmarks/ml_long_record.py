@@ -21,7 +21,7 @@ wall time, iterations, convergence, peak resident memory of the case's process
 (``resource.getrusage``, so it includes numpy's imports, ~60 MB) and the size of
 ``result.json``; the limits of issue 11 are 1 GB and 1 MB.
 
-``python benchmarks/ml_long_record.py [HOURS] [navion|s61|both]`` (default 1 h, both).
+``python benchmarks/ml_long_record.py [HOURS] [navion|s61|both]`` (default 1 h, both; ``--help``: options).
 BLAS single-threaded.
 """
 import os
@@ -44,6 +44,7 @@ import scipy.linalg  # noqa: E402
 from identify import ML, LinearModel, Run, load_profile, simulate_run  # noqa: E402
 from identify.model.simulate import discretize  # noqa: E402
 from ml_speed import steps_3211  # noqa: E402  (this folder: the script's own)
+from _cli import parser as cli_parser, positive  # noqa: E402
 
 LIMIT_MB, JSON_LIMIT_KB = 1024, 1024
 PILOT_R = 100.0  # LQR input weight of the S 61's pilot (state weight 1): a weak stabiliser
@@ -132,9 +133,17 @@ def case(name: str, hours: float) -> None:
           f"{'met' if size_kb < JSON_LIMIT_KB else 'NOT met'}")
 
 
-def main():
-    hours = float(sys.argv[1]) if len(sys.argv) > 1 else 1.0
-    which = sys.argv[2] if len(sys.argv) > 2 else "both"
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("hours", nargs="?", type=positive, default=1.0, help="record length in hours, at 100 Hz")
+    ap.add_argument("case", nargs="?", choices=("navion", "s61", "both"), default="both",
+                    help="which case (both: each in its own process)")
+    return ap
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
+    hours, which = args.hours, args.case
     if which == "both":  # each case in its own process: its own peak memory
         for name in ("navion", "s61"):
             subprocess.run([sys.executable, __file__, str(hours), name], check=True)

@@ -18,6 +18,8 @@ command line, which also writes result.json; with ``--plots`` also the plots) an
 least_squares in a script on the same residual; plus the start-up of ``identify --help`` and of a
 process that only imports numpy and scipy.optimize, the floor any of them pays. Each process is
 timed (best of ``REPEATS``) in this same run.
+
+    python benchmarks/ml_speed.py   (no options)
 """
 import os
 
@@ -36,6 +38,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from identify import ML, ConvergenceWarning, LinearModel, SimulationError, load_profile, simulate_run  # noqa: E402
+from _cli import parser as cli_parser  # noqa: E402
 
 KINEMATIC = {"theta_q", "phi_p", "theta_R_q", "phi_R_p"}
 ESTIMATE = "identify estimate --method ml (fit, summary, result.json)"
@@ -119,7 +122,12 @@ def steps_3211(t, t0, width, amp):
     return u
 
 
-def main():
+def parser():
+    return cli_parser(__doc__)  # no options: --help only
+
+
+def main(argv=None):
+    parser().parse_args(argv)
     profile = benchmark_profile()
     truth = LinearModel(profile)
     dt, T = 0.01, 20.0

@@ -55,7 +55,6 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # small matrices: threads only add contention on 2 busy cores
 
-import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
@@ -73,6 +72,7 @@ from identify import IV, LS, ML, EstimationError, LinearModel, Run, format_modes
 from identify.data.preprocess import (add_derivatives, central_difference, lowpass, slice_run, smooth,  # noqa: E402
                                  smooth_derivative)
 from signaldesign.baselines import m3211  # noqa: E402
+from _cli import count, parser as cli_parser  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "output" / "paper_bo105"
 DOCS_FIGURES = ROOT / "docs" / "figures" / "bo105"
@@ -498,12 +498,16 @@ def identification_names(apriori, label):
 
 
 # -- main -------------------------------------------------------------------------------------
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("--seeds", type=count, default=10, help="Monte-Carlo realisations (0: skip)")
+    ap.add_argument("--docs", action="store_true",
+                    help=f"also copy the figures to {DOCS_FIGURES.relative_to(ROOT)}/ (for docs/paper_bo105.md)")
+    return ap
+
+
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=10, help="Monte-Carlo realisations (0: skip)")
-    parser.add_argument("--docs", action="store_true",
-                        help=f"also copy the figures to {DOCS_FIGURES.relative_to(ROOT)}/ (for docs/paper_bo105.md)")
-    args = parser.parse_args(argv)
+    args = parser().parse_args(argv)
     started = time.perf_counter()
     OUT.mkdir(parents=True, exist_ok=True)
     apriori = load_profile("bo105_70kt")

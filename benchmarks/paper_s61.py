@@ -45,7 +45,6 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # small matrices: threads only add contention on 2 busy cores
 
-import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass, field, replace  # noqa: E402
@@ -62,6 +61,7 @@ from identify import IV, LS, ML, LinearModel, PseudostepError, load_profile, sim
 from signaldesign.baselines import doublet, m3211, step_sequence  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
 from signaldesign.evaluate import Evaluator, perturbed_models  # noqa: E402
+from _cli import count, parser as cli_parser  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "output" / "paper_s61"
 DT, DURATION, SHORT, DELAY, SEED = 0.025, 20.0, 10.0, 1.0, 61
@@ -491,12 +491,16 @@ def noise_text(name: str, value: float) -> str:
 
 
 # -- main -------------------------------------------------------------------------------------
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("--no-ml", action="store_true", help="skip the ML comparison")
+    ap.add_argument("--seeds", type=count, default=5, help="further noise realisations for Table C (0: skip)")
+    ap.add_argument("--out", type=Path, default=OUT, help="output folder")
+    return ap
+
+
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--no-ml", action="store_true", help="skip the ML comparison")
-    parser.add_argument("--seeds", type=int, default=5, help="further noise realisations for Table C (0: skip)")
-    parser.add_argument("--out", type=Path, default=OUT, help=f"output folder (default {OUT.relative_to(ROOT)})")
-    args = parser.parse_args(argv)
+    args = parser().parse_args(argv)
     do_ml = not args.no_ml
     started = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,6 @@ Run: ``python benchmarks/pilot_fidelity.py [--seeds N] [--profile NAME]`` (about
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from cueing.scoring import information_retained, peak_ratio, switch_timing, trac
 from identify import LinearModel, Run, load_profile  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
+from _cli import count, parser as cli_parser  # noqa: E402
 
 RATE, INFO_DT, RECORD, AMP = 60.0, 0.05, 12.0, 0.02
 STEP = int(round(RATE * INFO_DT))
@@ -43,11 +43,15 @@ def retained(model, signal, flown60: np.ndarray, t60: np.ndarray) -> float:
     return information_retained(model, run, [signal]) / peak_ratio(model, run, [signal]) ** 2
 
 
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("--seeds", type=count, default=20, help="pilot seeds per cell (the same with and without preview)")
+    ap.add_argument("--profile", default="s61_hover_8state", help="the bundled profile flown")
+    return ap
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--profile", default="s61_hover_8state")
-    args = ap.parse_args(argv)
+    args = parser().parse_args(argv)
     model = LinearModel(load_profile(args.profile))
     t0 = time.perf_counter()
     # holds on a 0.5 s grid (the paper's kind of step); the amplitude fixed, like the 3211's

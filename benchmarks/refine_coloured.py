@@ -12,7 +12,7 @@ dynamics) and filtered (coloured) measurement noise, as in flight data.
 
 Wall time per case is printed.
 
-    .venv/bin/python benchmarks/refine_coloured.py [n_realisations] [parts, e.g. 123] [--method fem]
+    .venv/bin/python benchmarks/refine_coloured.py [realisations] [parts, e.g. 123] [--method fem]   # --help
 
 ``--method fem``: every fit and test with the filter-error method (process noise on the u and q
 equations, where the turbulence acts), i.e. in the innovations' metric; part 1 then compares the
@@ -34,6 +34,7 @@ from identify.refine.candidates import Lag  # noqa: E402
 from identify.refine import Refine  # noqa: E402
 from identify.estimators.filter_error import FEM  # noqa: E402
 from tests.identify.refine.test_refine import PROFILE, TOML, TURBULENCE, make_runs, nonlinear_runs  # noqa: E402
+from _cli import add_parts, counted  # noqa: E402
 
 
 METHOD = "ml"
@@ -129,11 +130,16 @@ def main(n: int = 40, parts: str = "123") -> None:
     print(f"total wall time {time.perf_counter() - started:.1f} s")
 
 
+def parser():
+    ap = counted(__doc__, "realisations", 40, "part 1's noise realisations")
+    add_parts(ap, "parts", "123", "the parts to run")
+    ap.add_argument("--method", choices=("ml", "fem"), default=METHOD,
+                    help="the estimator of every fit and test (fem: the filter-error method)")
+    return ap
+
+
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    if "--method" in args:
-        i = args.index("--method")
-        METHOD = args[i + 1]
-        del args[i:i + 2]
+    args = parser().parse_args()
+    METHOD = args.method
     print(f"estimator: {METHOD}")
-    main(int(args[0]) if args else 40, args[1] if len(args) > 1 else "123")
+    main(args.realisations, args.parts)

@@ -4,7 +4,7 @@ Prints, for each noise realisation, what was added (should be nothing) and the l
 statistic relative to its threshold; then the count of realisations where something was found and
 the wall time. The test suite runs a cheaper version (restricted catalogue); this is the full one.
 
-    .venv/bin/python benchmarks/refine_false_alarms.py [n_realisations]
+    .venv/bin/python benchmarks/refine_false_alarms.py [realisations]   # --help: options
 """
 import sys
 import time
@@ -16,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import LinearModel, simulate_run  # noqa: E402
 from identify.refine import Refine  # noqa: E402
 from tests.identify.refine.test_refine import DT, PROFILE  # noqa: E402
+from _cli import counted  # noqa: E402
 
 
 def main(n: int = 20) -> None:
@@ -37,5 +38,9 @@ def main(n: int = 20) -> None:
           f"{', '.join(Refine(PROFILE).kinds)}); {time.perf_counter() - started:.1f} s")
 
 
+def parser():
+    return counted(__doc__, "realisations", 20, "noise realisations of the matched model (one 12 s run each)")
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 20)
+    main(parser().parse_args().realisations)

@@ -2,7 +2,7 @@
 plane), declared model the 4-DOF rigid body. Prints each step with its evidence and the error
 before and after on the fit and validation runs, and the wall time.
 
-    .venv/bin/python benchmarks/refine_s61.py [run length s] [max steps]
+    .venv/bin/python benchmarks/refine_s61.py [run length s] [max steps]   # --help: options
 """
 import os
 import sys
@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import LinearModel, load_profile, simulate_run  # noqa: E402
 from identify.refine import Refine  # noqa: E402
+from _cli import count, parser as cli_parser, positive  # noqa: E402
 
 DT = 0.05
 
@@ -50,5 +51,13 @@ def main(length: float = 15.0, max_steps: int = 4) -> None:
     print(f"truth rotor flapping time constant 0.1 s (k = 10 1/s); wall time {wall:.1f} s")
 
 
+def parser():
+    ap = cli_parser(__doc__)
+    ap.add_argument("length", nargs="?", type=positive, default=15.0, help="length of each run, s")
+    ap.add_argument("max_steps", nargs="?", type=count, default=4, help="refine's largest number of steps")
+    return ap
+
+
 if __name__ == "__main__":
-    main(*(float(a) if i == 0 else int(a) for i, a in enumerate(sys.argv[1:])))
+    args = parser().parse_args()
+    main(args.length, args.max_steps)

@@ -6,7 +6,7 @@ turbulence without the vibration (the truth is then the declared model: anything
 
 Prints each case's steps, the wall time of each, and the progress lines refine writes to stderr.
 
-    .venv/bin/python benchmarks/refine_speed.py [cases, e.g. 123]
+    .venv/bin/python benchmarks/refine_speed.py [cases, e.g. 123]   # --help: options
 """
 import os
 import sys
@@ -21,6 +21,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import LinearModel, load_profile, simulate_run  # noqa: E402
 from identify.refine import Refine  # noqa: E402
+from _cli import add_parts, parser as cli_parser  # noqa: E402
 
 DT, LENGTH, TARGET = 0.01, 12.0, 120.0
 
@@ -61,5 +62,11 @@ def main(cases: str = "123") -> None:
         print(f"  wall time {wall:.1f} s (target {TARGET:g} s: {'met' if wall < TARGET else 'NOT met'})", flush=True)
 
 
+def parser():
+    ap = cli_parser(__doc__)
+    add_parts(ap, "cases", "123", "the cases to run (1: vibration, 2: with turbulence, 3: turbulence alone)")
+    return ap
+
+
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "123")
+    main(parser().parse_args().cases)
