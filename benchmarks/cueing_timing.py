@@ -23,14 +23,14 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
-import pygame  # noqa: E402
 
-from cueing.display import Display, FrameState  # noqa: E402
+from cueing.display import Display, FrameState  # noqa: E402 (cueing first: it hides pygame's banner)
 from cueing.flightlog import LOW_RATE, SYNC_INTERVAL, FrameLogWriter, frame_rate_warning  # noqa: E402
 from cueing.runner import Runner, Schedule, Screen  # noqa: E402
 from cueing.sources import PilotSource  # noqa: E402
 from signaldesign.baselines import m3211  # noqa: E402
 from _cli import parser as cli_parser  # noqa: E402
+import pygame  # noqa: E402
 
 RATE = 60.0
 
