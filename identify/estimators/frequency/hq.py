@@ -164,8 +164,11 @@ def _attitude(omega, H, coherence, outputs, inputs, axis, u):
 
 
 def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: str = "tracking",
-                       pitch: str | None = None, roll: str | None = None, category: str = "A") -> HQReport:
-    """The report from responses ``H`` (nf, ny, nu) at ``omega`` (rad/s), ``coherence`` (nf, ny, nu) or None."""
+                       pitch: str | None = None, roll: str | None = None, category: str = "A",
+                       n_alpha: float | None = None) -> HQReport:
+    """The report from responses ``H`` (nf, ny, nu) at ``omega`` (rad/s), ``coherence`` (nf, ny, nu) or None;
+    ``n_alpha`` (g/rad): normal load factor per angle of attack, for the short period's CAP (none: the
+    short-period frequency is not graded)."""
     if task not in TASK_NAMES:
         raise EstimationError(f"task must be one of {', '.join(TASK_NAMES)}, got '{task}'")
     report = HQReport(source, task)
@@ -177,7 +180,7 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
             try:
                 fit = fit_transfer_function(omega, H[:, j, i], None if coherence is None else coherence[:, j, i],
                                             n_num=1, n_den=2, omega_range=LOES_RANGE)
-                ax.loes = short_period(fit, category)
+                ax.loes = short_period(fit, category, n_alpha)
                 if fit.J > 100:
                     ax.loes_note = (f"LOES J {fit.J:.0f} > 100: the pitch-rate response is not short-period-like "
                                     "here (hover; or a mode inside the band the form lacks); its omega, zeta "
@@ -188,7 +191,8 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
     return report
 
 
-def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str = "A") -> HQReport:
+def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str = "A",
+                n_alpha: float | None = None) -> HQReport:
     """The report from a model's exact responses (0.05-50 rad/s, 400 points; declared delays included)."""
     from .response import model_response
 
@@ -196,13 +200,14 @@ def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=Non
     omega = np.geomspace(0.05, 50, 400)
     H = model_response(model, omega)
     return handling_qualities(omega, H, None, p.input_names, list(p.outputs), f"model '{p.name}'", task, pitch,
-                              roll, category)
+                              roll, category, n_alpha)
 
 
-def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str = "A") -> HQReport:
+def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str = "A",
+                   n_alpha: float | None = None) -> HQReport:
     """The report from a composite frequency response of runs (coherent points only)."""
     src = f"{len(fr.runs)} run(s): {', '.join(Path(r).name for r in fr.runs[:4])}{' ...' if len(fr.runs) > 4 else ''}"
     coh = np.where(fr.resolved, fr.coherence, 0.0)
-    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category)
+    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category, n_alpha)
     report.notes.append(fr.resolution_line())
     return report

@@ -125,18 +125,87 @@ def test_mil1797_levels():
 
 
 def test_verified_boundary_points_are_pinned():
-    """MIL-STD-1797A short-period limits checked against SIDPAC's milstd.m (category A row, delays):
-    the values, and the level changing exactly there; what is not checked says UNVERIFIED."""
-    from identify.estimators.frequency.loes import MIL1797_TAU, MIL1797_UNVERIFIED, MIL1797_ZETA
+    """MIL-STD-1797A short-period limits pinned to the cited values (SIDPAC's milstd.m for category A's
+    damping, the delays and omega_sp's minimum; Regan's CapCrit.m / ShortPeriodCrit.m for every
+    category's damping and CAP), with the level changing exactly there."""
+    from identify.estimators.frequency.loes import (MIL1797_CAP, MIL1797_OMEGA_MIN, MIL1797_SOURCES, MIL1797_TAU,
+                                                    MIL1797_UNVERIFIED, MIL1797_ZETA)
 
-    assert MIL1797_ZETA["A"][:2] == ((0.35, 1.30), (0.25, 2.00)) and MIL1797_ZETA["A"][2][0] == 0.15
-    assert MIL1797_TAU == (0.10, 0.20, 0.25) and "A" not in MIL1797_UNVERIFIED
-    for zeta, level in ((0.34, 2), (0.36, 1), (1.29, 1), (1.31, 2), (0.24, 3), (0.26, 2), (1.99, 2), (2.01, 3)):
-        assert mil1797_short_period_level(zeta, 0.05)[0] == level, zeta
+    assert MIL1797_ZETA["A"][:2] == MIL1797_ZETA["C"][:2] == ((0.35, 1.30), (0.25, 2.00))
+    assert MIL1797_ZETA["B"][:2] == ((0.30, 2.00), (0.20, 2.00))
+    assert MIL1797_ZETA["A"][2][0] == MIL1797_ZETA["C"][2][0] == 0.15
+    assert MIL1797_CAP == {"A": ((0.28, 3.6), (0.16, 10.0)), "B": ((0.085, 3.6), (0.038, 10.0)),
+                           "C": ((0.16, 3.6), (0.05, 10.0))}
+    assert MIL1797_OMEGA_MIN == {"A": (1.0, 0.6)} and MIL1797_TAU == (0.10, 0.20, 0.25)
+    assert set(MIL1797_UNVERIFIED) == {("B", 3)} and "UNVERIFIED" in MIL1797_SOURCES["zeta B Level 3"]
+    zeta_steps = {"A": ((0.34, 2), (0.36, 1), (1.29, 1), (1.31, 2), (0.24, 3), (0.26, 2), (1.99, 2), (2.01, 3)),
+                  "B": ((0.29, 2), (0.31, 1), (1.99, 1), (2.01, 3), (0.19, 3), (0.21, 2))}
+    zeta_steps["C"] = zeta_steps["A"]
+    for category, steps in zeta_steps.items():
+        for zeta, level in steps:
+            got, reasons = mil1797_short_period_level(zeta, 0.05, category)
+            assert got == level, (category, zeta)
+            assert "UNVERIFIED" not in " ".join(reasons)  # none of these depends on the disputed limit
     for tau, level in ((0.099, 1), (0.101, 2), (0.199, 2), (0.201, 3), (0.26, 3)):
         assert mil1797_short_period_level(0.7, tau)[0] == level, tau
-    assert "UNVERIFIED" not in " ".join(mil1797_short_period_level(0.7, 0.05, "A")[1])
-    assert "UNVERIFIED" in " ".join(mil1797_short_period_level(0.7, 0.05, "B")[1])
+    # CAP: just inside / just outside each Level's limits, at omega 3 rad/s (omega's minimum met)
+    for category, ((l1_lo, l1_hi), (l2_lo, l2_hi)) in MIL1797_CAP.items():
+        for c, level in ((l1_lo * 1.01, 1), (l1_lo * 0.99, 2), (l1_hi * 0.99, 1), (l1_hi * 1.01, 2),
+                         (l2_lo * 1.01, 2), (l2_lo * 0.99, 3), (l2_hi * 0.99, 2), (l2_hi * 1.01, 3)):
+            got, reasons = mil1797_short_period_level(0.7, 0.05, category, omega=3.0, n_alpha=9.0 / c)
+            assert got == level, (category, c)
+            assert any(r.startswith(f"CAP {c:.3g}") and f"Level {level}" in r for r in reasons), reasons
+    # category A's omega_sp minimum (CAP 0.98 / 1.02 and 0.36: Level 1 on CAP)
+    for omega, level in ((1.01, 1), (0.99, 2), (0.61, 2), (0.59, 3)):
+        got, reasons = mil1797_short_period_level(0.7, 0.05, "A", omega=omega, n_alpha=omega ** 2 / 1.0)
+        assert got == level, omega
+        assert any(r.startswith(f"omega_sp {omega:.3g} rad/s: Level {level}") for r in reasons), reasons
+    assert any("no omega_sp minimum" in r for r in mil1797_short_period_level(0.7, 0.05, "B", 0.5, 0.1)[1])
+
+
+def test_disputed_category_b_level_3_damping_limit_is_said_when_it_matters():
+    # zeta 0.12 lies between the sources' Level 3 minima (0.10 and 0.15): the level says why it is unsure
+    level, reasons = mil1797_short_period_level(0.12, 0.05, "B")
+    text = " ".join(reasons)
+    assert level == 3 and "UNVERIFIED" in text and "0.10" in text and "0.15" in text and "disagree" in text
+    for zeta in (0.09, 0.16, 0.7):  # below both, above both: no dispute
+        assert "UNVERIFIED" not in " ".join(mil1797_short_period_level(zeta, 0.05, "B")[1]), zeta
+    assert "UNVERIFIED" not in " ".join(mil1797_short_period_level(0.12, 0.05, "A")[1])
+
+
+@pytest.mark.parametrize("n_alpha, cap_level", [(20.0, 1), (45.0, 2), (100.0, 3)])
+def test_cap_level_of_a_known_short_period(n_alpha, cap_level):
+    # pitch-rate response with a known short period (omega 3 rad/s, zeta 0.7, tau 0.05 s): its LOES
+    # gives CAP = 9 / (n/alpha) = 0.45, 0.2, 0.09: category A Levels 1, 2, 3 (delay and damping Level 1)
+    from identify.estimators.frequency.hq import handling_qualities
+
+    w = np.geomspace(0.3, 40, 200)
+    s = 1j * w
+    H = (5.0 * (s + 1.5) * np.exp(-0.05 * s) / (s ** 2 + 4.2 * s + 9.0))[:, None, None]
+    sp = handling_qualities(w, H, None, ["delta_e"], ["q"], "test", n_alpha=n_alpha).axes[0].loes
+    assert np.isclose(sp.cap, 9.0 / n_alpha, rtol=1e-6)
+    assert sp.level == cap_level
+    assert any(r.startswith("CAP") and f"Level {cap_level}" in r for r in sp.level_reasons)
+    assert not any("not graded" in r for r in sp.level_reasons)
+
+
+def test_cap_of_the_navion_model_and_not_graded_without_n_alpha():
+    # the Navion's short period (3.60 rad/s) and n/alpha = -Z_w u0 / g from its own derivatives
+    from identify.estimators.frequency.hq import hq_of_model
+    from identify.model.linear import LinearModel
+    from identify.model.profile import load_profile
+
+    profile = load_profile("navion_cruise_long")
+    n_alpha = -profile.free["Z_w"] * profile.fixed["Z_q"] / 9.81
+    model = LinearModel(profile)
+    lam = np.linalg.eigvals(model.A)
+    omega_sp = np.abs(lam).max()
+    sp = hq_of_model(model, n_alpha=n_alpha).axes[0].loes
+    assert abs(sp.cap / (omega_sp ** 2 / n_alpha) - 1) < 0.01 and sp.level == 1
+    assert "CAP" in sp.lines()[0]
+    bare = hq_of_model(model).axes[0].loes
+    assert "omega_sp not graded (needs n/alpha)" in bare.lines()[1]
+    assert np.isnan(bare.cap)
 
 
 def test_unverified_ads33_boundaries_are_said_everywhere(tmp_path):
