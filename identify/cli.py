@@ -510,6 +510,13 @@ def cmd_hq(args) -> int:
 
     profile = load_profile(args.profile)
     options = dict(task=args.task, pitch=args.pitch, roll=args.roll, category=args.category, n_alpha=args.n_alpha)
+    if args.boundaries:
+        from .estimators.frequency.handling import load_boundaries
+
+        try:
+            options["boundaries"] = load_boundaries(args.boundaries)
+        except ValueError as exc:
+            raise EstimationError(str(exc)) from None
     if args.runs:
         from .estimators.frequency.response import frequency_response
 
@@ -574,6 +581,9 @@ def _add_hq_parsers(sub) -> None:
                    help="ADS-33 task category (default tracking: target acquisition and tracking)")
     p.add_argument("--pitch", metavar="INPUT", help="pitch control (default theta_s or delta_e)")
     p.add_argument("--roll", metavar="INPUT", help="roll control (default theta_c or delta_a)")
+    p.add_argument("--boundaries", metavar="FILE.json", help="ADS-33 Level 1/2 boundaries read from the "
+                   "specification's figures (polylines per task and axis, with their source; see docs/frequency.md); "
+                   "default: the built-in corners, UNVERIFIED")
     _add_response_options(p)
     p.add_argument("--with-model", action="store_true", help="with runs: also the profile's model, on the same charts")
     p.set_defaults(func=cmd_hq)

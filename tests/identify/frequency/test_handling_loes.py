@@ -221,3 +221,103 @@ def test_unverified_ads33_boundaries_are_said_everywhere(tmp_path):
     assert "UNVERIFIED" in report.markdown()
     report.save(tmp_path)
     assert "UNVERIFIED" in ads33_chart({"x": report.axes[0].bandwidth}, "pitch").axes[0].get_title()
+
+
+def _boundaries_file(tmp_path, level1, level2, **extra):
+    import json
+
+    doc = {"source": "test figure", "boundaries": {"tracking": {"pitch": {"level1": level1, "level2": level2}}}}
+    doc.update(extra)
+    path = tmp_path / "b.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_user_boundaries_with_a_sloped_segment_grade_both_sides(tmp_path):
+    from identify.estimators.frequency.handling import delay_limit, load_boundaries
+
+    # Level 1: vertical at 2 rad/s up to 0.10 s, then sloped up to (4 rad/s, 0.20 s), then flat;
+    # Level 2: corner at (1 rad/s, 0.30 s)
+    b = load_boundaries(_boundaries_file(tmp_path, [[2.0, 0.0], [2.0, 0.10], [4.0, 0.20]], [[1.0, 0.0], [1.0, 0.30]]))
+    assert b.user_supplied and b.source == "test figure" and b.path.endswith("b.json")
+    assert delay_limit(b.pair("pitch", "tracking")[0], 3.0) == pytest.approx(0.15)  # the slope's middle
+    for w, tau, level in ((3.0, 0.149, 1), (3.0, 0.151, 2),  # just below / above the slope at 3 rad/s
+                          (2.5, 0.124, 1), (2.5, 0.126, 2),  # at 2.5 rad/s it allows 0.125 s
+                          (2.0, 0.10, 1), (1.99, 0.05, 2),  # on the vertical; left of it
+                          (8.0, 0.20, 1), (8.0, 0.21, 2),  # beyond the last point: flat at 0.20 s
+                          (1.0, 0.30, 2), (0.99, 0.05, 3), (1.5, 0.31, 3)):
+        assert b.level(w, tau, "pitch", "tracking") == level, (w, tau)
+    # the built-in corners (Level 1 up to 0.14 s) grade differently there: the file is what is read
+    assert b.level(3.0, 0.145, "pitch", "tracking") == 1 and ads33_level(3.0, 0.145, "pitch", "tracking") == 2
+
+
+def test_user_boundaries_are_said_recorded_and_drawn(tmp_path):
+    from identify.estimators.frequency.hq import handling_qualities
+
+    path = _boundaries_file(tmp_path, [[2.0, 0.0], [2.0, 0.10], [4.0, 0.20]], [[1.0, 0.0], [1.0, 0.30]])
+    w = np.geomspace(0.3, 40, 200)
+    H = (2 * np.exp(-0.1j * w) / (0.2j * w + 1))[:, None, None]  # a rate response
+    report = handling_qualities(w, H, None, ["theta_s"], ["q"], "test", "tracking", boundaries=path)
+    text = "\n".join(report.lines())
+    assert "(boundaries: test figure (user-supplied))" in text and "UNVERIFIED" not in text
+    assert report.boundaries.path == str(path) and str(path) in report.markdown()
+    assert "UNVERIFIED" not in report.markdown()
+    fig = ads33_chart({"x": report.axes[0].bandwidth}, "pitch", "tracking", report.boundaries)
+    ax = fig.axes[0]
+    assert "test figure (user-supplied)" in ax.get_title()
+    xy = [tuple(np.round(p, 9)) for line in ax.get_lines() for p in line.get_xydata()]
+    assert (2.0, 0.10) in xy and (4.0, 0.20) in xy  # the polyline's own points are drawn
+    with pytest.raises(Exception, match="no ADS-33 boundaries for task 'tracking', axis 'roll'"):
+        handling_qualities(w, np.repeat(H, 2, axis=2), None, ["theta_s", "theta_c"], ["q"], "t", boundaries=path)
+
+
+@pytest.mark.parametrize("edit, reason", [
+    (dict(source=None), "'source' must name"),
+    (dict(drop_source=True), "missing key\\(s\\) source"),
+    (dict(figure="2"), "unknown key\\(s\\) figure"),
+    (dict(level1=[[2.0, 0.0], [3.0, 0.20], [2.5, 0.25]]), "point 2 .* goes back .* monotone"),
+    (dict(level1=[[2.0, 0.15], [3.0, 0.10]]), "point 1 .* goes back .* monotone"),
+    (dict(level1=[[2.0, 0.1], [2.0, 0.1]]), "repeats point 0"),
+    (dict(level1=[[2.0, -0.1]]), "finite and >= 0"),
+    (dict(level1=[[2.0, "0.1"]]), "pairs"),
+    (dict(level1=[[0.5, 0.0], [0.5, 0.10]]), "Level 1 region must lie inside the Level 2 one"),
+    (dict(level1=[[2.0, 0.0], [2.0, 0.35]]), "Level 1 region must lie inside the Level 2 one"),
+    (dict(task="hover"), "unknown key\\(s\\) hover"),
+    (dict(axis="yaw"), "unknown key\\(s\\) yaw"),
+    (dict(levels={"level1": [[2.0, 0.1]], "level2": [[1.0, 0.3]], "level3": [[0.5, 0.4]]}), "unknown key\\(s\\) level3"),
+    (dict(levels={"level1": [[2.0, 0.1]]}), "missing key\\(s\\) level2"),
+])
+def test_malformed_boundaries_files_are_refused_with_the_reason(tmp_path, edit, reason):
+    import json
+
+    from identify.estimators.frequency.handling import load_boundaries
+
+    levels = {"level1": edit.get("level1", [[2.0, 0.0], [2.0, 0.14]]), "level2": [[1.0, 0.0], [1.0, 0.30]]}
+    doc = {"source": "test figure", "boundaries": {edit.get("task", "tracking"): {edit.get("axis", "pitch"):
+                                                                                 edit.get("levels", levels)}}}
+    if "source" in edit:
+        doc["source"] = edit["source"]
+    if edit.get("drop_source"):
+        del doc["source"]
+    if "figure" in edit:
+        doc["figure"] = edit["figure"]
+    path = tmp_path / "b.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=reason):
+        load_boundaries(path)
+
+
+def test_example_boundaries_file_reproduces_the_built_in_corners():
+    from pathlib import Path
+
+    from identify.estimators.frequency.handling import ADS33_BOUNDARIES, BUILTIN_BOUNDARIES, load_boundaries
+
+    b = load_boundaries(Path(__file__).resolve().parents[3] / "examples" / "ads33_boundaries.json")
+    assert "UNVERIFIED" in b.source and "memory" in b.source
+    assert set(b.polylines) == set(BUILTIN_BOUNDARIES.polylines)
+    for key, (l1, l2) in BUILTIN_BOUNDARIES.polylines.items():
+        assert np.array_equal(b.polylines[key][0], l1) and np.array_equal(b.polylines[key][1], l2)
+    for task, axes in ADS33_BOUNDARIES.items():
+        for axis, ((w1, t1), (w2, t2)) in axes.items():
+            for w, tau in ((w1, t1), (w1 * 0.99, t1), (w1, t1 + 0.01), (w2, t2), (w2 * 0.99, 0.0), (5.0, t2 + 0.01)):
+                assert b.level(w, tau, axis, task) == ads33_level(w, tau, axis, task), (task, axis, w, tau)
