@@ -321,3 +321,21 @@ def test_example_boundaries_file_reproduces_the_built_in_corners():
         for axis, ((w1, t1), (w2, t2)) in axes.items():
             for w, tau in ((w1, t1), (w1 * 0.99, t1), (w1, t1 + 0.01), (w2, t2), (w2 * 0.99, 0.0), (5.0, t2 + 0.01)):
                 assert b.level(w, tau, axis, task) == ads33_level(w, tau, axis, task), (task, axis, w, tau)
+
+
+def test_cli_hq_n_alpha_and_boundaries(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    from identify.cli import main
+
+    example = Path(__file__).resolve().parents[3] / "examples" / "ads33_boundaries.json"
+    assert main(["hq", "--profile", "navion_cruise_long", "--n-alpha", "11.05", "--boundaries", str(example),
+                 "--out", str(tmp_path / "hq")]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"CAP 1\.1\d 1/\(g s\^2\) \(omega_sp 3\.6 rad/s, n/alpha 11\.05 g/rad\): Level 1", out)
+    assert "(user-supplied)" in out and str(example) in (tmp_path / "hq" / "hq.md").read_text()
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"boundaries": {"tracking": {"pitch": {"level1": [[2, 0.1]], "level2": [[1, 0.3]]}}}}))
+    assert main(["hq", "--profile", "navion_cruise_long", "--boundaries", str(bad), "--out", str(tmp_path / "x")]) == 2
+    assert "missing key(s) source" in capsys.readouterr().err
