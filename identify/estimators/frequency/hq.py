@@ -54,7 +54,7 @@ class HQReport:
     def markdown(self) -> str:
         bounds = self.boundaries
         if bounds.user_supplied:
-            about = f"boundaries: {bounds.source} (user-supplied, read from {bounds.path})."
+            about = f"boundaries: {bounds.source} (user-supplied, read from {bounds.path}))."
         else:
             about = "simplified corner boundaries, see docs/frequency.md)." + (
                 " **UNVERIFIED boundaries**: the corner values were not checked against ADS-33E-PRF; "

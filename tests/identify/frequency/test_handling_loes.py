@@ -267,7 +267,9 @@ def test_user_boundaries_are_said_recorded_and_drawn(tmp_path):
     assert "test figure (user-supplied)" in ax.get_title()
     xy = [tuple(np.round(p, 9)) for line in ax.get_lines() for p in line.get_xydata()]
     assert (2.0, 0.10) in xy and (4.0, 0.20) in xy  # the polyline's own points are drawn
-    with pytest.raises(Exception, match="no ADS-33 boundaries for task 'tracking', axis 'roll'"):
+    from identify.errors import EstimationError
+
+    with pytest.raises(EstimationError, match="no ADS-33 boundaries for task 'tracking', axis 'roll'"):
         handling_qualities(w, np.repeat(H, 2, axis=2), None, ["theta_s", "theta_c"], ["q"], "t", boundaries=path)
 
 
