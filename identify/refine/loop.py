@@ -115,7 +115,7 @@ class Refine:
         self.segment_ = self._segment(runs)
         self.fitting_ = Fitting(self.estimator_, {"fit": runs, "choosing": choose, "validation": judge},
                                 self.declared_, zero_shifts=self.zero_shifts, segment=self.segment_,
-                                tau_max=self.tau_max, say=self._say)
+                                tau_max=self.tau_max, held=tuple(self.undeterminable_), say=self._say)
         # a priori values: before spending a fit on it
         check_identifiable(self.declared_, prepare(self.declared_, runs), self.zero_shifts, self.segment_)
         self._say(f"fitting the declared model ({len(self.declared_.free)} parameters, {len(runs)} runs)")
@@ -330,7 +330,8 @@ class Refine:
             failed = _failed_refit(result, lr, null_cost, best.threshold, own is not None)
             step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
                         error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
-                        held_change=spread, noise_order=noise.order, **common)
+                        held_change=spread, noise_order=noise.order,
+                        lr_criterion=result.info["criterion"]["kind"] if own is not None else "", **common)
             reason = failed or cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
@@ -345,8 +346,9 @@ class Refine:
     def _refusal(step: Step, wald_threshold: float) -> str:
         """Why a fitted candidate is refused before the judging data ('' if it is not)."""
         if step.lr_statistic < step.threshold:
-            return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in the test's noise-model metric) "
-                    f"below the threshold {step.threshold:.3g}")
+            metric = step.lr_criterion or "the test's noise-model metric"
+            return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in {metric}) below the threshold "
+                    f"{step.threshold:.3g}")
         if step.wald < wald_threshold:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
