@@ -237,10 +237,10 @@ def criterion(fit, bound: np.ndarray | None, delays) -> dict:
     its residual variance per point, and per parameter the factor by which the standard error's
     variance exceeds J's bound ``bound`` (the bootstrap's over the bound that takes the points as
     independent: neighbouring points of a composite response are correlated and J's coherence
-    weights are not their inverse variances; 9-20 on the pitch and S 61 cases). Without a bootstrap
-    (``bound`` None, ``n_draws=0``) the factor is unknown (NaN) and so is a likelihood ratio: J's drop over its
-    dispersion alone, the points taken as independent, averaged 14 for a null effect
-    (benchmarks/refine_fr.py)."""
+    weights are not their inverse variances; median 24 for X_q on the pitch case). Without a
+    bootstrap (``bound`` None, ``n_draws=0``) the factor is unknown (NaN) and so is a likelihood
+    ratio: J's drop over its dispersion alone, the points taken as independent, averaged 14-22 for
+    a null effect (benchmarks/refine_fr.py)."""
     n_points = 2 * sum(fit.n_points.values())  # magnitude and phase of each point
     dispersion = fit.J_mean / max(n_points - len(fit.theta) - len(delays), 1)
     inflation = np.full(len(fit.theta), np.nan)
