@@ -41,6 +41,7 @@ BENCH_ARGS_frequency_fit := --realisations 10
 BENCH_ARGS_ml_long_record := 0.25
 BENCH_ARGS_paper_s61 := --seeds 1
 BENCH_ARGS_refine_coloured := 10
+BENCH_ARGS_refine_fr := 6
 BENCH_ARGS_refine_speed := 1
 BENCH_ARGS_signal_design := --mc 20 --seeds 1 --durations 7
 # always: filter_error's resumable store goes to benchmarks/output/, never the working directory

@@ -509,7 +509,14 @@ def cmd_hq(args) -> int:
     from .estimators.frequency.hq import hq_of_model, hq_of_response
 
     profile = load_profile(args.profile)
-    options = dict(task=args.task, pitch=args.pitch, roll=args.roll, category=args.category)
+    options = dict(task=args.task, pitch=args.pitch, roll=args.roll, category=args.category, n_alpha=args.n_alpha)
+    if args.boundaries:
+        from .estimators.frequency.handling import load_boundaries
+
+        try:
+            options["boundaries"] = load_boundaries(args.boundaries)
+        except ValueError as exc:
+            raise EstimationError(str(exc)) from None
     if args.runs:
         from .estimators.frequency.response import frequency_response
 
@@ -553,7 +560,7 @@ def cmd_loes(args) -> int:
     text = [f"{args.pair}: numerator order {args.num}, denominator order {args.den}"
             + ("" if args.no_delay else f", equivalent delay in [0, {args.tau_max:g}] s"), fit.summary()]
     if args.den == 2 and not args.no_delay:
-        text += short_period(fit, args.category).lines()
+        text += short_period(fit, args.category, args.n_alpha).lines()
     print("\n".join(text), flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -574,6 +581,9 @@ def _add_hq_parsers(sub) -> None:
                    help="ADS-33 task category (default tracking: target acquisition and tracking)")
     p.add_argument("--pitch", metavar="INPUT", help="pitch control (default theta_s or delta_e)")
     p.add_argument("--roll", metavar="INPUT", help="roll control (default theta_c or delta_a)")
+    p.add_argument("--boundaries", metavar="FILE.json", help="ADS-33 Level 1/2 boundaries read from the "
+                   "specification's figures (polylines per task and axis, with their source; see docs/frequency.md); "
+                   "default: the built-in corners, UNVERIFIED")
     _add_response_options(p)
     p.add_argument("--with-model", action="store_true", help="with runs: also the profile's model, on the same charts")
     p.set_defaults(func=cmd_hq)
@@ -593,8 +603,11 @@ def _add_hq_parsers(sub) -> None:
 
 
 def _add_response_options(p) -> None:
-    """Options hq and loes share: the LOES level's category, the response grid, the channel map."""
+    """Options hq and loes share: the LOES level's category and n/alpha, the response grid, the channel map."""
     p.add_argument("--category", choices=("A", "B", "C"), default="A", help="MIL-STD-1797A flight-phase category")
+    p.add_argument("--n-alpha", type=positive_float, metavar="G_PER_RAD", help="normal load factor per angle of "
+                   "attack (g/rad): grades the short period's CAP = omega_sp^2/(n/alpha) and frequency minimum "
+                   "(without it omega_sp is not graded)")
     p.add_argument("--n-freq", type=positive_int, default=120, help="frequencies of the response grid")
     p.add_argument("--channel-map", metavar="JSON", help="channel map of the run files (as for estimate)")
 

@@ -196,6 +196,28 @@ class IdentificationResult:
     def parameters(self) -> dict[str, float]:
         return dict(zip(self.names, map(float, self.theta)))
 
+    def compare_lr_test(self, restricted: "IdentificationResult") -> tuple[float, int] | None:
+        """statsmodels' ``compare_lr_test``: the likelihood-ratio statistic of this fit against a
+        nested ``restricted`` fit of the same data, and its degrees of freedom (the parameters this
+        fit adds), in the criterion the estimator minimised, where it records one
+        (``info["criterion"]``); None where it does not (output error, filter error: the caller
+        measures the likelihoods on the residuals itself, as refine does).
+
+        The record: ``cost`` the minimised sum of squares, ``dispersion`` its residual variance
+        per point (cost / (points - parameters)) and ``inflation`` {parameter: factor} by which
+        the points' correlation and weighting enlarge the variance of the parameter over the bound
+        that takes the points as independent (NaN where not measured). Statistic: the cost's drop
+        over ``dispersion`` times the added parameters' mean inflation (a mean-scaled statistic
+        with independent points' degrees of freedom, Satorra and Bentler's correction), so that a
+        null effect gives chi-square(df) although neighbouring points are not independent; NaN
+        when an added parameter's inflation is unknown."""
+        mine, theirs = self.info.get("criterion"), restricted.info.get("criterion")
+        added = [n for n in self.names if n not in restricted.names]
+        if not (mine and theirs) or mine.get("kind") != theirs.get("kind") or not added:
+            return None
+        inflation = np.mean([mine.get("inflation", {}).get(n, np.nan) for n in added])
+        return float((theirs["cost"] - mine["cost"]) / (mine["dispersion"] * inflation)), len(added)
+
     def identified_profile(self, name: str | None = None) -> Profile:
         return self.model.to_profile(name or f"{self.profile.name} - identified ({self.method.upper()})")
 

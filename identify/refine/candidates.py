@@ -70,6 +70,7 @@ class Context:
     frequencies: tuple = ()
     products: bool = True
     kinds: tuple = ()
+    held: tuple = ()  # parameters held because the estimator cannot determine them (still dynamics)
 
 
 @dataclass(eq=False)
@@ -179,10 +180,12 @@ def prepare_runs(profile: Profile, runs: list[Run]) -> list[Run]:
 
 
 # -- the kinds -------------------------------------------------------------------------------------
-def _dynamic_rows(p: Profile) -> list[int]:
+def _dynamic_rows(p: Profile, held=()) -> list[int]:
     """Rows of A/B with a free parameter (the dynamic equations), lag states excepted: an equation
-    whose every entry is fixed (theta_dot = q) is kinematics, known exactly."""
-    rows = {e.row for name in p.free for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
+    whose every entry is fixed (theta_dot = q) is kinematics, known exactly. A parameter ``held``
+    only because the estimator cannot determine it (FR's gates: X_u of the pitch case) still makes
+    its equation dynamics: held out of the catalogue, an undeclared X_eta there went untested."""
+    rows = {e.row for name in [*p.free, *held] for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
     return [i for i in sorted(rows) if not p.state_names[i].endswith("_lag")]
 
 
@@ -210,7 +213,7 @@ class Derivative(Candidate):
         taken = {(e.matrix, e.row, e.col) for name in p.parameters for e, _ in p.parameter_entries(name)}
         states = [j for j, s in enumerate(p.state_names) if not s.endswith("_lag")]
         inputs = [p.input_names.index(u) for u in _controls(p)]
-        return [cls(p.entry_name(m, i, j)) for i in _dynamic_rows(p)
+        return [cls(p.entry_name(m, i, j)) for i in _dynamic_rows(p, context.held)
                 for m, cols in (("A", states), ("B", inputs)) for j in cols if (m, i, j) not in taken]
 
     def profile(self, p, values=None):
@@ -513,7 +516,7 @@ class Nonlinear(Candidate):
         measured = set(_measured_states(p, context.runs))
         controls = [u for u in _controls(p) if all(u in r.channels for r in context.runs)]
         out = []
-        for i in _dynamic_rows(p):
+        for i in _dynamic_rows(p, context.held):
             x = p.state_names[i]
             eq = p.equation(x)
             terms = []

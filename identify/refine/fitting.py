@@ -26,13 +26,15 @@ class Fitting:
     ``estimator``: the estimator instance (cloned per fit, :meth:`Estimator.nested`); ``data``:
     ``{"fit": runs, "choosing": runs, "validation": runs}``; ``zero_shifts``, ``segment`` (s) the
     nuisance and segments of every fit and prediction; ``tau_max`` (s) the largest delay a
-    candidate searches; ``say`` a progress callable. Records ``unconverged`` (one note per fit that
+    candidate searches; ``held`` the parameters held because the estimator cannot determine them;
+    ``say`` a progress callable. Records ``unconverged`` (one note per fit that
     did not converge) and counts ``evaluations`` (predictions computed, each (model, data set) once).
     """
 
     def __init__(self, estimator, data: dict[str, list[Run]], declared: Profile, *, zero_shifts: bool = True,
-                 segment: float = math.inf, tau_max: float = 0.5, say=None):
+                 segment: float = math.inf, tau_max: float = 0.5, held: tuple = (), say=None):
         self.estimator, self.data, self.declared = estimator, data, declared
+        self.held = tuple(held)  # parameters the estimator cannot determine, held (still dynamics)
         self.zero_shifts, self.segment, self.tau_max = zero_shifts, segment, tau_max
         self.say = say or (lambda msg: None)
         self.cache: dict = {}

@@ -115,7 +115,7 @@ class Refine:
         self.segment_ = self._segment(runs)
         self.fitting_ = Fitting(self.estimator_, {"fit": runs, "choosing": choose, "validation": judge},
                                 self.declared_, zero_shifts=self.zero_shifts, segment=self.segment_,
-                                tau_max=self.tau_max, say=self._say)
+                                tau_max=self.tau_max, held=tuple(self.undeterminable_), say=self._say)
         # a priori values: before spending a fit on it
         check_identifiable(self.declared_, prepare(self.declared_, runs), self.zero_shifts, self.segment_)
         self._say(f"fitting the declared model ({len(self.declared_.free)} parameters, {len(runs)} runs)")
@@ -177,7 +177,7 @@ class Refine:
             self.tries_ += 1
             self._say(f"step {len(self.steps_) + 1}: fitting {best.candidate.name} "
                       f"(score {best.statistic:.3g} > {best.threshold:.3g}, try {self.tries_})")
-            step, new_profile, new_result = self._try(current, best, tested)
+            step, new_profile, new_result = self._try(current, result, best, tested)
             self._say(f"  {'accepted' if step.accepted else 'rejected: ' + step.reason}")
             if step.accepted:
                 self.steps_.append(step)
@@ -283,9 +283,14 @@ class Refine:
         return found.tests
 
     # -- one step ----------------------------------------------------------------------------
-    def _try(self, p: Profile, best: ScoreTest, tested: list[ScoreTest]):
+    def _try(self, p: Profile, null_result, best: ScoreTest, tested: list[ScoreTest]):
         """Estimate the selected candidate and check it: likelihood ratio and Wald statistic,
         error on the choosing data, then (once, for the option that passed) the judging data.
+
+        The likelihood ratio is the estimator's own where its result states one for the nested pair
+        (:meth:`~identify.estimators.result.IdentificationResult.compare_lr_test`: the criterion
+        it minimised, e.g. FR's J); else that of the residuals in the test's noise-model metric
+        (the likelihood output and filter error maximise).
 
         A delay-type candidate yields two fits, delay and lag, tried in order of likelihood."""
         cand, noise, fitting = best.candidate, best.noise, self.fitting_
@@ -310,7 +315,8 @@ class Refine:
             # in the metric of the noise model that selected the candidate: likelihood ratio on the
             # fit runs, prediction errors (twice the negative log-likelihood) on the held-out data
             null_cost = noise.cost(fitting.residuals(p))
-            lr = null_cost - noise.cost(fitting.residuals(new_p))
+            own = result.compare_lr_test(null_result) if null_result is not None else None
+            lr = null_cost - noise.cost(fitting.residuals(new_p)) if own is None else own[0]
             held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
                     for data in held_data}
             # the size of the prediction change there: the spread of the held-out cost change
@@ -321,10 +327,11 @@ class Refine:
             # estimator's errors in the other parameters, which do not make the delay less present
             wald = float(sum((v["value"] / s) ** 2 if (s := v.get("std_profile", v["std"])) > 0 else math.inf
                              for v in params.values()))
-            failed = _failed_refit(result, lr, null_cost, best.threshold)
+            failed = _failed_refit(result, lr, null_cost, best.threshold, own is not None)
             step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
                         error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
-                        held_change=spread, noise_order=noise.order, **common)
+                        held_change=spread, noise_order=noise.order,
+                        lr_criterion=result.info["criterion"]["kind"] if own is not None else "", **common)
             reason = failed or cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
@@ -339,15 +346,16 @@ class Refine:
     def _refusal(step: Step, wald_threshold: float) -> str:
         """Why a fitted candidate is refused before the judging data ('' if it is not)."""
         if step.lr_statistic < step.threshold:
-            return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in the test's noise-model metric) "
-                    f"below the threshold {step.threshold:.3g}")
+            metric = step.lr_criterion or "the test's noise-model metric"
+            return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in {metric}) below the threshold "
+                    f"{step.threshold:.3g}")
         if step.wald < wald_threshold:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
         return _held_out_refusal(step.held_out, step.held_change, "choosing", "choosing")
 
 
-def _failed_refit(result, lr: float, null_cost: float, threshold: float) -> str:
+def _failed_refit(result, lr: float, null_cost: float, threshold: float, own: bool = False) -> str:
     """Why a re-fit is a failed fit, not a verdict ('' if it is not): it diverged, or its likelihood
     is below the nested null's by more than the test's threshold (the extended model contains the
     null, so a re-fit that found its optimum cannot be worse: it went astray; seen once as a
@@ -355,6 +363,9 @@ def _failed_refit(result, lr: float, null_cost: float, threshold: float) -> str:
     stop = str(result.info.get("stop", ""))
     if not result.converged and stop.startswith(("diverged", "stalled")):
         return f"re-fit failed ({stop}): no likelihood ratio"
+    if not math.isfinite(lr) and own:
+        return (f"the {result.method.upper()} estimator's likelihood ratio is not determined (its criterion's "
+                f"points are correlated and the factor that says how much is unknown, e.g. without its bootstrap)")
     if not math.isfinite(lr):
         return "re-fit failed (its likelihood is not finite): no likelihood ratio"
     if lr < -max(threshold, 1e-9 * abs(null_cost)):

@@ -182,7 +182,9 @@ def _evidence(s) -> list[str]:
              f"order {s.noise_order})"]
     if s.why:
         lines.append(f"- physical reason: {s.why}")
-    lines.append(f"- likelihood ratio of the re-fit {s.lr_statistic:.4g}; Wald statistic of the estimate "
+    lines.append(f"- likelihood ratio of the re-fit {s.lr_statistic:.4g}"
+                 + (f" (the estimator's own criterion: {s.lr_criterion})" if s.lr_criterion else "")
+                 + "; Wald statistic of the estimate "
                  f"(coloured-residual bounds) {s.wald:.4g}")
     for name, v in s.parameters.items():
         lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g}" + (

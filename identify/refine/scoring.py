@@ -79,7 +79,7 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
     at the fitted profile ``p`` (see the module notes; ``f_min``, ``frequencies`` (Hz) and
     ``products`` as :class:`~identify.refine.candidates.Context` takes them)."""
     ev = fitting.prediction(p)
-    context = Context(ev.runs, ev.residuals, fitting.dt, f_min, tuple(frequencies), products)
+    context = Context(ev.runs, ev.residuals, fitting.dt, f_min, tuple(frequencies), products, held=fitting.held)
     cands = [c for c in catalogue(p, context, kinds) if c.name not in excluded]
     ext_p, linear = extend_all(p, [c for c in cands if c.linear])
     ext_runs = ev.runs

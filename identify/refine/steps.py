@@ -29,6 +29,7 @@ class Step:
     metric: str = "residual"  # the noise model of the test: of the residual, or of the candidate's alternative
     held_out: dict = field(default_factory=dict)  # data -> (cost before, cost after), noise-model metric
     held_change: dict = field(default_factory=dict)  # data -> cost of the prediction change alone (its size)
+    lr_criterion: str = ""  # the estimator's own criterion of the likelihood ratio ('': the noise-model metric)
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -28,10 +28,31 @@ checked against ADS-33E-PRF itself. The public references searched (docs, pages 
 Nov 2026: ADS-33E-PRF's table of contents is public, its charts' values were not found, nor open
 code that encodes them) could not confirm them; every level read from them says so on screen, in
 ``hq.md`` and on the chart.
+
+User-supplied boundaries (:func:`load_boundaries`, ``identify hq --boundaries FILE.json``): the Level
+1 and Level 2 boundaries per task category and axis as polylines of (bandwidth rad/s, phase delay s)
+points read from the specification's figure, with the figure named in a required ``source``. A
+polyline ``(w_1, t_1) ... (w_n, t_n)`` must be monotone: bandwidth and phase delay both non-decreasing
+from point to point (no point repeated), so it runs up and to the right as the charts' boundaries do,
+and the Level 1 one must lie on the good side of the Level 2 one. It bounds the region of points
+(w, t) with ``t <= t_B(w)``, where ``t_B(w)`` is:
+
+* below ``w_1``: none (the boundary starts with a vertical line from (w_1, 0) up to its first point);
+* between points: linear interpolation in (w, t) along the segment reaching past ``w``; at a vertical
+  segment (two points at the same bandwidth), its top;
+* beyond ``w_n``: ``t_n`` (the last segment continues horizontally to any higher bandwidth).
+
+A point on the boundary counts as inside (as the built-in corners' ``>=`` and ``<=``). Level 1: inside
+the Level 1 boundary; else Level 2: inside the Level 2 one; else Level 3. The built-in corners are the
+two-point polylines ``(w_min, 0), (w_min, t_max)``. Levels read from a user file carry "boundaries:
+<source> (user-supplied)" instead of UNVERIFIED; the report records the file and its source.
 """
 from __future__ import annotations
 
+import json
+import textwrap
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -48,10 +69,156 @@ TASK_NAMES = {"tracking": "target acquisition and tracking", "other": "all other
 ADS33_UNVERIFIED = frozenset((task, axis) for task, axes in ADS33_BOUNDARIES.items() for axis in axes)
 
 
-def boundary_status(axis: str, task: str = "tracking") -> str:
-    """"" for boundaries checked against the specification, else the marker every level read from
-    them carries."""
-    return "UNVERIFIED boundaries" if (task, axis) in ADS33_UNVERIFIED else ""
+@dataclass(frozen=True)
+class Boundaries:
+    """ADS-33 Level 1 and Level 2 boundaries: ``polylines[(task, axis)] = (level 1, level 2)``, each an
+    (n, 2) array of (bandwidth rad/s, phase delay s) points (see the module notes for how a point is
+    graded); ``source`` where the values come from; ``path`` the file read (None: built in)."""
+
+    polylines: dict
+    source: str
+    path: str | None = None
+
+    @property
+    def user_supplied(self) -> bool:
+        return self.path is not None
+
+    def pair(self, axis: str, task: str) -> tuple[np.ndarray, np.ndarray]:
+        try:
+            return self.polylines[(task, axis)]
+        except KeyError:
+            have = ", ".join(f"{t}/{a}" for t, a in self.polylines)
+            raise ValueError(f"no ADS-33 boundaries for task '{task}', axis '{axis}' in {self.where()} "
+                             f"(it has {have})") from None
+
+    def level(self, omega_bw: float, tau_p: float, axis: str, task: str = "tracking") -> int | None:
+        """Level 1, 2 or 3 of a (bandwidth, phase delay) point; None when either is not determined."""
+        if not (np.isfinite(omega_bw) and np.isfinite(tau_p)):
+            return None
+        for level, line in enumerate(self.pair(axis, task), start=1):
+            if tau_p <= delay_limit(line, omega_bw):
+                return level
+        return 3
+
+    def status(self, axis: str, task: str = "tracking") -> str:
+        """The marker every level read from these boundaries carries: UNVERIFIED (built-in corners not
+        checked) or the user's source; "" for built-in boundaries checked against the specification."""
+        if self.user_supplied:
+            return f"boundaries: {self.source} (user-supplied)"
+        return "UNVERIFIED boundaries" if (task, axis) in ADS33_UNVERIFIED else ""
+
+    def where(self) -> str:
+        return f"the boundaries file {self.path}" if self.user_supplied else "the built-in boundaries"
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "path": self.path, "user_supplied": self.user_supplied,
+                "boundaries": {f"{t}/{a}": {"level1": l1.tolist(), "level2": l2.tolist()}
+                               for (t, a), (l1, l2) in self.polylines.items()}}
+
+
+def delay_limit(line: np.ndarray, omega: float) -> float:
+    """The largest phase delay inside a monotone boundary polyline at bandwidth ``omega`` (-inf below
+    its first point's bandwidth; its last point's delay beyond its last bandwidth)."""
+    w, t = line[:, 0], line[:, 1]
+    k = int(np.searchsorted(w, omega, side="right")) - 1  # the last point at or below omega
+    if k < 0:
+        return -np.inf
+    if k == len(w) - 1:
+        return float(t[-1])
+    return float(t[k] + (t[k + 1] - t[k]) * (omega - w[k]) / (w[k + 1] - w[k]))
+
+
+BUILTIN_BOUNDARIES = Boundaries(
+    {(task, axis): tuple(np.array([[w, 0.0], [w, t]]) for w, t in corners)
+     for task, axes in ADS33_BOUNDARIES.items() for axis, corners in axes.items()},
+    "memory of Tischler & Remple's reproductions of ADS-33E-PRF's hover/low-speed charts (UNVERIFIED)")
+
+
+def load_boundaries(path: str | Path) -> Boundaries:
+    """User-supplied ADS-33 boundaries from a JSON file::
+
+        {"source": "ADS-33E-PRF Figure 2, para 3.3.2.1",
+         "boundaries": {"tracking": {"pitch": {"level1": [[w, t], ...], "level2": [[w, t], ...]},
+                                     "roll": {...}},
+                        "other": {...}}}
+
+    Tasks among :data:`TASK_NAMES`, axes pitch and roll (any subset; a report needing one the file
+    lacks fails); every polyline monotone (module notes), Level 1 inside Level 2. Anything else is
+    refused with the reason (ValueError), never replaced by the built-in values."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"boundaries file {path}: {exc}") from None
+    where = f"boundaries file {path}"
+    _keys(doc, {"source", "boundaries"}, where)
+    source = doc["source"]
+    if not isinstance(source, str) or not source.strip():
+        raise ValueError(f"{where}: 'source' must name where the values were read (e.g. the specification's "
+                         "figure and paragraph)")
+    polylines = {}
+    _keys(doc["boundaries"], set(TASK_NAMES), f"{where}: boundaries", required=False)
+    for task, axes in doc["boundaries"].items():
+        _keys(axes, {"pitch", "roll"}, f"{where}: boundaries.{task}", required=False)
+        for axis, levels in axes.items():
+            at = f"{where}: boundaries.{task}.{axis}"
+            _keys(levels, {"level1", "level2"}, at)
+            pair = tuple(_polyline(levels[k], f"{at}.{k}") for k in ("level1", "level2"))
+            _inside(*pair, at)
+            polylines[(task, axis)] = pair
+    if not polylines:
+        raise ValueError(f"{where}: no boundaries given")
+    return Boundaries(polylines, source.strip(), str(path))
+
+
+def _keys(obj, allowed: set, where: str, required: bool = True) -> None:
+    if not isinstance(obj, dict):
+        raise ValueError(f"{where}: expected an object with keys {', '.join(sorted(allowed))}")
+    unknown = set(obj) - allowed
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(sorted(allowed))})")
+    missing = allowed - set(obj) if required else set()
+    if missing:
+        raise ValueError(f"{where}: missing key(s) {', '.join(sorted(missing))}")
+
+
+def _polyline(points, where: str) -> np.ndarray:
+    """A validated (n, 2) boundary polyline: finite, non-negative, monotone, no point repeated."""
+    if not isinstance(points, list) or not points or not all(
+            isinstance(p, list) and len(p) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                        for v in p) for p in points):
+        raise ValueError(f"{where}: expected a non-empty list of [bandwidth rad/s, phase delay s] pairs")
+    line = np.array(points, dtype=float)
+    if not np.all(np.isfinite(line)) or np.any(line < 0):
+        raise ValueError(f"{where}: bandwidths and phase delays must be finite and >= 0")
+    for k in range(1, len(line)):
+        (w0, t0), (w1, t1) = line[k - 1], line[k]
+        if w1 < w0 or t1 < t0:
+            raise ValueError(f"{where}: point {k} ({w1:g} rad/s, {t1:g} s) goes back from point {k - 1} "
+                             f"({w0:g} rad/s, {t0:g} s): a boundary polyline must be monotone (bandwidth and "
+                             "phase delay non-decreasing)")
+        if w1 == w0 and t1 == t0:
+            raise ValueError(f"{where}: point {k} repeats point {k - 1} ({w0:g} rad/s, {t0:g} s)")
+    return line
+
+
+def _inside(level1: np.ndarray, level2: np.ndarray, where: str) -> None:
+    """The Level 1 region must lie inside the Level 2 one: its delay limit nowhere above Level 2's.
+    Both limits are linear between the bandwidths of their points, so those bandwidths and points
+    just below each suffice."""
+    grid = np.unique(np.concatenate([level1[:, 0], level2[:, 0]]))
+    for w in np.concatenate([grid, grid * (1 - 1e-9)]):
+        t1, t2 = delay_limit(level1, w), delay_limit(level2, w)
+        if t1 > t2 + 1e-12:
+            raise ValueError(f"{where}: at {w:.4g} rad/s the Level 1 boundary allows a phase delay of {t1:.4g} s, "
+                             f"more than Level 2's {'none' if t2 == -np.inf else f'{t2:.4g} s'}: the Level 1 "
+                             "region must lie inside the Level 2 one")
+
+
+def boundary_status(axis: str, task: str = "tracking", boundaries: Boundaries | None = None) -> str:
+    """The marker every level read from the boundaries carries ("" for built-in boundaries checked
+    against the specification): see :meth:`Boundaries.status`."""
+    return (boundaries or BUILTIN_BOUNDARIES).status(axis, task)
 
 
 @dataclass
@@ -80,12 +247,13 @@ class Bandwidth:
     def gain_limited(self) -> bool:
         return bool(np.isfinite(self.omega_bw_gain) and self.omega_bw_gain < self.omega_bw_phase)
 
-    def level(self, axis: str, task: str = "tracking") -> int | None:
+    def level(self, axis: str, task: str = "tracking", boundaries: Boundaries | None = None) -> int | None:
         """ADS-33 level (1, 2 or 3) of (bandwidth, phase delay); None if either is not determined,
-        except Level 3 when the bandwidth is known to lie below the Level 2 minimum."""
-        if np.isfinite(self.bandwidth_below) and self.bandwidth_below < _boundaries(axis, task)[1][0]:
+        except Level 3 when the bandwidth is known to lie below the Level 2 boundary's least bandwidth."""
+        b = boundaries or BUILTIN_BOUNDARIES
+        if np.isfinite(self.bandwidth_below) and self.bandwidth_below < b.pair(axis, task)[1][0, 0]:
             return 3
-        return ads33_level(self.bandwidth, self.phase_delay, axis, task)
+        return b.level(self.bandwidth, self.phase_delay, axis, task)
 
     def to_dict(self) -> dict:
         return {"omega_180": self.omega_180, "omega_bw_phase": self.omega_bw_phase,
@@ -168,66 +336,70 @@ def _interp_log(w0: float, w: np.ndarray, y: np.ndarray) -> float:
     return float(np.interp(np.log(w0), np.log(w), y))
 
 
-def ads33_level(omega_bw: float, tau_p: float, axis: str, task: str = "tracking") -> int | None:
-    """Level 1, 2 or 3 of a (bandwidth rad/s, phase delay s) point on the simplified ADS-33 chart
-    (:data:`ADS33_BOUNDARIES`); None when either figure is not determined."""
-    if not (np.isfinite(omega_bw) and np.isfinite(tau_p)):
-        return None
-    for level, (w_min, tau_max) in enumerate(_boundaries(axis, task), start=1):
-        if omega_bw >= w_min and tau_p <= tau_max:
-            return level
-    return 3
+def ads33_level(omega_bw: float, tau_p: float, axis: str, task: str = "tracking",
+                boundaries: Boundaries | None = None) -> int | None:
+    """Level 1, 2 or 3 of a (bandwidth rad/s, phase delay s) point on the ADS-33 chart (the built-in
+    corners :data:`ADS33_BOUNDARIES` unless ``boundaries``); None when either figure is not determined."""
+    return (boundaries or BUILTIN_BOUNDARIES).level(omega_bw, tau_p, axis, task)
 
 
-def _boundaries(axis: str, task: str):
-    try:
-        return ADS33_BOUNDARIES[task][axis]
-    except KeyError:
-        raise ValueError(f"no ADS-33 boundaries for axis '{axis}', task '{task}' "
-                         f"(axes pitch, roll; tasks {', '.join(ADS33_BOUNDARIES)})") from None
-
-
-def ads33_chart(points: dict[str, Bandwidth], axis: str, task: str = "tracking"):
+def ads33_chart(points: dict[str, Bandwidth], axis: str, task: str = "tracking", boundaries: Boundaries | None = None):
     """The ADS-33 bandwidth vs phase-delay chart of ``axis`` for ``task`` with ``points``
-    ({label: Bandwidth}) plotted; an Agg :class:`matplotlib.figure.Figure` (no pyplot state).
-    Points not determined are listed in the legend as such instead of being drawn."""
+    ({label: Bandwidth}) plotted on the boundaries' polylines (built-in corners unless ``boundaries``);
+    an Agg :class:`matplotlib.figure.Figure` (no pyplot state). Points not determined are listed in the
+    legend as such instead of being drawn."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.0, 4.6))
     ax = fig.add_subplot(1, 1, 1)
-    (w1, t1), (w2, t2) = _boundaries(axis, task)
-    w_hi, t_hi = 6.0, 0.4
+    bounds = boundaries or BUILTIN_BOUNDARIES
+    line1, line2 = bounds.pair(axis, task)
+    w_hi = max(6.0, 1.1 * max(line1[-1, 0], line2[-1, 0]))
+    t_hi = max(0.4, 1.25 * max(line1[-1, 1], line2[-1, 1]))
     for pts in points.values():
         if np.isfinite(pts.bandwidth):
             w_hi = max(w_hi, 1.1 * pts.bandwidth)
         if np.isfinite(pts.phase_delay):
             t_hi = max(t_hi, 1.1 * pts.phase_delay)
-    ax.fill_between([w1, w_hi], 0, t1, color="#d8f0d8", lw=0)
-    ax.plot([w1, w1, w_hi], [0, t1, t1], "k-", lw=1.2)
-    ax.plot([w2, w2, w_hi], [0, t2, t2], "k--", lw=1.2)
-    ax.text(0.5 * (w1 + w_hi), 0.5 * t1, "Level 1", ha="center", va="center")
-    ax.text(0.5 * (w2 + w1), 0.5 * t1, "Level 2", ha="center", va="center")
-    ax.text(0.5 * w2, 0.5 * t2, "Level 3", ha="center", va="center")
+    (x1, y1), (x2, y2) = (_drawn(line, w_hi) for line in (line1, line2))
+    ax.fill_between(x1, 0, y1, color="#d8f0d8", lw=0)
+    ax.plot(x1, y1, "k-", lw=1.2)
+    ax.plot(x2, y2, "k--", lw=1.2)
+    w1, w2 = line1[0, 0], line2[0, 0]
+    ax.text(0.5 * (w1 + w_hi), 0.5 * delay_limit(line1, 0.5 * (w1 + w_hi)), "Level 1", ha="center", va="center")
+    ax.text(0.5 * (w2 + w1), 0.5 * delay_limit(line2, 0.5 * (w2 + w1)), "Level 2", ha="center", va="center")
+    ax.text(0.5 * w2, 0.5 * line2[-1, 1], "Level 3", ha="center", va="center")
     for k, ((label, b), marker) in enumerate(zip(points.items(), "o^sDv>")):
         colour = ("C3", "C0", "C2", "C4", "C1", "C5")[k]
         if np.isfinite(b.bandwidth) and np.isfinite(b.phase_delay):
-            lvl = b.level(axis, task)
+            lvl = b.level(axis, task, bounds)
             ax.plot(b.bandwidth, b.phase_delay, marker, ms=9, mfc=colour, mec="k",
                     label=f"{label}: {b.bandwidth:.2f} rad/s, {b.phase_delay:.3f} s (Level {lvl})")
         elif np.isfinite(b.bandwidth_below) and np.isfinite(b.phase_delay):
             ax.plot(b.bandwidth_below, b.phase_delay, "<", ms=9, mfc=colour, mec="k",
                     label=f"{label}: < {b.bandwidth_below:.2f} rad/s, {b.phase_delay:.3f} s "
-                          f"(Level {b.level(axis, task) or '?'})")
+                          f"(Level {b.level(axis, task, bounds) or '?'})")
         else:
             ax.plot([], [], marker, mfc="none", mec="0.5", label=f"{label}: not determined")
     ax.set_xlim(0, w_hi)
     ax.set_ylim(0, t_hi)
     ax.set_xlabel("bandwidth $\\omega_{BW}$ [rad/s]")
     ax.set_ylabel("phase delay $\\tau_p$ [s]")
-    status = boundary_status(axis, task)
-    ax.set_title(f"ADS-33 {axis} attitude, hover/low speed: {TASK_NAMES.get(task, task)}"
-                 + (f"\n{status}: corners not checked against ADS-33E-PRF" if status else ""), fontsize=9)
+    status = bounds.status(axis, task)
+    if status and not bounds.user_supplied:
+        status += ": corners not checked against ADS-33E-PRF"
+    ax.set_title("\n".join([f"ADS-33 {axis} attitude, hover/low speed: {TASK_NAMES.get(task, task)}",
+                            *textwrap.wrap(status, 75)]), fontsize=9)
     ax.legend(fontsize=7, loc="upper right")
     ax.grid(True, color="0.9")
     fig.tight_layout()
     return fig
+
+
+def _drawn(line: np.ndarray, w_hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """A boundary polyline as drawn: from the bandwidth axis up to its first point, through its
+    points, on horizontally to ``w_hi``."""
+    x, y = line[:, 0], line[:, 1]
+    if y[0] > 0:
+        x, y = np.r_[x[0], x], np.r_[0.0, y]
+    return np.r_[x, max(w_hi, x[-1])], np.r_[y, y[-1]]

@@ -23,7 +23,7 @@ import numpy as np
 
 from ...errors import EstimationError
 from ...model.linear import LinearModel
-from .handling import TASK_NAMES, Bandwidth, ads33_chart, bandwidth, boundary_status
+from .handling import BUILTIN_BOUNDARIES, TASK_NAMES, Bandwidth, Boundaries, ads33_chart, bandwidth, load_boundaries
 from .loes import ShortPeriod, fit_transfer_function, short_period
 
 AXES = {"pitch": (("theta_s", "delta_e"), "q", "theta"), "roll": (("theta_c", "delta_a"), "p", "phi")}
@@ -42,30 +42,35 @@ class AxisHQ:
 
 @dataclass
 class HQReport:
-    """Handling-qualities figures per axis, the task category and the source."""
+    """Handling-qualities figures per axis, the task category, the source and the ADS-33 boundaries
+    graded against (their provenance: ``boundaries.source``, ``boundaries.path``)."""
 
     source: str
     task: str
     axes: list[AxisHQ] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    boundaries: Boundaries = BUILTIN_BOUNDARIES
 
     def markdown(self) -> str:
-        unverified = any(boundary_status(a.axis, self.task) for a in self.axes)
+        bounds = self.boundaries
+        if bounds.user_supplied:
+            about = f"boundaries: {bounds.source} (user-supplied, read from {bounds.path}))."
+        else:
+            about = "simplified corner boundaries, see docs/frequency.md)." + (
+                " **UNVERIFIED boundaries**: the corner values were not checked against ADS-33E-PRF; "
+                "a level near a boundary may be wrong." if any(bounds.status(a.axis, self.task) for a in self.axes) else "")
         lines = [f"# Handling qualities: {self.source}", "",
-                 f"ADS-33 task category: {TASK_NAMES.get(self.task, self.task)} (hover and low speed; "
-                 "simplified corner boundaries, see docs/frequency.md)."
-                 + (" **UNVERIFIED boundaries**: the corner values were not checked against ADS-33E-PRF; "
-                    "a level near a boundary may be wrong." if unverified else ""), "",
+                 f"ADS-33 task category: {TASK_NAMES.get(self.task, self.task)} (hover and low speed; " + about, "",
                  "| axis | response | omega_180 [rad/s] | BW phase [rad/s] | BW gain [rad/s] | bandwidth [rad/s] "
                  "| phase delay [s] | ADS-33 level |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
         for a in self.axes:
             b = a.bandwidth
-            lvl = b.level(a.axis, self.task)
+            lvl = b.level(a.axis, self.task, self.boundaries)
             lines.append(f"| {a.axis} | {a.response} | {_f(b.omega_180)} | {_f(b.omega_bw_phase)} | "
                          f"{_f(b.omega_bw_gain)} | "
                          f"{_f(b.bandwidth) if not np.isfinite(b.bandwidth_below) else f'< {b.bandwidth_below:.3g}'} | "
                          f"{_f(b.phase_delay, 4)} | "
-                         f"{_level(lvl, a.axis, self.task)} |")
+                         f"{self._level(lvl, a.axis)} |")
         for a in self.axes:
             for n in a.bandwidth.notes:
                 lines.append(f"- {a.axis}: {n}")
@@ -86,11 +91,11 @@ class HQReport:
         out = [f"handling qualities ({TASK_NAMES.get(self.task, self.task)}):"]
         for a in self.axes:
             b = a.bandwidth
-            lvl = b.level(a.axis, self.task)
+            lvl = b.level(a.axis, self.task, self.boundaries)
             bw = _f(b.bandwidth, unit="rad/s") if not np.isfinite(b.bandwidth_below) else \
                 f"< {b.bandwidth_below:.3g} rad/s"
             out.append(f"  {a.axis} ({a.response}): bandwidth {bw}, phase delay "
-                       f"{_f(b.phase_delay, 4, 's')}: ADS-33 level {_level(lvl, a.axis, self.task)}"
+                       f"{_f(b.phase_delay, 4, 's')}: ADS-33 level {self._level(lvl, a.axis)}"
                        + (f" ({'; '.join(b.notes)})" if b.notes else ""))
             if a.loes is not None:
                 out += ["  " + s for s in a.loes.lines()] + ([f"  {a.loes_note}"] if a.loes_note else [])
@@ -112,20 +117,19 @@ class HQReport:
             points = {f"{'flight data' if model else a.axis} ({a.response})": a.bandwidth}
             if a.axis in others:
                 points[f"model ({others[a.axis].response})"] = others[a.axis].bandwidth
-            fig = ads33_chart(points, a.axis, self.task)
+            fig = ads33_chart(points, a.axis, self.task, self.boundaries)
             FigureCanvasAgg(fig)
             path = outdir / f"hq_{a.axis}.png"
             fig.savefig(path, dpi=90)
             paths.append(path)
         return paths
 
-
-def _level(lvl: int | None, axis: str, task: str) -> str:
-    """The ADS-33 level as printed: with its boundaries' status (UNVERIFIED ones say so)."""
-    if not lvl:
-        return "not determined"
-    status = boundary_status(axis, task)
-    return f"{lvl} ({status})" if status else str(lvl)
+    def _level(self, lvl: int | None, axis: str) -> str:
+        """The ADS-33 level as printed: with its boundaries' status (UNVERIFIED or the user's source)."""
+        if not lvl:
+            return "not determined"
+        status = self.boundaries.status(axis, self.task)
+        return f"{lvl} ({status})" if status else str(lvl)
 
 
 def _f(x: float, digits: int = 3, unit: str = "") -> str:
@@ -164,12 +168,24 @@ def _attitude(omega, H, coherence, outputs, inputs, axis, u):
 
 
 def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: str = "tracking",
-                       pitch: str | None = None, roll: str | None = None, category: str = "A") -> HQReport:
-    """The report from responses ``H`` (nf, ny, nu) at ``omega`` (rad/s), ``coherence`` (nf, ny, nu) or None."""
+                       pitch: str | None = None, roll: str | None = None, category: str = "A",
+                       n_alpha: float | None = None, boundaries: Boundaries | str | Path | None = None) -> HQReport:
+    """The report from responses ``H`` (nf, ny, nu) at ``omega`` (rad/s), ``coherence`` (nf, ny, nu) or None;
+    ``n_alpha`` (g/rad): normal load factor per angle of attack, for the short period's CAP (none: the
+    short-period frequency is not graded); ``boundaries``: the ADS-33 boundaries graded against, or a
+    JSON file of them (:func:`.handling.load_boundaries`); None: the built-in (UNVERIFIED) corners."""
     if task not in TASK_NAMES:
         raise EstimationError(f"task must be one of {', '.join(TASK_NAMES)}, got '{task}'")
-    report = HQReport(source, task)
-    for axis, u in axis_inputs(list(inputs), pitch, roll).items():
+    try:
+        if isinstance(boundaries, (str, Path)):
+            boundaries = load_boundaries(boundaries)
+        report = HQReport(source, task, boundaries=boundaries or BUILTIN_BOUNDARIES)
+        chosen = axis_inputs(list(inputs), pitch, roll)
+        for axis in chosen:
+            report.boundaries.pair(axis, task)  # a user file lacking the chart needed: said before any work
+    except ValueError as exc:
+        raise EstimationError(str(exc)) from None
+    for axis, u in chosen.items():
         h, coh, how = _attitude(omega, H, coherence, list(outputs), list(inputs), axis, u)
         ax = AxisHQ(axis, u, how, bandwidth(omega, h, coh))
         if axis == "pitch" and AXES["pitch"][1] in outputs:
@@ -177,7 +193,7 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
             try:
                 fit = fit_transfer_function(omega, H[:, j, i], None if coherence is None else coherence[:, j, i],
                                             n_num=1, n_den=2, omega_range=LOES_RANGE)
-                ax.loes = short_period(fit, category)
+                ax.loes = short_period(fit, category, n_alpha)
                 if fit.J > 100:
                     ax.loes_note = (f"LOES J {fit.J:.0f} > 100: the pitch-rate response is not short-period-like "
                                     "here (hover; or a mode inside the band the form lacks); its omega, zeta "
@@ -188,7 +204,8 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
     return report
 
 
-def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str = "A") -> HQReport:
+def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str = "A",
+                n_alpha: float | None = None, boundaries=None) -> HQReport:
     """The report from a model's exact responses (0.05-50 rad/s, 400 points; declared delays included)."""
     from .response import model_response
 
@@ -196,13 +213,14 @@ def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=Non
     omega = np.geomspace(0.05, 50, 400)
     H = model_response(model, omega)
     return handling_qualities(omega, H, None, p.input_names, list(p.outputs), f"model '{p.name}'", task, pitch,
-                              roll, category)
+                              roll, category, n_alpha, boundaries)
 
 
-def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str = "A") -> HQReport:
+def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str = "A",
+                   n_alpha: float | None = None, boundaries=None) -> HQReport:
     """The report from a composite frequency response of runs (coherent points only)."""
     src = f"{len(fr.runs)} run(s): {', '.join(Path(r).name for r in fr.runs[:4])}{' ...' if len(fr.runs) > 4 else ''}"
     coh = np.where(fr.resolved, fr.coherence, 0.0)
-    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category)
+    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category, n_alpha, boundaries)
     report.notes.append(fr.resolution_line())
     return report

@@ -21,8 +21,9 @@ roughly the square root of the points per resolution cell.
 
 :func:`short_period` reads a second-order denominator as the short-period mode (omega_sp, zeta_sp)
 with the equivalent delay tau_e, and :func:`mil1797_short_period_level` grades them by
-MIL-STD-1797A (damping ratio and equivalent delay; the frequency requirement needs n/alpha and is
-not graded here).
+MIL-STD-1797A: damping ratio and equivalent delay, and, given n/alpha (g/rad), the control
+anticipation parameter CAP = omega_sp^2 / (n/alpha) and (category A) the omega_sp minimum; the
+sources of each limit are in the notes above :data:`MIL1797_ZETA`.
 """
 from __future__ import annotations
 
@@ -223,22 +224,49 @@ def _bounds(jac: np.ndarray, J: float, n_res: int, n_par: int) -> tuple[np.ndarr
 
 
 # -- short-period LOES and MIL-STD-1797A ---------------------------------------------------------
-# flight-phase category -> Level -> (zeta_min, zeta_max); equivalent delay limit per Level (s).
-# Checked: the category A row and the delay limits equal the one table of Morelli's SIDPAC
-# milstd.m ("data in MIL-STD 1797A", pitch rate LOES: zeta 0.35-1.30 / 0.25-2.00 / >= 0.15,
-# tau_e 0.10 / 0.20 / 0.25 s; it names no category and caps Level 3's zeta at 10 for its plot). The B
-# and C rows are from memory of MIL-STD-1797A and UNVERIFIED (MIL1797_UNVERIFIED): said with the level.
+# Limits of MIL-STD-1797A's short-period requirements (Appendix A, para. 4.2.1.2), read from two
+# public MATLAB encodings (facts only, no code taken):
+#   [SIDPAC]  E. A. Morelli's SIDPAC milstd.m ("data in MIL-STD 1797A", pitch-rate LOES; names no
+#             category): zeta 0.35-1.30 / 0.25-2.00 / >= 0.15, omega_sp >= 1.0 / 0.6 rad/s,
+#             tau_e 0.10 / 0.20 / 0.25 s (its Level 3 zeta cap of 10 is a plot limit).
+#   [Regan]   C. Regan's CapCrit.m and ShortPeriodCrit.m (2006, citing MIL-STD-1797A Appendix A
+#             para. 4.2.1.2 Section A; the author's own comment: "TODO: Check these values"): damping x
+#             CAP boxes per category A / B / C (below), no Level 3 CAP limit, and (category A only)
+#             omega_sp >= 1.0 / 0.6 rad/s.
+# Which row is checked against which source: MIL1797_SOURCES, the one place. Disagreement: category
+# B's Level 3 damping minimum is 0.10 in [Regan] but 0.15 in MIL-F-8785C's table as remembered (0.15
+# for every category); 0.15, the stricter, is kept and a level that depends on it says why.
+# flight-phase category -> Level -> (zeta_min, zeta_max)
 MIL1797_ZETA = {"A": ((0.35, 1.30), (0.25, 2.00), (0.15, np.inf)),
                 "B": ((0.30, 2.00), (0.20, 2.00), (0.15, np.inf)),
                 "C": ((0.35, 1.30), (0.25, 2.00), (0.15, np.inf))}
-MIL1797_TAU = (0.10, 0.20, 0.25)
-MIL1797_UNVERIFIED = frozenset({"B", "C"})
+# flight-phase category -> (Level 1 (CAP_min, CAP_max), Level 2 (...)), CAP = omega_sp^2 / (n/alpha) in
+# 1/(g s^2); outside Level 2: Level 3 (no Level 3 CAP limit in the sources)
+MIL1797_CAP = {"A": ((0.28, 3.6), (0.16, 10.0)),
+               "B": ((0.085, 3.6), (0.038, 10.0)),
+               "C": ((0.16, 3.6), (0.05, 10.0))}
+# flight-phase category -> omega_sp minimum (rad/s) for Level 1, Level 2; only where a source gives it
+MIL1797_OMEGA_MIN = {"A": (1.0, 0.6)}
+MIL1797_TAU = (0.10, 0.20, 0.25)  # equivalent delay limit per Level (s)
+MIL1797_SOURCES = {
+    "zeta A": "SIDPAC, Regan",
+    "zeta B Levels 1-2": "Regan (agrees with the earlier from-memory row)",
+    "zeta B Level 3": "UNVERIFIED: 0.10 in Regan, 0.15 in MIL-F-8785C from memory; 0.15 kept",
+    "zeta C": "Regan (agrees with the earlier from-memory row)",
+    "CAP A, B, C": "Regan (CapCrit; category A's CAP lines also ShortPeriodCrit's omega vs n/alpha corners)",
+    "omega_sp minimum A": "SIDPAC, Regan",
+    "tau_e": "SIDPAC",
+}
+# (category, Level) damping limits the sources disagree on: (the lower value, the kept value, why)
+MIL1797_UNVERIFIED = {("B", 3): (0.10, 0.15, "the sources disagree: 0.10 in Regan's MIL-STD-1797A encoding, "
+                                             "0.15 in MIL-F-8785C from memory")}
 
 
 @dataclass
 class ShortPeriod:
     """Short-period LOES figures: ``omega`` rad/s, ``zeta``, ``tau_e`` s with standard errors,
-    the MIL-STD-1797A level (damping and delay; None if not determined) and the fit."""
+    the MIL-STD-1797A level (damping, delay and, with ``n_alpha`` g/rad, CAP and the frequency
+    minimum; None if not determined) and the fit."""
 
     omega: float
     zeta: float
@@ -247,21 +275,30 @@ class ShortPeriod:
     level: int | None
     level_reasons: list[str]
     fit: TransferFunctionFit
+    n_alpha: float | None = None
+
+    @property
+    def cap(self) -> float:
+        """Control anticipation parameter omega_sp^2 / (n/alpha), 1/(g s^2); NaN without n/alpha."""
+        return float(self.omega ** 2 / self.n_alpha) if self.n_alpha is not None else float("nan")
 
     def lines(self) -> list[str]:
         s = self.std
         if not np.isfinite(self.omega):
             return [f"short period: not determined (the LOES denominator s^2 + {self.fit.den[1]:.4g} s + "
                     f"{self.fit.den[2]:.4g} has no stable pair; LOES J {self.fit.J:.1f})"]
+        cap_text = "" if self.n_alpha is None else \
+            f", CAP {self.cap:.4g} ± {2 * s['omega'] / self.omega * self.cap:.2g} 1/(g s^2) at n/alpha {self.n_alpha:g} g/rad"
         return [f"short period: omega_sp {self.omega:.4g} ± {s['omega']:.2g} rad/s, zeta_sp {self.zeta:.4g} ± "
-                f"{s['zeta']:.2g}, tau_e {self.tau_e:.4g} ± {s['tau_e']:.2g} s (LOES J {self.fit.J:.1f})",
+                f"{s['zeta']:.2g}, tau_e {self.tau_e:.4g} ± {s['tau_e']:.2g} s{cap_text} (LOES J {self.fit.J:.1f})",
                 f"MIL-STD-1797A level: {self.level if self.level else 'not determined'} "
-                f"({'; '.join(self.level_reasons)}; omega_sp needs n/alpha: not graded)"]
+                f"({'; '.join(self.level_reasons)})"]
 
 
-def short_period(fit: TransferFunctionFit, category: str = "A") -> ShortPeriod:
+def short_period(fit: TransferFunctionFit, category: str = "A", n_alpha: float | None = None) -> ShortPeriod:
     """The short-period mode of a LOES fit with a second-order denominator (``s^2 + a1 s + a0``):
-    omega = sqrt(a0), zeta = a1 / (2 omega), their standard errors by first-order propagation."""
+    omega = sqrt(a0), zeta = a1 / (2 omega), their standard errors by first-order propagation;
+    ``n_alpha`` (g/rad, optional): the normal load factor per angle of attack, for CAP."""
     if len(fit.den) != 3:
         raise ValueError("short period: the LOES denominator must be of second order")
     a1, a0 = fit.den[1], fit.den[2]
@@ -273,23 +310,59 @@ def short_period(fit: TransferFunctionFit, category: str = "A") -> ShortPeriod:
            "zeta": float(np.hypot(s1 / (2 * omega), a1 * s0 / (4 * omega ** 3)))
            if np.isfinite(omega) else float("nan"),
            "tau_e": float(fit.std[fit.names.index("tau")]) if "tau" in fit.names else float("nan")}
-    level, reasons = mil1797_short_period_level(zeta, fit.tau if "tau" in fit.names else float("nan"), category)
-    return ShortPeriod(omega, zeta, fit.tau, std, level, reasons, fit)
+    level, reasons = mil1797_short_period_level(zeta, fit.tau if "tau" in fit.names else float("nan"), category,
+                                                omega, n_alpha)
+    return ShortPeriod(omega, zeta, fit.tau, std, level, reasons, fit, n_alpha)
 
 
-def mil1797_short_period_level(zeta: float, tau_e: float, category: str = "A") -> tuple[int | None, list[str]]:
-    """MIL-STD-1797A level of the short period's damping ratio and equivalent delay (the worse of
-    the two) and the reasons; None when a figure is not determined."""
+def mil1797_short_period_level(zeta: float, tau_e: float, category: str = "A", omega: float = float("nan"),
+                               n_alpha: float | None = None) -> tuple[int | None, list[str]]:
+    """MIL-STD-1797A level of the short period: the worst of its damping ratio, equivalent delay and,
+    with ``n_alpha`` (g/rad), CAP = omega^2 / (n/alpha) and (category A) the omega minimum; each
+    criterion's level in the reasons. None when a graded figure is not determined."""
     if category not in MIL1797_ZETA:
         raise ValueError(f"flight-phase category must be one of {', '.join(MIL1797_ZETA)}, got '{category}'")
-    if not (np.isfinite(zeta) and np.isfinite(tau_e)):
-        return None, ["zeta or tau_e not determined"]
-    lz = next((k for k, (a, b) in enumerate(MIL1797_ZETA[category], start=1) if a <= zeta <= b), 4)
-    lt = next((k for k, t in enumerate(MIL1797_TAU, start=1) if tau_e <= t), 4)
-    unverified = ", UNVERIFIED damping limits" if category in MIL1797_UNVERIFIED else ""
-    reasons = [f"zeta_sp {zeta:.3g}: Level {lz if lz < 4 else 'worse than 3'} (category {category}{unverified})",
-               f"tau_e {tau_e:.3g} s: Level {lt if lt < 4 else 'worse than 3'}"]
-    return min(max(lz, lt), 3) if max(lz, lt) < 4 else 3, reasons
+    if n_alpha is not None and not (np.isfinite(n_alpha) and n_alpha > 0):
+        raise ValueError(f"n/alpha must be a positive number of g/rad, got {n_alpha}")
+    if not (np.isfinite(zeta) and np.isfinite(tau_e)) or (n_alpha is not None and not np.isfinite(omega)):
+        return None, ["zeta, tau_e" + (" or omega" if n_alpha is not None else "") + " not determined"]
+    lz = _level_in(zeta, MIL1797_ZETA[category], 4)
+    levels = [lz, next((k for k, t in enumerate(MIL1797_TAU, start=1) if tau_e <= t), 4)]
+    reasons = [f"zeta_sp {zeta:.3g}: {_name(lz)} (category {category}){_disputed(zeta, category)}",
+               f"tau_e {tau_e:.3g} s: {_name(levels[1])}"]
+    if n_alpha is None:
+        reasons.append("omega_sp not graded (needs n/alpha)")
+    else:
+        c = omega ** 2 / n_alpha
+        levels.append(_level_in(c, MIL1797_CAP[category], 3))
+        reasons.append(f"CAP {c:.3g} 1/(g s^2) (omega_sp {omega:.3g} rad/s, n/alpha {n_alpha:g} g/rad): "
+                       f"{_name(levels[-1])}" + (" (outside Level 2)" if levels[-1] == 3 else ""))
+        if category in MIL1797_OMEGA_MIN:
+            levels.append(next((k for k, w in enumerate(MIL1797_OMEGA_MIN[category], start=1) if omega >= w), 3))
+            reasons.append(f"omega_sp {omega:.3g} rad/s: {_name(levels[-1])} (minimum "
+                           f"{' / '.join(f'{w:g}' for w in MIL1797_OMEGA_MIN[category])} rad/s)")
+        else:
+            reasons.append(f"no omega_sp minimum graded for category {category} (none in the sources)")
+    return min(max(levels), 3), reasons
+
+
+def _level_in(x: float, ranges, worse: int) -> int:
+    """The first Level whose (min, max) range holds ``x``; ``worse`` if none."""
+    return next((k for k, (a, b) in enumerate(ranges, start=1) if a <= x <= b), worse)
+
+
+def _name(level: int) -> str:
+    return f"Level {level}" if level < 4 else "worse than Level 3"
+
+
+def _disputed(zeta: float, category: str) -> str:
+    """Why a damping level is unsure: the (category, Level) limit the sources disagree on, when zeta
+    lies between their two values."""
+    for (cat, lvl), (low, kept, why) in MIL1797_UNVERIFIED.items():
+        if cat == category and min(low, kept) <= zeta < max(low, kept):
+            return (f"; UNVERIFIED: Level {lvl} or worse, the Level {lvl} damping minimum is {kept:g} here "
+                    f"but {why}")
+    return ""
 
 
 def plot_fit(omega: np.ndarray, H: np.ndarray, coherence: np.ndarray | None, fit: TransferFunctionFit,

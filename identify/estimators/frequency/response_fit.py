@@ -92,7 +92,7 @@ class FR(Estimator):
                                           min_coherence=self.min_coherence, prune=self.prune)
             fit, ratio, bias_line = self._debiased(fit, fr, data, runs, delays)
             standard_errors = "Cramér-Rao from the J fit (Gauss-Newton, residual variance; points taken as independent)"
-            gain = None
+            gain, bound = None, fit.std  # J's bound: points taken as independent
             if self.n_draws:
                 fit, standard_errors, gain = self._bootstrap(fit, fr, ratio, runs, delays)
         except ValueError as exc:
@@ -116,7 +116,7 @@ class FR(Estimator):
                 "delays_fitted": fit.tau, "delays_std": fit.tau_std, "resolution": resolution,
                 "windows_s": list(map(float, fr.windows)), "unmoved_inputs": fr.unmoved,
                 "standard_errors": standard_errors, "n_draws": self.n_draws, "bias_passes": self.bias_passes,
-                "ratio_gain": gain,
+                "ratio_gain": gain, "criterion": criterion(fit, bound if self.n_draws else None, delays),
                 "report_lines": lines, "initial_states": [pr.x0.tolist() for pr in predictions],
                 "zero_shifts": [pr.zero_shifts.tolist() for pr in predictions], "notes": unit_notes}
         result = IdentificationResult(
@@ -229,3 +229,24 @@ class FR(Estimator):
         except (ValueError, EstimationError, np.linalg.LinAlgError):
             return None
         return gain if np.all(np.isfinite(gain)) else None
+
+
+def criterion(fit, bound: np.ndarray | None, delays) -> dict:
+    """What the fit minimised, for nested comparisons
+    (:meth:`~identify.estimators.result.IdentificationResult.compare_lr_test`): J's sum of squares,
+    its residual variance per point, and per parameter the factor by which the standard error's
+    variance exceeds J's bound ``bound`` (the bootstrap's over the bound that takes the points as
+    independent: neighbouring points of a composite response are correlated and J's coherence
+    weights are not their inverse variances; median 24 for X_q on the pitch case). Without a
+    bootstrap (``bound`` None, ``n_draws=0``) the factor is unknown (NaN) and so is a likelihood
+    ratio: J's drop over its dispersion alone, the points taken as independent, averaged 14-22 for
+    a null effect (benchmarks/refine_fr.py)."""
+    n_points = 2 * sum(fit.n_points.values())  # magnitude and phase of each point
+    dispersion = fit.J_mean / max(n_points - len(fit.theta) - len(delays), 1)
+    inflation = np.full(len(fit.theta), np.nan)
+    if bound is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inflation = (np.asarray(fit.std) / np.asarray(bound)) ** 2
+    return {"kind": "frequency-response J", "cost": float(fit.J_mean), "points": n_points,
+            "dispersion": float(dispersion), "inflation": dict(zip(fit.names, map(float, inflation)))}
+

@@ -42,3 +42,64 @@ def test_bootstrap_is_scaled_for_the_correction_ratio():
     assert "linearised fixed point" in r.info["standard_errors"] and np.all(np.isfinite(r.std))
     true = truth.parameters()
     assert all(abs(v - true[n]) < 4 * s for n, v, s in zip(r.names, r.theta, r.std))  # the bounds cover the error
+
+
+def test_refine_fr_finds_an_undeclared_derivative_by_its_own_likelihood_ratio():
+    """Pitch case, truth with X_eta = 1 the declared model lacks. FR's gates hold X_u, yet the X equation
+    stays in the catalogue (held, X_eta was never tried), and the nested ratio is FR's own (J's)."""
+    from identify import parse_profile
+    from tests.identify.refine.test_refine import PROFILE, TOML, make_runs
+
+    fit, val = make_runs(parse_profile(TOML.replace("M_eta = 5.0", "M_eta = 5.0\nX_eta = 1.0")))
+    r = Refine(PROFILE, estimator=FR(PROFILE, n_draws=12), kinds=("derivative",), max_steps=1).fit(fit, validate=val)
+    assert "X_u" in r.undeterminable_
+    assert [s.target for s in r.steps_] == ["X_eta"], [s.to_dict() for s in r.rejected_]
+    step = r.steps_[0]
+    assert step.lr_criterion == "frequency-response J" and step.lr_statistic > step.threshold
+    est = step.parameters["X_eta"]
+    assert abs(est["value"] - 1.0) < 3 * est["std"], est
+
+
+def test_fr_nested_ratio_is_near_chi_square_for_a_spurious_entry():
+    """On data without the effect FR's ratio for an added X_q is about chi-square(1) (mean 1); J's drop over
+    its dispersion alone, the composite's correlated points taken as independent, is many times that."""
+    from identify.refine.candidates import Derivative
+    from tests.identify.refine.test_refine import PROFILE, make_runs
+
+    own, independent = [], []
+    for seed in range(5):
+        fit, _ = make_runs(seeds=(100 + 3 * seed, 101 + 3 * seed, 102 + 3 * seed))
+        null = FR(PROFILE, n_draws=12).fit(fit).result_
+        alt = FR(Derivative("X_q").profile(PROFILE), n_draws=12).fit(fit).result_
+        lr, df = alt.compare_lr_test(null)
+        assert df == 1
+        own.append(lr)
+        independent.append((null.info["criterion"]["cost"] - alt.info["criterion"]["cost"])
+                           / alt.info["criterion"]["dispersion"])
+    assert np.mean(own) < 3.0, own  # chi-square(1) mean 1; five draws' mean stays below 3 in 98 % of cases
+    assert np.mean(independent) > 4 * np.mean(own), (independent, own)
+
+
+def test_compare_lr_test_only_where_the_estimator_states_its_criterion():
+    """The statistic is the criterion's drop over its dispersion and the added parameter's inflation; ML's
+    result states no criterion (refine keeps the time-domain metric: None); without a bootstrap FR's
+    inflation is unknown (NaN, which refine refuses as undetermined, never a ratio of independent points)."""
+    from identify.estimators.result import IdentificationResult
+    from identify.model.subset import fix
+
+    full = load_profile("s61_hover_4dof")
+    small = fix(full, ["L_p"])
+
+    def fr(profile, cost, inflation):
+        crit = {"kind": "frequency-response J", "cost": cost, "dispersion": 0.01, "inflation": inflation}
+        n = len(profile.free)
+        return IdentificationResult("fr", profile, np.zeros(n), np.ones(n), info={"criterion": crit})
+
+    assert fr(full, 10.0, {"L_p": 4.0}).compare_lr_test(fr(small, 12.0, {})) == (50.0, 1)
+    lr, df = fr(full, 10.0, {"L_p": float("nan")}).compare_lr_test(fr(small, 12.0, {}))
+    assert np.isnan(lr) and df == 1
+    ml = IdentificationResult("ml", full, np.zeros(20), np.ones(20))
+    assert ml.compare_lr_test(IdentificationResult("ml", small, np.zeros(19), np.ones(19))) is None
+    from identify.refine.loop import _failed_refit
+
+    assert "likelihood ratio is not determined" in _failed_refit(fr(full, 10.0, {}), lr, 1e4, 10.0, own=True)
