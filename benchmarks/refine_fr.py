@@ -13,7 +13,7 @@ FR's nested likelihood ratios are its own (J's drop over its dispersion, scaled 
 inflation of J's bound, :meth:`IdentificationResult.compare_lr_test`). Prints per realisation and
 totals, the machine load and the wall time.
 
-    .venv/bin/python benchmarks/refine_fr.py [n_realisations]
+    .venv/bin/python benchmarks/refine_fr.py [realisations]   # --help: options
 """
 import os
 import sys
@@ -27,6 +27,7 @@ from identify.estimators.frequency.response_fit import FR  # noqa: E402
 from identify.refine import Refine  # noqa: E402
 from identify.refine.candidates import Derivative  # noqa: E402
 from tests.identify.refine.test_refine import PROFILE, TOML, make_runs  # noqa: E402
+from _cli import counted  # noqa: E402
 
 EFFECTS = {"null": None, "X_eta": 1.0, "X_q": 1.0, "M_u": 0.2}
 
@@ -91,5 +92,9 @@ def calibration(n: int) -> None:
               f"above 3.84 in {np.mean(independent > 3.84):.0%}", flush=True)
 
 
+def parser():
+    return counted(__doc__, "realisations", 20, "noise realisations per effect and estimator (and for the calibration)")
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 20)
+    main(parser().parse_args().realisations)
