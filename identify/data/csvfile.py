@@ -45,12 +45,35 @@ def csv_runs(path, channel_map=None, profile=None, options=None):
     path = Path(path)
     try:
         data = path.read_bytes()
-        text = data.decode("utf-8-sig")
     except OSError as exc:
         raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise RunError(f"{path}: not a text (CSV) file") from None
-    return _parse(text, str(path), channel_map, profile, options)
+    text, note = decode(data, str(path))
+    return _parse(text, str(path), channel_map, profile, options, [note] if note else [])
+
+
+def decode(data: bytes, source: str) -> tuple[str, str | None]:
+    """A text file's bytes as text, and a note when not UTF-8: UTF-16 with its byte-order mark (a
+    spreadsheet's "Unicode text"), else Windows-1252 (an older logger's "°"); bytes that are no
+    text (NUL bytes, or undecodable) are refused."""
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        try:
+            text = data.decode("utf-16")
+        except UnicodeDecodeError:
+            text = ""
+        if sum(c < "\x80" for c in text) < 0.9 * len(text) or not text:  # numbers and names are ASCII
+            raise RunError(f"{source}: not a text (CSV) file (a UTF-16 mark, then no UTF-16 text)")
+        return text, "text encoding UTF-16 (byte-order mark)"
+    try:
+        return data.decode("utf-8-sig"), None
+    except UnicodeDecodeError as exc:
+        if b"\0" in data:
+            raise RunError(f"{source}: not a text (CSV) file (binary bytes)") from None
+        try:
+            text = data.decode("cp1252")
+        except UnicodeDecodeError:
+            raise RunError(f"{source}: not a text (CSV) file (byte {exc.start}: neither UTF-8 nor "
+                           "Windows-1252)") from None
+        return text, f"not UTF-8 (byte {exc.start}): read as Windows-1252 text"
 
 
 def read_runs(paths, require: list[str] | None = None, *, channel_map: dict | None = None,
@@ -67,8 +90,9 @@ def parse_run(text: str, source: str = "<run>") -> Run:
     return _parse(text, source, None, None).one("read_runs")
 
 
-def _parse(text: str, source: str, channel_map, profile, options=None):
+def _parse(text: str, source: str, channel_map, profile, options=None, notes=()):
     raw = csv_raw(text, source, channel_map)
+    raw.notes[:0] = notes
     return build_runs(raw, csv_channels(raw, channel_map), profile, options)
 
 
@@ -101,11 +125,18 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         break
     if header is None:
         raise RunError(f"{source}: no header row of channel names")
-    delim = next((d for d in (",", "\t", ";") if d in header), None)  # None: blanks (units in brackets kept)
-    cells = next(csv.reader([header], delimiter=delim)) if delim else _BLANKS.split(header.strip())
-    trailing = len(cells) > 1 and not cells[-1].strip()  # "time,q," as spreadsheets write it
+    notes = []
+    first = next((l for l in lines[header_line:] if l.strip() and not l.startswith("#")), "")
+    delim = _delimiter(header, first)
+    comma = delim != "," and _DECIMAL_COMMA.search(first) is not None
+    if comma:  # "0,04;1,25": a decimal comma, as European spreadsheets write numbers
+        lines = lines[:header_line] + [l.replace(",", ".") for l in lines[header_line:]]
+        header = header.replace(",", ".") if _is_number(header.split(delim)[0].replace(",", ".")) else header
+        notes.append(f"numbers read with a decimal comma (line {header_line + 1}: {first.strip()[:40]!r})")
+    cells = _cells(header, delim) if delim else _BLANKS.split(header.strip())
+    trailing = _trailing_empty(cells)  # "time,q,," as spreadsheets write it
     declared = cmap.get("columns")
-    numeric = all(_is_number(c) for c in (cells[:-1] if trailing else cells))
+    numeric = all(_is_number(c) for c in cells[:len(cells) - trailing])
     if declared is None and numeric:
         raise RunError(f"{source}: line {header_line}: the file has no header (the first row is numbers: "
                        f"{', '.join(c.strip() for c in cells[:6])}{' ...' if len(cells) > 6 else ''}); name its "
@@ -117,9 +148,13 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         if len(declared) != len(cells) - trailing:
             raise RunError(f"{source}: the channel map's \"columns\" names {len(declared)} columns, line "
                            f"{header_line} has {len(cells) - trailing}")
-        cells, header_line = [str(c) for c in declared] + ([""] if trailing else []), header_line - 1
+        cells, header_line = [str(c) for c in declared] + [""] * trailing, header_line - 1
         meta["header"] = "none in the file: columns named by the channel map"
-    names, units = _header(cells[:-1] if trailing else cells, source, header_line)
+    if trailing:
+        notes.append(f"{trailing} empty column(s) at the end of every line left out")
+    names, units = _header(cells[:len(cells) - trailing], source, header_line)
+    if declared is None:
+        header_line = _units_row(lines, header_line, names, delim, trailing, units, source, notes)
     _merge_units(units, U.parse_units_spec(meta["units"], f"{source}: metadata 'units'") if "units" in meta else {},
                  source)
     _merge_units(units, cmap.get("units", {}), source)
@@ -133,7 +168,8 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
     if time_name not in names and dt is None:
         raise RunError(f"{source}: no '{TIME}' column (columns: {', '.join(names)}) and no sample interval: "
                        f"name the time column (\"time\") or give \"dt\" in the channel map")
-    values, line_of = _csv_values(lines, header_line, names, delim, trailing, source)
+    values, line_of = _csv_values(lines, header_line, names, delim, trailing, source, notes,
+                                  text.endswith(("\n", "\r")))
 
     def column(where, channel):
         if isinstance(where, int) and not isinstance(where, bool):
@@ -156,7 +192,51 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         t = np.arange(len(values)) * float(dt)
         time_name = TIME
         meta["time_from"] = f"dt = {float(dt):g} s from the channel map (the file has no time column)"
-    return Raw(source, t, column, names, units, meta, lambda i: f"line {line_of[i]}", time_name, "csv", specs)
+    return Raw(source, t, column, names, units, meta, lambda i: f"line {line_of[i]}", time_name, "csv", specs,
+               notes)
+
+
+_DECIMAL_COMMA = re.compile(r"(?:^|[;\t\s])[-+]?\d*,\d+(?:[eE][-+]?\d+)?(?=$|[;\t\s])")
+
+
+def _delimiter(header: str, first: str) -> str | None:
+    """The delimiter that splits the header and the first data line into as many cells (more than
+    one): a comma, tab or semicolon, tried in that order; else a comma, tab or semicolon in the
+    header as before; None: blanks."""
+    for d in (",", "\t", ";"):
+        n = len(_cells(header, d))
+        if n > 1 and n == len(_cells(first, d)):
+            return d
+    return next((d for d in (",", "\t", ";") if d in header), None)
+
+
+def _trailing_empty(cells: list[str]) -> int:
+    """How many empty cells end the header (never all of them)."""
+    k = 0
+    while k < len(cells) - 1 and not cells[len(cells) - 1 - k].strip():
+        k += 1
+    return k
+
+
+def _units_row(lines, header_line, names, delim, trailing, units, source, notes) -> int:
+    """A row of units under the header (``s, deg/s, g``: no number, at least one unit) is read as
+    the columns' units; the header line number to read data after (moved past it)."""
+    for lineno, line in enumerate(lines[header_line:], start=header_line + 1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        cells = [c.strip().strip("[]()") for c in _cells(line, delim)][:len(names)]
+        if any(_is_number(c) for c in cells) or not any(c and U.canonical(c) for c in cells):
+            return header_line
+        if len(cells) != len(names):
+            raise RunError(f"{source}: line {lineno}: a row of units? {len(cells)} cells for {len(names)} columns")
+        row = {n: c for n, c in zip(names, cells) if c}
+        for name, unit in row.items():
+            U.unit_info(unit, f"{source}: line {lineno} (units under the header), column '{name}'")
+        _merge_units(units, row, source)
+        notes.append(f"line {lineno} under the header read as the columns' units ({', '.join(cells[:6])}"
+                     f"{' ...' if len(cells) > 6 else ''})")
+        return lineno
+    return header_line
 
 
 def _is_number(cell: str) -> bool:
@@ -199,17 +279,24 @@ def _merge_units(units: dict, more: dict, source: str) -> None:
         units[name] = unit
 
 
-def _csv_values(lines, header_line, names, delim, trailing, source):
-    """The data rows as an (N, columns) array; an empty cell is a missing value (NaN)."""
+def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_with_break=True):
+    """The data rows as an (N, columns) array; an empty cell is a missing value (NaN). A last line
+    with too few values in a file that does not end with a line break (a write cut short) is
+    left out, said in ``notes``."""
     rows = [(n, l) for n, l in enumerate(lines[header_line:], start=header_line + 1)
             if l.strip() and not l.startswith("#")]
+    if rows and not ends_with_break and len(_cells(rows[-1][1], delim)) < len(names):
+        lineno, line = rows.pop()
+        notes.append(f"line {lineno}, the last, is cut short ({len(_cells(line, delim))} values for {len(names)} "
+                     "columns, no line break at the end of the file: a write cut short): left out")
     if len(rows) < 2:
         raise RunError(f"{source}: fewer than two data rows")
     values = np.empty((len(rows), len(names)))
     for r, (lineno, line) in enumerate(rows):
         cells = _cells(line, delim)
-        if trailing and len(cells) == len(names) + 1 and not cells[-1].strip():
-            cells.pop()
+        extra = len(cells) - len(names)
+        if 0 < extra <= trailing and not any(c.strip() for c in cells[len(names):]):
+            del cells[len(names):]
         if len(cells) != len(names):
             raise RunError(f"{source}: line {lineno}: {len(cells)} values for {len(names)} columns")
         try:

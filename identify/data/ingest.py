@@ -44,8 +44,9 @@ JITTER_MAX = 0.05
 NAN_POLICIES = ("refuse", "drop", "interpolate")
 # (rate, angle) pairs whose kinematics agree in consistent units: d angle/dt ~ rate at small angles
 KINEMATIC_PAIRS = (("q", "theta"), ("p", "phi"), ("r", "psi"))
-KINEMATIC_R2 = 0.9  # the integral of the rate must explain this share of the angle's variance
+KINEMATIC_SS_RATIO = 0.5  # the degree factor must leave at most this share of the residual the factor 1 leaves
 DEGREE_FACTOR_BAND = 1.5  # a ratio within 57.3 / 1.5 .. 57.3 x 1.5 is the degree factor
+SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft dynamics
 _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
                   "speed": "acceleration"}
 
@@ -70,6 +71,7 @@ class Raw:
     time_name: str = TIME
     file_format: str = "csv"  # or "mat": where a unit is declared (hints name the right place)
     specs: dict | None = None  # the channel map's channels, column numbers made 0-based
+    notes: list[str] = field(default_factory=list)  # what the reader guessed or repaired, said and recorded
 
 
 def is_index(v) -> bool:
@@ -131,7 +133,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
     """Runs from ``raw``: ``channels`` maps each run channel to its source (a column name or index,
     or an expression string). One run, or several when time gaps (or dropped samples) split the file."""
     options = options or ReadOptions()
-    notes, warnings = [], []
+    notes, warnings = [f"{raw.source}: {n}" for n in raw.notes], []
     t = _si_time(raw)
     values, described = {}, {}
     resolver = _Resolver(raw, channels)
@@ -150,6 +152,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
     if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
         raw = replace(raw, row=lambda i, rows=rows, row=raw.row: row(int(rows[i])))
     warnings += _unit_checks(raw, t, values, described, profile)
+    warnings += _plausibility(raw, t, values, used)
     segments = _split_gaps(t, raw, meta, notes)
     runs = []
     for k, (lo, hi) in enumerate(segments):
@@ -483,6 +486,23 @@ def _unit_checks(raw: Raw, t: np.ndarray, values: dict, described: dict, profile
     return out
 
 
+def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set) -> list[str]:
+    """Warnings for what reads without error but cannot be flight data as taken: a sample interval
+    over :data:`SLOW_STEP` (time in milliseconds read as seconds) and a used channel that never
+    changes (a dead sensor or an unconnected column: nothing can be identified from it)."""
+    out = []
+    step = float(np.median(np.diff(t)))
+    if step > SLOW_STEP:
+        out.append(f"{raw.source}: channel '{raw.time_name}': the time step is {step:.6g} s ({1 / step:.3g} Hz), "
+                   f"too slow for flight dynamics; if the time is in milliseconds declare its unit "
+                   f"({U.declare_hint(raw.time_name, 'ms', raw.file_format)})")
+    for name, v in values.items():
+        if name in used and v.size > 1 and np.all(v == v[0]):
+            out.append(f"{raw.source}: channel '{name}' is constant ({v[0]:.6g} in all {v.size} samples): "
+                       "a dead sensor or an unconnected column? Nothing is identified from it")
+    return out
+
+
 def _taken_as_radians(described: dict, name: str) -> bool:
     how, unit = described[name]
     return how == "undeclared" or U.canonical(unit) in ("rad", "rad/s")
@@ -491,28 +511,34 @@ def _taken_as_radians(described: dict, name: str) -> bool:
 def _kinematic_checks(raw: Raw, t: np.ndarray, values: dict, described: dict) -> list[str]:
     """Warnings for (rate, angle) pairs whose kinematics disagree by the degree factor: the angle's
     change regressed on the rate's integral (a rate bias and the start absorbed by a line in
-    time) gives a factor near 180/pi (the angle is in degrees) or pi/180 (the rate is)."""
+    time) gives a factor near 180/pi (the angle is in degrees) or pi/180 (the rate is).
+
+    A flag needs both: the free factor within the band around 57.3 (or 1/57.3), and the factor
+    57.3 (1/57.3) fitting the angle clearly better than 1 (residual sum of squares at most
+    :data:`KINEMATIC_SS_RATIO` of it). The comparison, unlike the share of variance explained,
+    holds when the attitude barely moves and its noise is of the size of its motion."""
     out = []
     for rate, angle in KINEMATIC_PAIRS:
         if rate not in values or angle not in values or len(t) < 10:
             continue
         x = np.concatenate([[0.0], np.cumsum(0.5 * (values[rate][1:] + values[rate][:-1]) * np.diff(t))])
         y = values[angle] - values[angle][0]
-        X = np.column_stack([x, t - t[0], np.ones_like(t)])
-        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-        # the share of the angle's motion (after the line) the rate's integral explains
         line = np.column_stack([t - t[0], np.ones_like(t)])
-        rest = y - line @ np.linalg.lstsq(line, y, rcond=None)[0]
-        explained = 1 - np.sum((y - X @ coef) ** 2) / max(np.sum(rest ** 2), 1e-300)
-        k = coef[0]
-        if not (explained >= KINEMATIC_R2 and k > 0):
-            continue
+
+        def rss(k):  # residual of the angle after k x the rate's integral and a line in time
+            r = y - k * x
+            return float(np.sum((r - line @ np.linalg.lstsq(line, r, rcond=None)[0]) ** 2))
+
+        X = np.column_stack([x, line])
+        k = float(np.linalg.lstsq(X, y, rcond=None)[0][0])
         factor = 180 / np.pi
         if factor / DEGREE_FACTOR_BAND < k < factor * DEGREE_FACTOR_BAND and _taken_as_radians(described, angle):
-            suspect, unit = angle, "deg"
+            suspect, unit, k_unit = angle, "deg", factor
         elif 1 / (factor * DEGREE_FACTOR_BAND) < k < DEGREE_FACTOR_BAND / factor and _taken_as_radians(described, rate):
-            suspect, unit = rate, "deg/s"
+            suspect, unit, k_unit = rate, "deg/s", 1 / factor
         else:
+            continue
+        if not rss(k_unit) <= KINEMATIC_SS_RATIO * rss(1.0):
             continue
         out.append(f"{raw.source}: channel '{suspect}' looks like {unit}: '{angle}' changes {k:.4g} times the "
                    f"integral of '{rate}' (1 in consistent units, 57.3 or 1/57.3 when one is in degrees); declare "

@@ -82,9 +82,10 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
                    options, source):
     channels = dict(channels) if channels is not None else None
     uses_columns = any(is_index(v) for v in (channels or {}).values()) or is_index(time)
-    data_name = [None]
+    data_name = [None, None]
     data = _matrix(variables, matrix.replace("{stem}", path.stem) if matrix else None, source, data_name) \
         if uses_columns or matrix else None
+    notes = [data_name[1]] if data_name[1] else []
     if data is not None:
         channels, time = zero_based(channels or {}, time, index_base, data.shape[1], source)
 
@@ -106,10 +107,10 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
 
     info = {"source_format": f"MATLAB .mat {version}", "channel_map": json.dumps(channels, separators=(",", ":"))}
     if data is not None:
-        info["matrix"] = data_name[0]
+        info["matrix"] = data_name[0] + (f" ({data_name[1]})" if data_name[1] else "")
     info.update(meta or {})
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
-              time_name=time_name, file_format="mat")
+              time_name=time_name, file_format="mat", notes=notes)
     return build_runs(raw, channels, profile, options)
 
 
@@ -232,7 +233,9 @@ def _is_vector(v) -> bool:
 
 def _matrix(variables: dict, name: str | None, source: str, found: list | None = None) -> np.ndarray:
     """The data matrix: ``name``, else the first of MATRIX_NAMES, else the file's only 2-D numeric
-    non-vector variable (its name in ``found[0]``)."""
+    non-vector variable (its name in ``found[0]``). One column per channel; a matrix of fewer rows
+    than columns holds its channels in rows (a record has more samples than channels) and is read
+    transposed, said in ``found[1]``."""
     names = [name] if name else [m for m in MATRIX_NAMES if m in variables]
     if not names:
         names = [k for k, v in variables.items() if np.asarray(v).ndim == 2 and np.asarray(v).dtype.kind in "fiu"
@@ -249,6 +252,11 @@ def _matrix(variables: dict, name: str | None, source: str, found: list | None =
     m = m[:, None] if m.ndim == 1 else m  # one column, squeezed on loading
     if m.dtype.kind not in "fiu" or m.ndim != 2:
         raise RunError(f"{source}: variable '{names[0]}' is not a numeric 2-D data matrix")
+    if m.shape[0] < m.shape[1]:
+        if found is not None:
+            found[1] = (f"data matrix '{names[0]}' is {m.shape[0]} x {m.shape[1]}: fewer rows than columns, read "
+                        f"as {m.shape[0]} channels in rows of {m.shape[1]} samples (transposed)")
+        m = m.T
     return m.astype(float)
 
 
