@@ -1,0 +1,125 @@
+"""Raw files as flight-test tools write them (the audit of docs/real_data.md's outcome table): each
+layout reads to the values the plain file gives, what was guessed or repaired said on stderr and
+recorded in the run's metadata, or the file is refused in one line naming the fix."""
+import numpy as np
+import pytest
+from scipy.io import savemat
+
+from identify import RunError
+from identify.data.io import read_file_runs, read_run_file
+from tests.identify.data.test_ingest import CHANNELS, PROFILE, truth_run  # noqa: F401
+
+DEG = np.pi / 180
+
+
+def _table(run, n=60):
+    """time, q in deg/s, theta in deg (the first n samples)."""
+    return run.time[:n], np.degrees(run["q"][:n]), np.degrees(run["theta"][:n])
+
+
+def _check(run, truth, n=60):
+    np.testing.assert_allclose(run["q"], truth["q"][:len(run)], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(run["theta"], truth["theta"][:len(run)], rtol=1e-6, atol=1e-9)
+
+
+def test_european_csv_semicolons_and_decimal_comma(truth_run, tmp_path, capsys):
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{a:.6f};{b:.9f};{c:.9f}".replace(".", ",") for a, b, c in zip(t, q, th))
+    (tmp_path / "eu.csv").write_text("Zeit [s];q [deg/s];theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "eu.csv", {"time": "Zeit", "channels": {"q": "q", "theta": "theta"}})
+    _check(run, truth_run)
+    assert "decimal comma" in run.meta["notes"] and "decimal comma" in capsys.readouterr().err
+
+
+def test_a_row_of_units_under_the_header(truth_run, tmp_path, capsys):
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{a:.6f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "u.csv").write_text("time,q,theta\ns,deg/s,deg\n" + rows + "\n")
+    run = read_run_file(tmp_path / "u.csv")
+    _check(run, truth_run)
+    assert "line 2 under the header read as the columns' units" in run.meta["notes"]
+    assert "q from deg/s" in run.meta["converted_to_si"]
+    (tmp_path / "bad.csv").write_text("time,q,theta\ns,deg/s,degs\n" + rows + "\n")
+    with pytest.raises(RunError, match=r"line 2 \(units under the header\), column 'theta': unknown unit 'degs'"):
+        read_run_file(tmp_path / "bad.csv")
+
+
+def test_several_empty_columns_at_the_end_of_every_line(truth_run, tmp_path):
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{a:.6f},{b:.9f},{c:.9f},," for a, b, c in zip(t, q, th))
+    (tmp_path / "e.csv").write_text("time,q [deg/s],theta [deg],,\n" + rows + "\n")
+    run = read_run_file(tmp_path / "e.csv")
+    _check(run, truth_run)
+    assert set(run.channels) == {"q", "theta"} and "2 empty column(s)" in run.meta["notes"]
+
+
+@pytest.mark.parametrize("encoding, delim, needle", [("utf-16", "\t", "UTF-16"), ("cp1252", ",", "Windows-1252")])
+def test_utf16_and_windows_1252_text(truth_run, tmp_path, encoding, delim, needle):
+    t, q, th = _table(truth_run)
+    rows = "\n".join(delim.join(f"{v:.9f}" for v in r) for r in zip(t, q, th))
+    text = delim.join(["time", "q [°/s]", "theta [°]"]) + "\r\n" + rows.replace("\n", "\r\n") + "\r\n"
+    (tmp_path / "x.csv").write_bytes(text.encode(encoding))
+    run = read_run_file(tmp_path / "x.csv")
+    _check(run, truth_run)
+    assert needle in run.meta["notes"]
+    (tmp_path / "bin.csv").write_bytes(b"time,q\n\x00\x81\x00")
+    with pytest.raises(RunError, match="not a text"):
+        read_run_file(tmp_path / "bin.csv")
+
+
+def test_a_last_line_cut_short_is_left_out_and_said_a_short_line_inside_refused(truth_run, tmp_path, capsys):
+    t, q, th = _table(truth_run)
+    lines = ["time,q [deg/s],theta [deg]"] + [f"{a:.6f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th)]
+    text = "\n".join(lines)
+    (tmp_path / "cut.csv").write_text(text[:text.rfind(",") - 2])  # the write stopped mid-line
+    run = read_run_file(tmp_path / "cut.csv")
+    assert len(run) == 59
+    _check(run, truth_run)
+    assert "line 61, the last, is cut short" in run.meta["notes"] and "cut short" in capsys.readouterr().err
+    (tmp_path / "short.csv").write_text("\n".join(lines[:30] + [lines[30].rsplit(",", 1)[0]] + lines[31:]) + "\n")
+    with pytest.raises(RunError, match="line 31: 2 values for 3 columns"):
+        read_run_file(tmp_path / "short.csv")
+
+
+def test_a_data_matrix_with_channels_in_rows_is_read_transposed_and_said(truth_run, tmp_path):
+    Z = np.column_stack([truth_run.time, truth_run["q"], truth_run["theta"]])
+    savemat(tmp_path / "rows.mat", {"rows": Z.T})  # 3 x N: one channel per row
+    run = read_run_file(tmp_path / "rows.mat", {"time": 0, "channels": {"q": 1, "theta": 2}})
+    _check(run, truth_run)
+    assert "3 channels in rows" in run.meta["notes"] and "transposed" in run.meta["matrix"]
+
+
+def test_time_in_milliseconds_undeclared_warns_with_the_fix(truth_run, tmp_path):
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{a * 1000:.3f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "ms.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "ms.csv")
+    assert "time step is 20 s" in run.meta["warnings"] and "a header 'time [ms]'" in run.meta["warnings"]
+    (tmp_path / "ms2.csv").write_text("time [ms],q [deg/s],theta [deg]\n" + rows + "\n")
+    assert "warnings" not in read_run_file(tmp_path / "ms2.csv").meta
+
+
+def test_a_constant_channel_the_profile_uses_warns(truth_run, tmp_path):
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{a:.6f},{b:.9f},2.5" for a, b in zip(t, q))
+    (tmp_path / "dead.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "dead.csv", profile=PROFILE)
+    assert "channel 'theta' is constant (0.0436332 in all 60 samples)" in run.meta["warnings"]
+
+
+@pytest.mark.parametrize("consistent", [False, True])
+def test_degrees_found_by_kinematics_when_the_attitude_barely_moves(truth_run, tmp_path, consistent):
+    """theta moves a twentieth of the truth run's motion, its noise half that motion's spread (the
+    share of variance the rate explains is then about 0.8): q in deg/s read as rad/s is still
+    found, and consistent units give no warning."""
+    rng = np.random.default_rng(7)
+    q = 0.05 * truth_run["q"]
+    theta = 0.05 * truth_run["theta"]
+    theta = theta + rng.normal(0, 0.5 * np.std(theta), theta.size)
+    cols = np.column_stack([truth_run.time, q if consistent else np.degrees(q), theta])
+    np.savetxt(tmp_path / "small.csv", cols, delimiter=",", fmt="%.12g", header="time,q,theta", comments="")
+    run = read_run_file(tmp_path / "small.csv", profile=PROFILE)
+    if consistent:
+        assert "warnings" not in run.meta
+    else:
+        assert "channel 'q' looks like deg/s" in run.meta["warnings"]
