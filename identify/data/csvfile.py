@@ -181,8 +181,10 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
             raise RunError(f"{source}: channel '{channel}': no column '{where}' (columns: {', '.join(names)})")
         return values[:, names.index(where)]
 
+    resolution = None
     if time_name in names:
         t = column(time_name, TIME)
+        resolution = _written_resolution(lines, line_of, names.index(time_name), delim)
         if dt is not None:
             step = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
             if not abs(step - float(dt)) <= 1e-6 * float(dt):
@@ -193,7 +195,19 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         time_name = TIME
         meta["time_from"] = f"dt = {float(dt):g} s from the channel map (the file has no time column)"
     return Raw(source, t, column, names, units, meta, lambda i: f"line {line_of[i]}", time_name, "csv", specs,
-               notes)
+               notes, resolution)
+
+
+def _written_resolution(lines, line_of, j: int, delim):
+    """The resolution of column ``j`` as written (``10^-decimals``, the most decimals of any row),
+    with why; None for numbers in exponent form."""
+    decimals = 0
+    for lineno in line_of:
+        cell = _cells(lines[lineno - 1], delim)[j].strip().strip('"')
+        if "e" in cell.lower():
+            return None
+        decimals = max(decimals, len(cell.partition(".")[2]))
+    return 10.0 ** -decimals, f"written with {decimals} decimal(s)"
 
 
 _DECIMAL_COMMA = re.compile(r"(?:^|[;\t\s])[-+]?\d*,\d+(?:[eE][-+]?\d+)?(?=$|[;\t\s])")

@@ -46,6 +46,7 @@ NAN_POLICIES = ("refuse", "drop", "interpolate")
 KINEMATIC_PAIRS = (("q", "theta"), ("p", "phi"), ("r", "psi"))
 KINEMATIC_SS_RATIO = 0.5  # the degree factor must leave at most this share of the residual the factor 1 leaves
 DEGREE_FACTOR_BAND = 1.5  # a ratio within 57.3 / 1.5 .. 57.3 x 1.5 is the degree factor
+COARSE_MARGIN = 0.05  # a duplicated or missing row in 20 is a row, not a coarse clock
 SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft dynamics
 _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
                   "speed": "acceleration"}
@@ -72,6 +73,7 @@ class Raw:
     file_format: str = "csv"  # or "mat": where a unit is declared (hints name the right place)
     specs: dict | None = None  # the channel map's channels, column numbers made 0-based
     notes: list[str] = field(default_factory=list)  # what the reader guessed or repaired, said and recorded
+    time_resolution: tuple[float, str] | None = None  # the smallest time difference the file can hold, and why
 
 
 def is_index(v) -> bool:
@@ -134,7 +136,8 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
     or an expression string). One run, or several when time gaps (or dropped samples) split the file."""
     options = options or ReadOptions()
     notes, warnings = [f"{raw.source}: {n}" for n in raw.notes], []
-    t = _si_time(raw)
+    meta_time = {}
+    t = _si_time(raw, meta_time, notes)
     values, described = {}, {}
     resolver = _Resolver(raw, channels)
     used = profile_channels(profile) if profile is not None else set(channels)
@@ -146,7 +149,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
                          "(the profile does not use it)")
             continue
         values[name], described[name] = v, how
-    meta = _meta(raw, described, resolver.derived)
+    meta = {**_meta(raw, described, resolver.derived), **meta_time}
     t, values, lines, rows = _missing(t, values, raw, options, meta)
     notes += lines
     if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
@@ -261,16 +264,42 @@ class Ingested:
 
 
 # -- time ------------------------------------------------------------------------------------------
-def _si_time(raw: Raw) -> np.ndarray:
+def _si_time(raw: Raw, meta: dict, notes: list) -> np.ndarray:
     t = np.asarray(raw.time, dtype=float).ravel()
     unit = raw.units.get(raw.time_name, raw.units.get(TIME))
+    factor = 1.0
     if unit is not None:
         _, factor, kind = U.unit_info(unit, f"{raw.source}: channel '{raw.time_name}'")
         if kind != "time":
             raise RunError(f"{raw.source}: channel '{raw.time_name}': unit '{unit}' is not a time unit")
         t = t * factor
+    if raw.time_resolution is not None:
+        t = _coarse_clock(t, raw.time_resolution[0] * factor, raw.time_resolution[1], raw, meta, notes)
     check_time(t, raw.source, raw.row, uniform=False)
     return t
+
+
+def _coarse_clock(t: np.ndarray, resolution: float, why: str, raw: Raw, meta: dict, notes: list) -> np.ndarray:
+    """Time stamps stored coarser than their spacing (single precision at a large clock offset,
+    too few decimals written) repeat or alternate between steps; when every stamp lies within half
+    the resolution of the uniform grid through the first and the last, that grid is the time.
+    A grid step within :data:`COARSE_MARGIN` of a multiple of the resolution is no coarse clock:
+    its stamps would be exact but for a repeated or missing row, which stays an error or a gap
+    (hence also at least 1 / COARSE_MARGIN samples: one such row then stays within the margin)."""
+    if t.size <= 1 / COARSE_MARGIN or not np.all(np.isfinite(t)) or not uneven_steps(np.diff(t)).size \
+            or not t[-1] > t[0]:
+        return t
+    grid = np.linspace(t[0], t[-1], t.size)
+    off = float(np.max(np.abs(t - grid)))
+    ratio = (grid[1] - grid[0]) / resolution
+    if abs(ratio - round(ratio)) <= COARSE_MARGIN or off > 0.5 * resolution * (1 + 1e-6) + 1e-12:
+        return t
+    text = (f"time stamps resolve only {resolution:.3g} s ({why}), coarser than their spacing: rebuilt as the uniform "
+            f"{grid[1] - grid[0]:.6g} s grid from {t[0]:.10g} to {t[-1]:.10g} s (every stamp within half a "
+            f"resolution step of it, at most {off:.3g} s off)")
+    meta["time_rebuilt"] = text
+    notes.append(f"{raw.source}: {text}")
+    return grid
 
 
 def _split_gaps(t: np.ndarray, raw: Raw, meta: dict, notes: list) -> list[tuple[int, int]]:

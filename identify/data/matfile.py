@@ -92,6 +92,11 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
     t = _time(variables, data, time, dt, source)
     n = len(t)
     time_name = time if isinstance(time, str) else (_time_name(variables) or "time")
+    stored = variables[data_name[0]] if is_index(time) else variables.get(time_name)
+    resolution = None
+    if stored is not None and np.asarray(stored).dtype == np.float32:  # 24 bits: a clock offset eats them
+        peak = float(np.max(np.abs(t)))
+        resolution = (float(np.spacing(np.float32(peak))), f"single precision at {peak:.7g}")
     if channels is None:
         channels = {k: k for k, v in variables.items()
                     if k not in (*TIME_NAMES, time_name) and _is_vector(v) and np.asarray(v).size == n}
@@ -110,7 +115,7 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
         info["matrix"] = data_name[0] + (f" ({data_name[1]})" if data_name[1] else "")
     info.update(meta or {})
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
-              time_name=time_name, file_format="mat", notes=notes)
+              time_name=time_name, file_format="mat", notes=notes, time_resolution=resolution)
     return build_runs(raw, channels, profile, options)
 
 

@@ -123,3 +123,24 @@ def test_degrees_found_by_kinematics_when_the_attitude_barely_moves(truth_run, t
         assert "warnings" not in run.meta
     else:
         assert "channel 'q' looks like deg/s" in run.meta["warnings"]
+
+
+def test_a_clock_coarser_than_the_step_is_rebuilt_as_the_uniform_grid_and_said(truth_run, tmp_path):
+    """Time in single precision at a GPS-week offset (resolution 1/32 s at 50 Hz) or written with
+    one decimal too few: the stamps repeat or alternate between steps; read as the uniform grid."""
+    t = truth_run.time + 387654.0
+    savemat(tmp_path / "gps.mat", {"t": t.astype(np.float32), "q": truth_run["q"], "theta": truth_run["theta"]})
+    run = read_run_file(tmp_path / "gps.mat", {"channels": {"q": "q", "theta": "theta"}})
+    np.testing.assert_allclose(run.time - run.time[0], truth_run.time, atol=1e-9)
+    _check(run, truth_run)
+    assert "single precision at 387670" in run.meta["time_rebuilt"]
+    rows = "\n".join(f"{a:.1f},{b:.12g}" for a, b in zip(truth_run.time, truth_run["q"]))
+    (tmp_path / "coarse.csv").write_text("time,q\n" + rows + "\n")
+    run = read_run_file(tmp_path / "coarse.csv")
+    np.testing.assert_allclose(run.time, truth_run.time, atol=1e-9)
+    assert "written with 1 decimal(s)" in run.meta["time_rebuilt"] and "time stamps resolve only" in run.meta["notes"]
+    # a real gap is no coarse clock: the stamps stray from the grid by far more than the resolution
+    keep = np.r_[0:300, 320:len(truth_run)]
+    rows = "\n".join(f"{a:.2f},{b:.12g}" for a, b in zip(truth_run.time[keep], truth_run["q"][keep]))
+    (tmp_path / "gap.csv").write_text("time,q\n" + rows + "\n")
+    assert len(read_file_runs(tmp_path / "gap.csv")) == 2
