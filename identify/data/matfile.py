@@ -168,7 +168,16 @@ def _load(path: Path) -> tuple[dict, str]:
             zlib.error) as exc:  # what scipy's reader raises on a damaged file
         raise RunError(f"{path}: not a readable MATLAB .mat file "
                        f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
-    return _flatten({k: v for k, v in raw.items() if not k.startswith("__")}), "v5"
+    skipped = []
+    variables = _Variables(_flatten({k: v for k, v in raw.items() if not k.startswith("__")}, "", skipped))
+    variables.skipped = skipped
+    return variables, "v5"
+
+
+class _Variables(dict):
+    """A file's readable variables, and (``skipped``) those that are no channels: cells, text."""
+
+    skipped: list
 
 
 # -- MATLAB v7.3 ------------------------------------------------------------------------------------
@@ -209,19 +218,22 @@ def _is_hdf5(path: Path) -> bool:
         return False
 
 
-def _flatten(variables: dict, prefix: str = "") -> dict:
+def _flatten(variables: dict, prefix: str = "", skipped: list | None = None) -> dict:
     """Struct fields as ``struct.field``, a struct array's as ``struct(k).field`` (1-based k, as
-    MATLAB names them); cells are no channels."""
+    MATLAB names them); cells and text are no channels (named in ``skipped``)."""
     out = {}
     for key, value in variables.items():
         if isinstance(value, dict):
-            out.update(_flatten(value, f"{prefix}{key}."))
+            out.update(_flatten(value, f"{prefix}{key}.", skipped))
         elif _is_struct_array(value):
             for k, element in enumerate(np.ravel(np.asarray(value, dtype=object)) if not isinstance(value, list)
                                         else value, start=1):
-                out.update(_flatten(element, f"{prefix}{key}({k})."))
+                out.update(_flatten(element, f"{prefix}{key}({k}).", skipped))
         elif isinstance(value, (np.ndarray, int, float)) and np.asarray(value).dtype != object:
             out[f"{prefix}{key}"] = value
+        elif skipped is not None:
+            kind = "text" if isinstance(value, str) else f"cell array of {len(value) if hasattr(value, '__len__') else 1}"
+            skipped.append(f"{prefix}{key} ({kind})")
     return out
 
 
@@ -322,7 +334,12 @@ def _finite(values: np.ndarray, source: str, what: str) -> None:
 
 def _listing(variables: dict) -> str:
     """The file's variables with their shapes, for 'not found' errors."""
-    return ", ".join(f"{k} {'x'.join(map(str, np.shape(v))) or 'scalar'}" for k, v in sorted(variables.items())) or "none"
+    listing = ", ".join(f"{k} {'x'.join(map(str, np.shape(v))) or 'scalar'}" for k, v in sorted(variables.items()))
+    skipped = getattr(variables, "skipped", [])
+    if skipped:  # a cell of channels is no channel: say how to make it one
+        listing += (f"{'; ' if listing else ''}not read: {', '.join(skipped)}: save the cell's vectors as "
+                    "variables or struct fields")
+    return listing or "none"
 
 
 def _describe(where) -> str:

@@ -144,3 +144,11 @@ def test_a_clock_coarser_than_the_step_is_rebuilt_as_the_uniform_grid_and_said(t
     rows = "\n".join(f"{a:.2f},{b:.12g}" for a, b in zip(truth_run.time[keep], truth_run["q"][keep]))
     (tmp_path / "gap.csv").write_text("time,q\n" + rows + "\n")
     assert len(read_file_runs(tmp_path / "gap.csv")) == 2
+
+
+def test_a_cell_array_of_channels_is_named_with_the_fix(truth_run, tmp_path):
+    cell = np.empty(2, dtype=object)
+    cell[:] = [truth_run.time, truth_run["q"]]
+    savemat(tmp_path / "cell.mat", {"c": cell})
+    with pytest.raises(RunError, match=r"not read: c \(cell array of 2\): save the cell's vectors as variables"):
+        read_run_file(tmp_path / "cell.mat", {"time": "c{1}", "channels": {"q": "c{2}"}})
