@@ -185,8 +185,10 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
     if time_name in names:
         t = column(time_name, TIME)
         resolution = _written_resolution(lines, line_of, names.index(time_name), delim)
-        if dt is not None:
-            step = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+        if dt is not None:  # "dt" is in s: the time column's step in its declared unit, converted
+            unit = units.get(time_name, units.get(TIME))
+            scale = U.unit_info(unit, f"{source}: channel '{time_name}'")[1] if unit else 1.0
+            step = scale * float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
             if not abs(step - float(dt)) <= 1e-6 * float(dt):
                 raise RunError(f"{source}: the channel map's dt {dt} s disagrees with the time column "
                                f"'{time_name}' (step {step:.6g} s): drop one")

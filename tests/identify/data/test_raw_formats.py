@@ -152,3 +152,15 @@ def test_a_cell_array_of_channels_is_named_with_the_fix(truth_run, tmp_path):
     savemat(tmp_path / "cell.mat", {"c": cell})
     with pytest.raises(RunError, match=r"not read: c \(cell array of 2\): save the cell's vectors as variables"):
         read_run_file(tmp_path / "cell.mat", {"time": "c{1}", "channels": {"q": "c{2}"}})
+
+
+def test_map_dt_in_seconds_agrees_with_a_time_column_in_milliseconds(truth_run, tmp_path):
+    """The map's "dt" is in s; a time column declared in ms is compared after its conversion."""
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{1000 * a:.3f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "ms.csv").write_text("time [ms],q [deg/s],theta [deg]\n" + rows + "\n")
+    step = float(np.median(np.diff(t)))
+    run = read_run_file(tmp_path / "ms.csv", {"dt": step})
+    _check(run, truth_run)
+    with pytest.raises(RunError, match="disagrees with the time column"):
+        read_run_file(tmp_path / "ms.csv", {"dt": 2 * step})
