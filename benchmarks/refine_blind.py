@@ -80,8 +80,8 @@ CASES = [
     Case("two_effects", "s61_hover_4dof", "0.08 s delay on theta_s and missing M_v together",
          add={"M_v": -0.02}, delays={"theta_s": 0.08},
          truth={"tau_theta_s": ("delay", "theta_s", 0.08), "M_v": ("derivative", "M_v", -0.02)}),
-    Case("small_Xde", "navion_cruise_long", "small missing X_delta_e (about 3-4 of its std)",
-         add={"X_delta_e": 0.6}, truth={"X_delta_e": ("derivative", "X_delta_e", 0.6)}),
+    Case("small_Xde", "navion_cruise_long", "small missing X_delta_e (3.2: about 3.5 of its std 0.9)",
+         add={"X_delta_e": 3.2}, truth={"X_delta_e": ("derivative", "X_delta_e", 3.2)}),
     Case("null_s61", "s61_hover_4dof", "nothing missing, turbulence x2 and a pilot", gust=2.0),
     Case("null_navion", "navion_cruise_long", "nothing missing, turbulence x2 and a pilot", gust=2.0),
 ]
