@@ -181,9 +181,10 @@ def write_case(case: Case, length: float, seed: int) -> tuple[Path, list[Path], 
     return declared, fit, val
 
 
-def run_refine(case: Case, declared: Path, fit: list, val: list) -> dict:
+def run_refine(case: Case, declared: Path, fit: list, val: list, method: str = "ml") -> dict:
     cmd = [sys.executable, "-m", "identify", "refine", "--profile", str(declared), *map(str, fit),
            "--validate", *map(str, val), "--out", str(OUT / case.name / "out")]
+    cmd += [] if method == "ml" else ["--method", method]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     started = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
@@ -227,15 +228,69 @@ def verdict(case: Case, data: dict) -> list[str]:
     return lines
 
 
-def main(names, length: float, seed: int) -> None:
+# what refused a candidate that passed the score test, from its recorded reason
+GATES = [("estimate", ("could not be estimated", "re-fit failed", "not determined")), ("LR", ("likelihood ratio",)),
+         ("Wald", ("Wald",)), ("choosing", ("choosing data",)), ("judging", ("judging data",))]
+
+
+def gate(reason: str) -> str:
+    return next((g for g, keys in GATES if any(k in reason for k in keys)), "implausible")
+
+
+def tally(case: Case, runs: list[dict]) -> list[str]:
+    """Over seeds: how often each true effect was found, false alarms, and the score-test passes
+    (accepted + refused candidates; the score stage's family level is the loop's ``alpha``)
+    with the gate that stopped each and the metric it passed in."""
+    ok = [d for d in runs if "crash" not in d]
+    lines = [f"{len(runs)} seeds, {len(runs) - len(ok)} crashed"]
+    for name, (effect, target, v) in case.truth.items():
+        alias = {"delay": "lag", "lag": "delay"}.get(effect)
+        hits = [s for d in ok for s in d["steps"] if s["target"] == target and s["effect"] in (effect, alias)]
+        z = [(s["parameters"][name]["value"] - v) / s["parameters"][name]["std"] for s in hits if name in s["parameters"]]
+        lines.append(f"{effect} {target}: found {len(hits)}/{len(ok)}; error/std " +
+                     (f"mean {np.mean(z):+.2f}, rms {np.sqrt(np.mean(np.square(z))):.2f}, |.|>2: "
+                      f"{sum(abs(x) > 2 for x in z)}" if z else "-"))
+    wanted = {(e, t) for e, t, _ in case.truth.values()}
+    false = sum(1 for d in ok for s in d["steps"]
+                if (s["effect"], s["target"]) not in wanted and ({"delay": "lag", "lag": "delay"}.get(s["effect"]),
+                                                                 s["target"]) not in wanted)
+    passes = [len(d["steps"]) + len(d["rejected"]) for d in ok]
+    any_pass = sum(1 for d in ok if d["rejected"] or (not case.truth and d["steps"]))
+    stopped: dict = {}
+    for d in ok:
+        for r in d["rejected"]:
+            key = (gate(r.get("reason", "")), r.get("metric", "?"))
+            stopped[key] = stopped.get(key, []) + [f"{r['effect']} {r['target']}"]
+    alpha = ok[0]["alpha"] if ok else float("nan")
+    lines.append(f"false alarms accepted: {false} in {len(ok)} runs; score-test passes {sum(passes)} "
+                 f"(runs with a refused candidate: {any_pass}; family level alpha {alpha:g} per round)")
+    for (g, metric), who in sorted(stopped.items()):
+        names = ", ".join(f"{n} x{who.count(n)}" for n in dict.fromkeys(who))
+        lines.append(f"  stopped by {g:9s} ({metric} metric): {len(who)}: {names}")
+    return lines
+
+
+def main(names, length: float, seed: int, seeds: int = 1, method: str = "ml") -> None:
     print(f"refine_blind: {length:g} s runs at {1 / DT:g} Hz, one fit and one validation run per "
-          f"control axis, seed {seed}; load average {os.getloadavg()[0]:.1f}")
+          f"control axis, seeds {seed}..{seed + seeds - 1}, --method {method}; load average {os.getloadavg()[0]:.1f}")
     rows = []
     for case in CASES:
         if names and case.name not in names:
             continue
+        if seeds > 1:
+            runs = []
+            for s in range(seed, seed + seeds):
+                data = run_refine(case, *write_case(case, length, s), method=method)
+                runs.append(data)
+            lines = tally(case, runs)
+            print(f"\n[{case.name}] {case.what} ({case.profile}); {sum(d['wall'] for d in runs):.0f} s")
+            for line in lines:
+                print("  " + line)
+            rows.append({"case": case.name, "tally": lines, "runs": [
+                {k: d.get(k) for k in ("steps", "rejected", "wall", "crash")} for d in runs]})
+            continue
         declared, fit, val = write_case(case, length, seed)
-        data = run_refine(case, declared, fit, val)
+        data = run_refine(case, declared, fit, val, method)
         lines = verdict(case, data)
         err = ""
         if "error_before" in data:
@@ -257,9 +312,13 @@ def parser():
                     + ", ".join(c.name for c in CASES) + ")")
     ap.add_argument("--length", type=positive, default=30.0, help="length of each run, s")
     ap.add_argument("--seed", type=count, default=1, help="first seed of the simulated runs")
+    ap.add_argument("--seeds", type=count, default=1, help="number of seeds from --seed; above 1, a tally per "
+                    "case: effects found, false alarms, score-test passes and the check that refused each")
+    ap.add_argument("--method", default="ml", choices=["ml", "fem"], help="the estimator refine uses "
+                    "(fem: filter error, process noise modelled)")
     return ap
 
 
 if __name__ == "__main__":
     args = parser().parse_args()
-    main([c for c in args.cases.split(",") if c], args.length, args.seed)
+    main([c for c in args.cases.split(",") if c], args.length, args.seed, max(args.seeds, 1), args.method)
