@@ -60,13 +60,6 @@ class ScoreTest:
         p-value were 100 times larger."""
         return (self.log_p + SIMPLER_FIRST * self.candidate.complexity, -self.statistic)
 
-    def bounded(self, lr: float) -> "ScoreTest":
-        """This test with its statistic at most ``lr`` (the noise-profiled likelihood ratio that
-        bounds an alternative-metric score, :func:`_profiled_lr`), its p-value recomputed."""
-        if lr < self.statistic:
-            self.statistic, self.log_p = lr, float(stats.chi2.logsf(lr, self.dof))
-        return self
-
     def to_dict(self) -> dict:
         return {"effect": self.candidate.kind, "target": self.candidate.target, "statistic": self.statistic,
                 "threshold": self.threshold, "dof": self.dof, "metric": self.metric}
@@ -113,13 +106,11 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
     if coloured:
         energy = dg.residual_energy(ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in groups], sigma)
         residual_log_p = {t.candidate.name: t.log_p for t in tested}
-        model_only = unexplained(ev.residuals, [d[:, :, :nb] for d in dy], evj.nuisance, sigma)
         for c, cols in [groups[i] for i in _explaining_most(energy, groups, residual_log_p)]:
             keep = list(range(nb)) + [nb + k for k in cols]
-            cleaned = unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma)
-            alt = NoiseModel.fit(cleaned, fitting.dt, f_min, segment=fitting.segment)
-            lr = _profiled_lr(model_only, cleaned, alt.order, fitting)
-            tested += [t.bounded(lr) for t in _tests(alt, design, [(c, cols)], "alternative")]
+            alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
+                                 fitting.dt, f_min, segment=fitting.segment)
+            tested += _tests(alt, design, [(c, cols)], "alternative")
     # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
     n_tests = sum(t.candidate.n_tests for t in tested)
     level = 1.0 - (1.0 - alpha) ** (1.0 / max(n_tests, 1))
@@ -151,25 +142,6 @@ def _explaining_most(energy: np.ndarray, groups: list[tuple], residual_log_p: di
     chosen = list(np.argsort(white, kind="stable")[:TOP_ALTERNATIVE])
     chosen += [i for i in np.argsort(metric, kind="stable")[:TOP_ALTERNATIVE] if i not in chosen]
     return chosen
-
-
-def _profiled_lr(null: list[np.ndarray], cleaned: list[np.ndarray], order: int, fitting: Fitting) -> float:
-    """Twice the log-likelihood ratio of the residuals without and with a candidate's fit removed
-    (``null``: the model's columns removed, ``cleaned``: the model's and the candidate's), each
-    under its own noise model of the same ``order`` fitted to it as it is (trends and lines kept).
-
-    An alternative-metric score alone is no test: its noise model was fitted to residuals the
-    candidate had already cleaned, so it under-states the noise where the candidate's column lies
-    and the column's score is inflated under the null hypothesis (measured on null data, Navion in
-    gusts with a pilot, benchmarks/refine_blind.py: derivatives 10.8 times their dof on average,
-    scores to 82 for a threshold of 24). With the noise re-fitted on both sides this ratio is a
-    likelihood ratio with the noise parameters profiled out (chi-square with the candidate's dof,
-    or smaller: the candidate's fit is least squares, not the joint optimum), and an effect the
-    residual model learnt as colour still raises it: its input-driven part is not predictable
-    from past residuals."""
-    fits = [NoiseModel.fit(r, fitting.dt, order=order, deterministic=False, segment=fitting.segment)
-            for r in (null, cleaned)]
-    return max(2.0 * (fits[0].nll(null, order) - fits[1].nll(cleaned, order)), 0.0)
 
 
 def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -> list[ScoreTest]:
