@@ -52,7 +52,6 @@ from . import diagnostics as dg
 from .candidates import KIND_CLASSES, KINDS
 from .evaluation import MIN_SAMPLES, check_identifiable, errors, split_validation
 from .fitting import Fitting
-from .noise import NoiseModel
 from .scoring import ScoreTest, score_candidates
 from .steps import Step
 
@@ -318,14 +317,12 @@ class Refine:
             null_cost = noise.cost(fitting.residuals(p))
             own = result.compare_lr_test(null_result) if null_result is not None else None
             lr = null_cost - noise.cost(fitting.residuals(new_p)) if own is None else own[0]
-            # held out: in the metric of the extended model's own residuals there (see _held_out_noise)
-            metric = {data: _held_out_noise(fitting, new_p, data, self.f_min) for data in held_data}
-            held = {data: (m.cost(fitting.residuals(p, data)), m.cost(fitting.residuals(new_p, data)))
-                    for data, m in metric.items()}
+            held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
+                    for data in held_data}
             # the size of the prediction change there: the spread of the held-out cost change
-            spread = {data: m.cost([a - b for a, b in zip(fitting.residuals(p, data),
-                                                          fitting.residuals(new_p, data))])
-                      for data, m in metric.items()}
+            spread = {data: noise.cost([a - b for a, b in zip(fitting.residuals(p, data),
+                                                              fitting.residuals(new_p, data))])
+                      for data in held_data}
             # a delay's own bound in the test's metric (``std_profile``): its ``std`` also carries the
             # estimator's errors in the other parameters, which do not make the delay less present
             wald = float(sum((v["value"] / s) ** 2 if (s := v.get("std_profile", v["std"])) > 0 else math.inf
@@ -375,18 +372,6 @@ def _failed_refit(result, lr: float, null_cost: float, threshold: float, own: bo
         return (f"re-fit failed: its likelihood is below the nested null's (ratio {lr:.3g}), so it did not "
                 f"find its optimum; no likelihood ratio")
     return ""
-
-
-def _held_out_noise(fitting: Fitting, new_p: Profile, data: str, f_min: float) -> NoiseModel:
-    """The noise model of held-out ``data`` the checks weigh the prediction change in: fitted to
-    the extended model's residuals there. Not the test's noise model: an alternative one was fitted
-    to fit-run residuals the candidate had cleaned, so it under-states the noise along the
-    candidate's column, and the held-out z statistic along it had a spread of about 3 instead of 1
-    on null data (Navion in gusts with a pilot, benchmarks/refine_blind.py: a drift and M_theta
-    accepted in 2 of 20 null runs). The change ``d`` is fixed by the fitting runs, so a noise model
-    of these residuals (``e - d``) is not biased along it under the null hypothesis; under the
-    alternative it is the noise without the effect (full power)."""
-    return NoiseModel.fit(fitting.residuals(new_p, data), fitting.dt, f_min, segment=fitting.segment)
 
 
 def _held_out_refusal(held: dict, change: dict, data: str, label: str) -> str:
