@@ -70,6 +70,14 @@ def _poorly_identified(r: Refine) -> list[dict]:
     return out
 
 
+def _value_std(p: dict) -> str:
+    """```name` = value ± std`` of a parameter as ``to_dict`` gives it; a standard error that is
+    not determined (None in JSON: e.g. the final fit did not converge) said so, not a crash."""
+    std = p["std"]
+    told = f"{std:.2g}" if std is not None and np.isfinite(std) else "(standard error not determined)"
+    return f"`{p['name']}` = {p['value']:.4g} ± {told}"
+
+
 def write(r: Refine, outdir: str | Path, plots: bool = True) -> Path:
     """Write ``refine.json``, ``final_profile.toml``, ``report.md`` (and PNG plots) into ``outdir``."""
     outdir = Path(outdir)
@@ -139,7 +147,7 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
     poor = data["poorly_identified"]
     if poor:
         lines += ["", "**Poorly identified** in the final model (standard error above half the value): " +
-                  ", ".join(f"`{p['name']}` = {p['value']:.4g} ± {p['std']:.2g}" for p in poor) +
+                  ", ".join(_value_std(p) for p in poor) +
                   ". An input that excites them: `python -m signaldesign band` / `design`."]
     lines += ["", "## Error before and after", "",
               "RMS error per output; `overall` is the RMS over outputs of RMS / std of the measured output; "
