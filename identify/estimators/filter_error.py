@@ -550,8 +550,10 @@ class FilterProblem:
     # -- Fisher information ------------------------------------------------------------------------
     def information(self, ev: Filtered):
         """Fisher information ``M`` (n_beta, n_beta) and ``g = -dJ/dbeta`` (n_beta,)."""
-        Sinv = np.linalg.inv(ev.S)
-        Wh = np.linalg.cholesky(Sinv).T  # Wh^T Wh = S^-1
+        # S's own Cholesky factor: that of inv(S) failed on an ill-conditioned S a step had just
+        # lowered the cost with (refine, Navion in gusts with a pilot, a delay's re-fit)
+        Wh = np.linalg.inv(np.linalg.cholesky(ev.S))  # Wh^T Wh = S^-1
+        Sinv = Wh.T @ Wh
         L, ny, k, R = ev.dnu.shape
         Jw = (Wh @ ev.dnu.reshape(L, ny, k * R)).reshape(L, ny, k, R).transpose(3, 0, 1, 2).reshape(R, L * ny, k)
         ew = (Wh @ ev.nu).transpose(2, 0, 1).reshape(R, L * ny)
