@@ -197,7 +197,7 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         time_name = TIME
         meta["time_from"] = f"dt = {float(dt):g} s from the channel map (the file has no time column)"
     return Raw(source, t, column, names, units, meta, lambda i: f"line {line_of[i]}", time_name, "csv", specs,
-               notes, resolution)
+               notes, resolution, cmap.get("missing"))
 
 
 def _written_resolution(lines, line_of, j: int, delim):

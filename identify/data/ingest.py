@@ -48,6 +48,12 @@ KINEMATIC_SS_RATIO = 0.5  # the degree factor must leave at most this share of t
 DEGREE_FACTOR_BAND = 1.5  # a ratio within 57.3 / 1.5 .. 57.3 x 1.5 is the degree factor
 COARSE_MARGIN = 0.05  # a duplicated or missing row in 20 is a row, not a coarse clock
 SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft dynamics
+# values loggers write for a missing sample; one that lies far outside a channel's other values is flagged
+TYPICAL_MARKERS = (-999.0, -9999.0, -99999.0, -999999.0, 999.0, 9999.0, 99999.0, 999999.0)
+MARKER_DISTANCE = 1.0  # flagged beyond this many times the other values' range from them
+RATE_WINDOW = 7  # steps in the running median that tells a sample rate from single gaps
+RATE_TOL = 0.2  # a running median step off the rate by more than this share is another rate
+RATE_MIN_STEPS = 10  # ... when it holds that many steps (fewer: lone samples between gaps)
 _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
                   "speed": "acceleration"}
 
@@ -74,6 +80,7 @@ class Raw:
     specs: dict | None = None  # the channel map's channels, column numbers made 0-based
     notes: list[str] = field(default_factory=list)  # what the reader guessed or repaired, said and recorded
     time_resolution: tuple[float, str] | None = None  # the smallest time difference the file can hold, and why
+    missing: object = None  # the map's "missing": marker value(s) of missing samples, or {name: value(s)}
 
 
 def is_index(v) -> bool:
@@ -150,8 +157,11 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
             continue
         values[name], described[name] = v, how
     meta = {**_meta(raw, described, resolver.derived), **meta_time}
-    t, values, lines, rows = _missing(t, values, raw, options, meta)
+    notes += resolver.marker_notes(meta)
+    warnings += [w for n, w in resolver.suspects.items() if n in values]
+    t, values, lines, rows = _missing(t, values, raw, options, meta, resolver.marked)
     notes += lines
+    t, values, rows = _one_rate(t, values, rows, raw, options, meta, notes)
     if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
         raw = replace(raw, row=lambda i, rows=rows, row=raw.row: row(int(rows[i])))
     warnings += _unit_checks(raw, t, values, described, profile)
@@ -175,8 +185,9 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
     return Ingested(runs, [f"note: {n}" for n in notes] + [f"warning: {w}" for w in warnings])
 
 
-def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
-    """Time, channels, the notes and the file rows (indices) kept, after the NaN policy."""
+def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict, marked: dict | None = None):
+    """Time, channels, the notes and the file rows (indices) kept, after the NaN policy; ``marked``
+    the channels whose missing-value markers were read as NaN (named in a refusal)."""
     rows = np.arange(len(t))
     if not values:
         return t, values, [], rows
@@ -203,7 +214,8 @@ def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
         name = next(n for n, v in values.items() if not np.all(np.isfinite(v)))
         v = values[name]
         first = np.flatnonzero(~np.isfinite(v))
-        raise RunError(f"{raw.source}: {raw.row(rows[first[0]])}, channel '{name}': {v[first[0]]} value "
+        what = f"missing value (marker {marked[name]} in the file)" if name in (marked or {}) else f"{v[first[0]]} value"
+        raise RunError(f"{raw.source}: {raw.row(rows[first[0]])}, channel '{name}': {what} "
                        f"({first.size} missing or non-finite value(s) in the window; --nan drop or --nan "
                        f"interpolate reads them)")
     where = ", ".join(raw.row(i) for i in rows[bad][:5]) + (f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else "")
@@ -347,6 +359,50 @@ def _regularise(t: np.ndarray, channels: dict, raw: Raw, offset: int, meta: dict
     return grid, {k: np.interp(grid, t, v) for k, v in channels.items()}
 
 
+def _rate_change(t: np.ndarray):
+    """The first change of sample rate, ``(i, step before, step after)`` with ``i`` the first step
+    at the new rate, or None. The running median of :data:`RATE_WINDOW` steps ignores single gaps
+    and jitter; a median off the rate by more than :data:`RATE_TOL` for :data:`RATE_MIN_STEPS`
+    steps is another rate."""
+    steps = np.diff(t)
+    if steps.size < 2 * RATE_MIN_STEPS:
+        return None
+    half = RATE_WINDOW // 2
+    med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(steps, half, mode="edge"), RATE_WINDOW), axis=1)
+    level = float(np.median(med[:RATE_MIN_STEPS]))
+    off = np.abs(med - level) > RATE_TOL * level
+    i = 0
+    while i < off.size:
+        if not off[i]:
+            i += 1
+            continue
+        j = i + int(np.argmin(off[i:])) if not off[i:].all() else off.size
+        if j - i >= RATE_MIN_STEPS:
+            return i, level, float(np.median(med[i:j]))
+        i = j
+    return None
+
+
+def _one_rate(t, values: dict, rows, raw: Raw, options: ReadOptions, meta: dict, notes: list):
+    """Refuse a file whose sample rate changes (a run holds one rate: resampling one part is the
+    engineer's choice of filter, not the reader's), naming where, the two rates and the fix; a
+    change outside the window ``--t-start/--t-end`` cuts the run to the window, said."""
+    change = _rate_change(t)
+    if change is None:
+        return t, values, rows
+    i, before, after = change
+    where = (f"the sample rate changes at {raw.row(int(rows[i]))} (t = {t[i]:.6g} s): {1 / before:.4g} Hz "
+             f"(step {before:.6g} s) up to it, {1 / after:.4g} Hz (step {after:.6g} s) after it")
+    inside = options.inside(t)
+    if not inside.all() and inside.sum() >= 2 and _rate_change(t[inside]) is None:
+        text = f"{where}, outside the window t = {options.t_start}..{options.t_end} s: the run is cut to the window"
+        meta["rate_change_outside_window"] = text
+        notes.append(f"{raw.source}: {text}")
+        return t[inside], {n: v[inside] for n, v in values.items()}, rows[inside]
+    raise RunError(f"{raw.source}: {where}; a run holds one sample rate: resample the file to one rate, or "
+                   f"read one part with --t-start/--t-end (before or after t = {t[i]:.6g} s)")
+
+
 # -- channels --------------------------------------------------------------------------------------
 class _Resolver:
     """Each run channel's SI values from its source; ``(values, (how, unit))`` per channel where how
@@ -357,6 +413,49 @@ class _Resolver:
         self.done: dict[str, tuple] = {}
         self.busy: set[str] = set()
         self.derived: dict[str, str] = {}
+        self.marked: dict[str, str] = {}  # channel: the declared marker(s) found in it
+        self.marked_rows: dict[str, str] = {}
+        self.suspects: dict[str, str] = {}  # channel: warning of an undeclared marker-like value
+
+    def marker_notes(self, meta: dict) -> list[str]:
+        """Notes of the declared markers read as missing (also recorded in ``meta``)."""
+        if not self.marked:
+            return []
+        text = "; ".join(f"'{n}': {self.marked_rows[n]}" for n in self.marked)
+        meta["missing_markers"] = text
+        return [f"{self.raw.source}: missing-value marker(s) read as missing (NaN): {text}"]
+
+    def _markers(self, name: str, spec, v: np.ndarray) -> np.ndarray:
+        """``v`` with the declared missing-value markers made NaN; an undeclared value of
+        :data:`TYPICAL_MARKERS` far outside the other values is kept and flagged."""
+        declared = _declared_markers(self.raw.missing, name, spec)
+        if declared is not None:
+            hit = np.isin(v, declared)
+            if hit.any():
+                found = ", ".join(f"{m:g}" for m in np.unique(v[hit]))
+                self.marked[name] = found
+                self.marked_rows[name] = f"{int(hit.sum())} x {found} ({self._rows(hit)})"
+                v = np.where(hit, np.nan, v)
+            return v
+        finite = v[np.isfinite(v)]
+        for marker in TYPICAL_MARKERS:
+            hit = v == marker
+            others = finite[finite != marker]
+            if not hit.any() or others.size < 2:
+                continue
+            lo, hi = float(others.min()), float(others.max())
+            if min(abs(marker - lo), abs(marker - hi)) > MARKER_DISTANCE * (hi - lo) and not lo <= marker <= hi:
+                self.suspects[name] = (
+                    f"{self.raw.source}: channel '{name}': {int(hit.sum())} value(s) exactly {marker:g} "
+                    f"({self._rows(hit)}), far outside its other values ({lo:.6g} .. {hi:.6g}): a missing-value "
+                    f"marker? Read as data; to read them as missing declare it in the channel map "
+                    f"(\"missing\": {marker:g}), then --nan drop or --nan interpolate")
+                break
+        return v
+
+    def _rows(self, hit: np.ndarray) -> str:
+        idx = np.flatnonzero(hit)
+        return ", ".join(self.raw.row(int(i)) for i in idx[:5]) + (f" and {idx.size - 5} more" if idx.size > 5 else "")
 
     def get(self, name: str):
         if name in self.done:
@@ -381,7 +480,7 @@ class _Resolver:
         return next(iter(found.values()), None)
 
     def _plain(self, name: str, spec):
-        raw_values = np.asarray(self.raw.column(spec, name), dtype=float).ravel()
+        raw_values = self._markers(name, spec, np.asarray(self.raw.column(spec, name), dtype=float).ravel())
         unit = self._unit(name, spec if isinstance(spec, str) else None)
         if unit is None:
             return raw_values, ("undeclared", None)
@@ -416,6 +515,15 @@ class _Resolver:
             raise RunError(f"{where}: a unit is declared both for '{name}' ({unit}) and for its operand(s) "
                            f"{', '.join(declared)}; declare one")
         return U.to_si(values, unit, f"{self.raw.source}: channel '{name}'"), ("declared", unit)
+
+
+def _declared_markers(missing, name: str, spec):
+    """The missing-value markers declared for a channel (by its name or its column's), or None."""
+    if isinstance(missing, dict):
+        missing = missing.get(name, missing.get(spec) if isinstance(spec, str) else None)
+    if missing is None:
+        return None
+    return np.atleast_1d(np.asarray(missing, dtype=float))
 
 
 def _is_name(spec: str) -> bool:
