@@ -245,3 +245,36 @@ def test_a_sample_rate_changing_within_a_file_is_refused_once_naming_where_and_t
     keep = np.r_[0:300, 305, 310:len(truth_run)]
     gapped = _rows_csv(tmp_path / "g.csv", truth_run.time[keep], truth_run["q"][keep], truth_run["theta"][keep])
     assert len(read_file_runs(gapped)) == 2
+
+
+def _clock(seconds: float) -> str:
+    h, rest = divmod(seconds % 86400, 3600)
+    return f"{int(h):02d}:{int(rest // 60):02d}:{rest % 60:06.3f}"
+
+
+@pytest.mark.parametrize("form", ["clock", "iso", "dated_blank", "midnight"])
+def test_clock_time_stamps_are_read_as_seconds_from_the_first_sample_and_said(truth_run, tmp_path, form):
+    t, q, th = _table(truth_run)
+    start = 86400 - 0.5 if form == "midnight" else 12 * 3600 + 34 * 60 + 56.02
+    stamps = [_clock(start + a) for a in t]
+    if form == "iso":
+        stamps = [f"2026-11-26T{s}" for s in stamps]
+    if form == "dated_blank":  # whitespace-separated, the date and the clock two words of one cell
+        rows = "\n".join(f"2026-11-26 {s} {b:.9f} {c:.9f}" for s, b, c in zip(stamps, q, th))
+        (tmp_path / "c.txt").write_text("time q theta\n" + rows + "\n")
+        run = read_run_file(tmp_path / "c.txt", {"channels": {"q": "q", "theta": "theta"},
+                                                 "units": {"q": "deg/s", "theta": "deg"}})
+    else:
+        rows = "\n".join(f"{s},{b:.9f},{c:.9f}" for s, b, c in zip(stamps, q, th))
+        (tmp_path / "c.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+        run = read_run_file(tmp_path / "c.csv")
+    np.testing.assert_allclose(run.time, t, atol=1e-6)
+    _check(run, truth_run)
+    assert f"clock time stamps{' with a date' if form in ('iso', 'dated_blank') else ''} (first" in run.meta["time_from"]
+    assert ("midnight rollover at line 27: 24 h added" in run.meta["notes"]) == (form == "midnight")
+
+
+def test_clock_stamps_mixed_with_numbers_are_refused(tmp_path):
+    (tmp_path / "mix.csv").write_text("time,q\n12:00:00.00,1\n12:00:00.02,2\n0.04,3\n")
+    with pytest.raises(RunError, match="mixes clock stamps"):
+        read_run_file(tmp_path / "mix.csv")
