@@ -11,7 +11,9 @@ steps every format shares happen here, in this order:
 3. **Checks.** Missing or non-finite values (NaN) follow a policy (:class:`ReadOptions`): outside
    the analysis window the run is cut to the window; inside it they are refused (naming the
    channel and row), or their samples dropped (the hole splits the run) or interpolated, as
-   asked, said and recorded. A column the profile does not use is left out instead, and said.
+   asked, said and recorded; values equal to the channel map's ``"missing"`` markers (``-999``)
+   are missing too, and an undeclared marker-like value far outside a channel's others warns. A
+   column the profile does not use is left out instead, and said.
    A declared unit of another kind than the profile's (a speed for an angle) is an error. An
    angular channel taken as radians (declared ``rad`` or, undeclared, ``rad`` in the profile)
    whose values exceed what radians can physically reach gives a warning
@@ -21,7 +23,8 @@ steps every format shares happen here, in this order:
 4. **Time.** A step longer than :data:`GAP_FACTOR` times the median step is a gap: the file splits
    into several runs. Within a run, time stamps off the uniform grid by up to :data:`JITTER_MAX` of
    a step are accepted and every channel is resampled onto the grid by linear interpolation (the
-   jitter is recorded in the run's metadata); larger irregularity is an error.
+   jitter is recorded in the run's metadata); larger irregularity is an error. A sample rate that
+   changes within the file (:func:`_rate_change`) is refused, naming where, both rates and the fix.
 
 Warnings and notes go to stderr and into the run's ``warnings`` / ``notes`` metadata.
 """
@@ -52,7 +55,7 @@ SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft
 TYPICAL_MARKERS = (-999.0, -9999.0, -99999.0, -999999.0, 999.0, 9999.0, 99999.0, 999999.0)
 MARKER_DISTANCE = 1.0  # flagged beyond this many times the other values' range from them
 RATE_WINDOW = 7  # steps in the running median that tells a sample rate from single gaps
-RATE_TOL = 0.2  # a running median step off the rate by more than this share is another rate
+RATE_TOL = 0.1  # a running median step off the rate by more than this share is another rate (jitter: 5 %)
 RATE_MIN_STEPS = 10  # ... when it holds that many steps (fewer: lone samples between gaps)
 _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
                   "speed": "acceleration"}
@@ -377,8 +380,10 @@ def _rate_change(t: np.ndarray):
             i += 1
             continue
         j = i + int(np.argmin(off[i:])) if not off[i:].all() else off.size
-        if j - i >= RATE_MIN_STEPS:
-            return i, level, float(np.median(med[i:j]))
+        if j - i >= RATE_MIN_STEPS:  # the first step nearer the new rate, around where the median turned
+            new = float(np.median(med[i:j]))
+            near = steps[max(i - half, 0):i + half + 1]
+            return max(i - half, 0) + int(np.argmax(np.abs(near - new) < np.abs(near - level))), level, new
         i = j
     return None
 
