@@ -161,7 +161,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
         values[name], described[name] = v, how
     meta = {**_meta(raw, described, resolver.derived), **meta_time}
     notes += resolver.marker_notes(meta)
-    warnings += [w for n, w in resolver.suspects.items() if n in values]
+    warnings += [w for n, w in resolver.suspects.items() if n in values or n not in channels]  # operands too
     t, values, lines, rows = _missing(t, values, raw, options, meta, resolver.marked)
     notes += lines
     t, values, rows = _one_rate(t, values, rows, raw, options, meta, notes)
@@ -405,7 +405,8 @@ def _one_rate(t, values: dict, rows, raw: Raw, options: ReadOptions, meta: dict,
         notes.append(f"{raw.source}: {text}")
         return t[inside], {n: v[inside] for n, v in values.items()}, rows[inside]
     raise RunError(f"{raw.source}: {where}; a run holds one sample rate: resample the file to one rate, or "
-                   f"read one part with --t-start/--t-end (before or after t = {t[i]:.6g} s)")
+                   f"read one part, before or after t = {t[i]:.6g} s, with --t-start/--t-end (estimate, refine) "
+                   "or by cutting the file")
 
 
 # -- channels --------------------------------------------------------------------------------------

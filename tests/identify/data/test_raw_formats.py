@@ -202,6 +202,8 @@ def test_an_undeclared_marker_like_value_warns_with_the_count_and_the_fix(truth_
     run = read_run_file(_rows_csv(tmp_path / "s.csv", t, q, th))
     assert "channel 'q': 3 value(s) exactly -9999 (line 7, line 8, line 42), far outside" in run.meta["warnings"]
     assert "\"missing\": -9999" in capsys.readouterr().err
+    run = read_run_file(tmp_path / "s.csv", {"channels": {"q2": "2 * q", "theta": "theta"}})  # an operand's too
+    assert "channel 'q': 3 value(s) exactly -9999" in run.meta["warnings"]
     # a value of the list within a channel's range is data: a pressure of 999 hPa among 990 .. 1010
     p = np.linspace(990.0, 1010.0, 60)
     p[17] = 999.0
@@ -232,7 +234,7 @@ def test_a_sample_rate_changing_within_a_file_is_refused_once_naming_where_and_t
     path = _rows_csv(tmp_path / "r.csv", t, q, th)
     with pytest.raises(RunError, match=r"the sample rate changes at line 102 \(t = 4 s\): 25 Hz \(step 0.04 s\) "
                                        r"up to it, 50 Hz \(step 0.02 s\) after it; .*resample the file to one rate, "
-                                       r"or read one part with --t-start/--t-end"):
+                                       r"or read one part, before or after t = 4 s, with --t-start/--t-end"):
         read_file_runs(path)
     savemat(tmp_path / "r.mat", {"t": t, "q": q, "theta": th})
     with pytest.raises(RunError, match=r"changes at sample 101 \(t = 4 s\): 25 Hz"):
