@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import RunError
 from . import units as U
-from .runs import TIME, Run, check_time, uneven_steps
+from .runs import TIME, UNIFORM_RTOL, Run, check_time, uneven_steps
 
 GAP_FACTOR = 1.5
 JITTER_MAX = 0.05
@@ -51,6 +51,7 @@ KINEMATIC_SS_RATIO = 0.5  # the degree factor must leave at most this share of t
 DEGREE_FACTOR_BAND = 1.5  # a ratio within 57.3 / 1.5 .. 57.3 x 1.5 is the degree factor
 COARSE_MARGIN = 0.05  # a duplicated or missing row in 20 is a row, not a coarse clock
 SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft dynamics
+FAST_STEP = 1e-5  # s: no flight-test record is sampled faster than 100 kHz
 # values loggers write for a missing sample; one that lies far outside a channel's other values is flagged
 TYPICAL_MARKERS = (-999.0, -9999.0, -99999.0, -999999.0, 999.0, 9999.0, 99999.0, 999999.0)
 MARKER_DISTANCE = 1.0  # flagged beyond this many times the other values' range from them
@@ -281,17 +282,51 @@ class Ingested:
 # -- time ------------------------------------------------------------------------------------------
 def _si_time(raw: Raw, meta: dict, notes: list) -> np.ndarray:
     t = np.asarray(raw.time, dtype=float).ravel()
+    resolution = _stored_resolution(t, raw.time_resolution)
     unit = raw.units.get(raw.time_name, raw.units.get(TIME))
     factor = 1.0
     if unit is not None:
         _, factor, kind = U.unit_info(unit, f"{raw.source}: channel '{raw.time_name}'")
         if kind != "time":
             raise RunError(f"{raw.source}: channel '{raw.time_name}': unit '{unit}' is not a time unit")
-        t = t * factor
-    if raw.time_resolution is not None:
-        t = _coarse_clock(t, raw.time_resolution[0] * factor, raw.time_resolution[1], raw, meta, notes)
+    t = _from_first_if_too_large(t, factor, raw, meta, notes) * factor
+    if resolution is not None:
+        t = _coarse_clock(t, resolution[0] * factor, resolution[1], raw, meta, notes)
     check_time(t, raw.source, raw.row, uniform=False)
     return t
+
+
+def _from_first_if_too_large(t: np.ndarray, factor: float, raw: Raw, meta: dict, notes: list) -> np.ndarray:
+    """Time stamps so large that double precision cannot hold their step evenly (Unix time in s:
+    1.7e9 s holds 2.4e-7 s; a MATLAB datenum in days) are counted from the first, in their own unit
+    (the difference of two close doubles is exact), and that is said: windows then count from it too."""
+    finite = t[np.isfinite(t)]
+    if finite.size < 2:
+        return t
+    step = float(np.median(np.abs(np.diff(finite))))
+    if not (step > 0 and 4 * np.spacing(float(np.max(np.abs(finite)))) > UNIFORM_RTOL * step):
+        return t
+    t0 = float(finite[0])
+    text = (f"time stamps as large as {t0 * factor:.10g} s cannot hold a uniform {step * factor:.3g} s step in double "
+            f"precision: counted from the first stamp ({t0:.10g} in the file), --t-start/--t-end too")
+    meta["time_origin"] = text
+    notes.append(f"{raw.source}: {text}")
+    return t - t0
+
+
+def _stored_resolution(t: np.ndarray, given: tuple[float, str] | None) -> tuple[float, str] | None:
+    """The smallest time difference the stored stamps hold (in their own unit): the file's (single
+    precision, decimals written) or double precision's at the clock offset, whichever is coarser --
+    a MATLAB datenum (days near 7.4e5) holds about 1e-5 s. Twice the spacing: a stamp and the grid's
+    ends through the first and the last each round by half of it."""
+    finite = t[np.isfinite(t)]
+    if not finite.size:
+        return given
+    peak = float(np.max(np.abs(finite)))
+    double = 2 * float(np.spacing(peak))
+    if given is None or double > given[0]:
+        return double, f"double precision at {peak:.10g}"
+    return given
 
 
 def _coarse_clock(t: np.ndarray, resolution: float, why: str, raw: Raw, meta: dict, notes: list) -> np.ndarray:
@@ -307,7 +342,10 @@ def _coarse_clock(t: np.ndarray, resolution: float, why: str, raw: Raw, meta: di
     grid = np.linspace(t[0], t[-1], t.size)
     off = float(np.max(np.abs(t - grid)))
     ratio = (grid[1] - grid[0]) / resolution
-    if abs(ratio - round(ratio)) <= COARSE_MARGIN or off > 0.5 * resolution * (1 + 1e-6) + 1e-12:
+    # a step of many resolution units: a repeated or missing row moves the stamps by that many, far
+    # beyond the half unit allowed, so only a step of a few units needs the multiple test
+    exact = ratio < 1 / COARSE_MARGIN and abs(ratio - round(ratio)) <= COARSE_MARGIN
+    if exact or off > 0.5 * resolution * (1 + 1e-6) + 1e-12:
         return t
     text = (f"time stamps resolve only {resolution:.3g} s ({why}), coarser than their spacing: rebuilt as the uniform "
             f"{grid[1] - grid[0]:.6g} s grid from {t[0]:.10g} to {t[-1]:.10g} s (every stamp within half a "
@@ -631,14 +669,18 @@ def _unit_checks(raw: Raw, t: np.ndarray, values: dict, described: dict, profile
 
 def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set) -> list[str]:
     """Warnings for what reads without error but cannot be flight data as taken: a sample interval
-    over :data:`SLOW_STEP` (time in milliseconds read as seconds) and a used channel that never
-    changes (a dead sensor or an unconnected column: nothing can be identified from it)."""
+    over :data:`SLOW_STEP` (time in milliseconds read as seconds) or under :data:`FAST_STEP` (days read
+    as seconds), and a used channel that never changes (a dead sensor or an unconnected column: nothing can be identified from it)."""
     out = []
     step = float(np.median(np.diff(t)))
     if step > SLOW_STEP:
         out.append(f"{raw.source}: channel '{raw.time_name}': the time step is {step:.6g} s ({1 / step:.3g} Hz), "
-                   f"too slow for flight dynamics; if the time is in milliseconds declare its unit "
-                   f"({U.declare_hint(raw.time_name, 'ms', raw.file_format)})")
+                   f"too slow for flight dynamics; if the time is in milliseconds (or microseconds: 'us') declare its "
+                   f"unit ({U.declare_hint(raw.time_name, 'ms', raw.file_format)})")
+    elif step < FAST_STEP:  # e.g. a MATLAB datenum (days) read as seconds: 50 Hz looks like 4 MHz
+        out.append(f"{raw.source}: channel '{raw.time_name}': the time step is {step:.3g} s ({1 / step:.3g} Hz), "
+                   f"too fast for a flight-test record; if the time is in days (a MATLAB datenum) declare its "
+                   f"unit ({U.declare_hint(raw.time_name, 'day', raw.file_format)})")
     for name, v in values.items():
         if name in used and v.size > 1 and np.all(v == v[0]):
             out.append(f"{raw.source}: channel '{name}' is constant ({v[0]:.6g} in all {v.size} samples): "

@@ -100,6 +100,19 @@ def test_time_in_milliseconds_undeclared_warns_with_the_fix(truth_run, tmp_path)
     assert "warnings" not in read_run_file(tmp_path / "ms2.csv").meta
 
 
+def test_time_in_days_undeclared_warns_and_reads_when_declared(truth_run, tmp_path):
+    """A MATLAB datenum (days) read as seconds makes 50 Hz look like 4 MHz: said, with the unit to declare."""
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{739000 + a / 86400:.12f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "d.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    warned = read_run_file(tmp_path / "d.csv").meta["warnings"]
+    assert "too fast for a flight-test record" in warned and "a header 'time [day]'" in warned
+    (tmp_path / "d2.csv").write_text("time [day],q [deg/s],theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "d2.csv")
+    assert "warnings" not in run.meta
+    np.testing.assert_allclose(np.diff(run.time), np.diff(t), atol=1e-4)
+
+
 def test_a_constant_channel_the_profile_uses_warns(truth_run, tmp_path):
     t, q, th = _table(truth_run)
     rows = "\n".join(f"{a:.6f},{b:.9f},2.5" for a, b in zip(t, q))
@@ -280,3 +293,16 @@ def test_clock_stamps_mixed_with_numbers_are_refused(tmp_path):
     (tmp_path / "mix.csv").write_text("time,q\n12:00:00.00,1\n12:00:00.02,2\n0.04,3\n")
     with pytest.raises(RunError, match="mixes clock stamps"):
         read_run_file(tmp_path / "mix.csv")
+
+
+def test_unix_time_stamps_are_counted_from_the_first_and_said(truth_run, tmp_path, capsys):
+    """1.7e9 s holds steps only to 2.4e-7 s in double precision: read from the first stamp, said,
+    and the window counts from it too."""
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{1.7e9 + a:.6f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "unix.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "unix.csv")
+    _check(run, truth_run)
+    np.testing.assert_allclose(run.time, t - t[0], atol=1e-9)
+    assert "counted from the first stamp (1700000000" in run.meta["time_origin"]
+    assert "counted from the first stamp" in capsys.readouterr().err
