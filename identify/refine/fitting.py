@@ -13,8 +13,10 @@ import warnings
 from dataclasses import replace
 
 from ..data.runs import Run
-from ..errors import ConvergenceWarning
-from ..estimators.prediction import ModelFit, feedback_bounds, settle, state_terms
+from ..errors import ConvergenceWarning, PseudostepError
+import numpy as np
+
+from ..estimators.prediction import ModelFit, block_design, feedback_bounds, settle, state_terms
 from ..estimators.result import IdentificationResult
 from ..model.pseudo_inputs import prepare
 from ..model.profile import Profile
@@ -112,6 +114,54 @@ class Fitting:
             result = feedback_bounds(result, fitted, prepare(fitted, self.data["fit"]), self.zero_shifts,
                                      self.segment, base=self.prediction(fitted))
         return fitted, result
+
+    def refit_in_metric(self, start: Profile, noise, max_iter: int = 20) -> tuple[Profile, float, dict]:
+        """Gauss-Newton fit of ``start``'s free parameters that minimises the noise model's cost
+        (``noise.cost`` of the residuals, the score test's metric), started at ``start``'s values
+        (refine's warm start: the current estimates, the new parameters at their null value); the
+        nuisance fitted by the estimator's prediction at every point. A check of a re-fit that
+        ended below the nested null in that metric, not an estimator: it tells whether the metric
+        itself has a better point there. ``(profile, cost, {name: {"value", "std"}})``, the stds
+        from the whitened design in that metric."""
+        names, prof = start.free_names, start
+        theta = np.array([start.free[n] for n in names], float)
+        cost, std = noise.cost(self.residuals(prof)), np.full(len(names), np.nan)
+        for _ in range(max_iter):
+            ev = self.prediction(prof)
+            evj = self.sensitivities(prof, ev.runs, ev)
+            J = block_design([noise.whiten(d) for d in evj.dy], [noise.whiten(nu) for nu in evj.nuisance])
+            e = np.concatenate([noise.whiten(r).ravel() for r in ev.residuals])
+            step, cov = _gauss_newton(J, e, len(names))
+            std = np.sqrt(np.clip(np.diag(cov), 0, None))
+            for _ in range(12):  # halve the step until the metric's cost falls
+                trial = replace(prof, free=dict(zip(names, map(float, theta + step))))
+                try:
+                    c = noise.cost(self.residuals(trial))
+                except PseudostepError:
+                    c = math.inf
+                if c < cost:
+                    break
+                step = step / 2
+            else:
+                break
+            done = cost - c < 1e-6 * abs(cost) + 1e-9
+            theta, cost, prof = theta + step, c, trial
+            if done:
+                break
+        return prof, cost, {n: {"value": float(v), "std": float(s)} for n, v, s in zip(names, theta, std)}
+
+
+def _gauss_newton(J: np.ndarray, e: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares step of the first ``p`` columns of ``J`` (the rest nuisance) on ``e``
+    and its covariance (unit-variance ``e``)."""
+    Q, R = np.linalg.qr(J)
+    keep = np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)), initial=1e-300)
+    full = np.zeros(J.shape[1])
+    full[keep] = np.linalg.lstsq(J[:, keep], e, rcond=None)[0]
+    info = J[:, keep].T @ J[:, keep]
+    cov = np.full((J.shape[1], J.shape[1]), np.nan)
+    cov[np.ix_(keep, keep)] = np.linalg.pinv(info)
+    return full[:p], cov[:p, :p]
 
 
 def _keep_meta(p: Profile, template: Profile) -> Profile:
