@@ -12,10 +12,10 @@ import math
 import warnings
 from dataclasses import replace
 
-from ..data.runs import Run
-from ..errors import ConvergenceWarning, PseudostepError
 import numpy as np
 
+from ..data.runs import Run
+from ..errors import ConvergenceWarning, PseudostepError
 from ..estimators.prediction import ModelFit, block_design, feedback_bounds, settle, state_terms
 from ..estimators.result import IdentificationResult
 from ..model.pseudo_inputs import prepare
