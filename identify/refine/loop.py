@@ -49,7 +49,7 @@ from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
-from .candidates import KIND_CLASSES, KINDS
+from .candidates import KIND_CLASSES, KINDS, parameters_of
 from .evaluation import MIN_SAMPLES, check_identifiable, errors, split_validation
 from .fitting import Fitting
 from .scoring import ScoreTest, score_candidates
@@ -379,7 +379,7 @@ class Refine:
         except PseudostepError as exc:
             attempts.append({"fit": f"{method}, restarted from the test's metric's fit", "error": str(exc)})
             return new_p, result, params, lr, failed, attempts
-        again_params = _parameters(again, cand.params)
+        again_params = parameters_of(again, cand.params)
         again_lr = null_cost - noise.cost(fitting.residuals(again_p))
         attempts.append({"fit": f"{method}, restarted from the test's metric's fit", "parameters": again_params,
                          "lr_statistic": float(again_lr)})
@@ -406,12 +406,6 @@ class Refine:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
         return _held_out_refusal(step.held_out, step.held_change, "choosing", "choosing")
-
-
-def _parameters(result, names) -> dict:
-    """``{name: {"value", "std"}}`` of the ``names`` in an identification result."""
-    return {k: {"value": float(result.theta[result.names.index(k)]),
-                "std": float(result.std[result.names.index(k)])} for k in names}
 
 
 def _only(params: dict, names) -> dict:
