@@ -169,7 +169,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
     if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
         raw = replace(raw, row=lambda i, rows=rows, row=raw.row: row(int(rows[i])))
     warnings += _unit_checks(raw, t, values, described, profile)
-    warnings += _plausibility(raw, t, values, used)
+    warnings += _plausibility(raw, t, values, used, set(profile.inputs) if profile is not None else set())
     segments = _split_gaps(t, raw, meta, notes)
     runs = []
     for k, (lo, hi) in enumerate(segments):
@@ -667,10 +667,12 @@ def _unit_checks(raw: Raw, t: np.ndarray, values: dict, described: dict, profile
     return out
 
 
-def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set) -> list[str]:
+def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set, controls: set) -> list[str]:
     """Warnings for what reads without error but cannot be flight data as taken: a sample interval
     over :data:`SLOW_STEP` (time in milliseconds read as seconds) or under :data:`FAST_STEP` (days read
-    as seconds), and a used channel that never changes (a dead sensor or an unconnected column: nothing can be identified from it)."""
+    as seconds), and a used measured channel that never changes (a dead sensor or an unconnected
+    column: nothing can be identified from it). A control held still is not one: flight tests fly
+    one run per axis, the other controls at trim (an input no run moves is refused later)."""
     out = []
     step = float(np.median(np.diff(t)))
     if step > SLOW_STEP:
@@ -682,7 +684,7 @@ def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set) -> list[str]
                    f"too fast for a flight-test record; if the time is in days (a MATLAB datenum) declare its "
                    f"unit ({U.declare_hint(raw.time_name, 'day', raw.file_format)})")
     for name, v in values.items():
-        if name in used and v.size > 1 and np.all(v == v[0]):
+        if name in used and name not in controls and v.size > 1 and np.all(v == v[0]):
             out.append(f"{raw.source}: channel '{name}' is constant ({v[0]:.6g} in all {v.size} samples): "
                        "a dead sensor or an unconnected column? Nothing is identified from it")
     return out

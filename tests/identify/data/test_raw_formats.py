@@ -115,10 +115,12 @@ def test_time_in_days_undeclared_warns_and_reads_when_declared(truth_run, tmp_pa
 
 def test_a_constant_channel_the_profile_uses_warns(truth_run, tmp_path):
     t, q, th = _table(truth_run)
-    rows = "\n".join(f"{a:.6f},{b:.9f},2.5" for a, b in zip(t, q))
-    (tmp_path / "dead.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    rows = "\n".join(f"{a:.6f},{b:.9f},2.5,0" for a, b in zip(t, q))
+    (tmp_path / "dead.csv").write_text("time,q [deg/s],theta [deg],eta\n" + rows + "\n")
     run = read_run_file(tmp_path / "dead.csv", profile=PROFILE)
     assert "channel 'theta' is constant (0.0436332 in all 60 samples)" in run.meta["warnings"]
+    # a control held at trim is how a run of another axis is flown, not a dead sensor
+    assert "'eta' is constant" not in run.meta["warnings"]
 
 
 @pytest.mark.parametrize("consistent", [False, True])
