@@ -168,8 +168,11 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
     if time_name not in names and dt is None:
         raise RunError(f"{source}: no '{TIME}' column (columns: {', '.join(names)}) and no sample interval: "
                        f"name the time column (\"time\") or give \"dt\" in the channel map")
+    clock = {"col": names.index(time_name) if time_name in names else None, "rows": 0, "dated": 0}
     values, line_of = _csv_values(lines, header_line, names, delim, trailing, source, notes,
-                                  text.endswith(("\n", "\r")))
+                                  text.endswith(("\n", "\r")), clock)
+    if clock["rows"]:
+        _clock_time(values, line_of, clock, units.get(time_name, units.get(TIME)), meta, notes, source)
 
     def column(where, channel):
         if isinstance(where, int) and not isinstance(where, bool):
@@ -197,7 +200,7 @@ def csv_raw(text: str, source: str, channel_map: dict | None = None):
         time_name = TIME
         meta["time_from"] = f"dt = {float(dt):g} s from the channel map (the file has no time column)"
     return Raw(source, t, column, names, units, meta, lambda i: f"line {line_of[i]}", time_name, "csv", specs,
-               notes, resolution)
+               notes, resolution, cmap.get("missing"))
 
 
 def _written_resolution(lines, line_of, j: int, delim):
@@ -295,10 +298,12 @@ def _merge_units(units: dict, more: dict, source: str) -> None:
         units[name] = unit
 
 
-def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_with_break=True):
+def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_with_break=True, clock=None):
     """The data rows as an (N, columns) array; an empty cell is a missing value (NaN). A last line
     with too few values in a file that does not end with a line break (a write cut short) is
-    left out, said in ``notes``."""
+    left out, said in ``notes``. Clock stamps (``12:34:56.020``, with a date or not) in the
+    column ``clock["col"]`` are read as seconds of their day (plus the days since the first stamp's
+    date), counted in ``clock``."""
     rows = [(n, l) for n, l in enumerate(lines[header_line:], start=header_line + 1)
             if l.strip() and not l.startswith("#")]
     if rows and not ends_with_break and len(_cells(rows[-1][1], delim)) < len(names):
@@ -318,13 +323,64 @@ def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_
         try:
             values[r] = [float(cell) for cell in cells]
         except ValueError:
-            values[r] = [_cell(cell, f"{source}: line {lineno}, channel '{name}'") for cell, name in zip(cells, names)]
+            values[r] = [_clock_cell(cell, clock) if clock and j == clock["col"] and _CLOCK.match(cell.strip())
+                         else _cell(cell, f"{source}: line {lineno}, channel '{name}'")
+                         for j, (cell, name) in enumerate(zip(cells, names))]
     return values, [n for n, _ in rows]
+
+
+_CLOCK = re.compile(r"^(?:(?P<date>\d{4}-\d{2}-\d{2})[T ])?(?P<h>\d{1,2}):(?P<m>\d{2}):(?P<s>\d{2}(?:\.\d*)?)Z?$")
+_DATE_TIME = re.compile(r"(\d{4}-\d{2}-\d{2}) (\d{1,2}:\d{2}:\d{2})")  # one cell in a blank-separated file
+DAY = 86400.0
+
+
+def _clock_cell(cell: str, clock: dict) -> float:
+    """Seconds of a clock stamp's day, plus its days since the first stamp's date when dated (small
+    numbers: seconds since a distant epoch would lose the microseconds)."""
+    import datetime
+
+    m = _CLOCK.match(cell.strip())
+    clock["rows"] += 1
+    clock.setdefault("first", cell.strip())
+    seconds = int(m["h"]) * 3600 + int(m["m"]) * 60 + float(m["s"])
+    if not m["date"]:
+        return seconds
+    clock["dated"] += 1
+    try:
+        day = datetime.date.fromisoformat(m["date"]).toordinal()
+    except ValueError:
+        return float("nan")  # refused with the other time checks, naming the line
+    return (day - clock.setdefault("day0", day)) * DAY + seconds
+
+
+def _clock_time(values, line_of, clock: dict, unit, meta: dict, notes: list, source: str) -> None:
+    """The clock column made seconds from the first sample (in place), a midnight rollover of
+    undated stamps (a step back by nearly a day) counted as the next day; said and recorded."""
+    j, n = clock["col"], len(values)
+    if clock["rows"] != n or clock["dated"] not in (0, n):
+        raise RunError(f"{source}: the time column mixes clock stamps ({clock['first']}) with numbers or with "
+                       f"stamps {'without' if clock['dated'] else 'with'} a date: write one form")
+    if unit is not None and U.canonical(unit) != "s":
+        raise RunError(f"{source}: the time column holds clock stamps ({clock['first']}) but is declared in {unit}: "
+                       "drop the unit")
+    t = values[:, j]
+    said = []
+    if not clock["dated"]:
+        back = np.flatnonzero(np.diff(t) < -DAY / 2)
+        for i in back:
+            t[i + 1:] += DAY
+        said = [f"midnight rollover at line {line_of[i + 1]}: 24 h added from there on" for i in back]
+    origin = t[0] if np.isfinite(t[0]) else 0.0
+    values[:, j] = t - origin
+    text = (f"clock time stamps{' with a date' if clock['dated'] else ''} (first {clock['first']}) read as seconds "
+            f"from the first sample" + "".join(f"; {s}" for s in said))
+    meta["time_from"] = text
+    notes.append(text)
 
 
 def _cells(line: str, delim: str | None) -> list[str]:
     if delim is None:
-        return line.split()
+        return _DATE_TIME.sub(r"\1T\2", line).split()
     return next(csv.reader([line], delimiter=delim)) if '"' in line else line.split(delim)
 
 

@@ -11,7 +11,9 @@ steps every format shares happen here, in this order:
 3. **Checks.** Missing or non-finite values (NaN) follow a policy (:class:`ReadOptions`): outside
    the analysis window the run is cut to the window; inside it they are refused (naming the
    channel and row), or their samples dropped (the hole splits the run) or interpolated, as
-   asked, said and recorded. A column the profile does not use is left out instead, and said.
+   asked, said and recorded; values equal to the channel map's ``"missing"`` markers (``-999``)
+   are missing too, and an undeclared marker-like value far outside a channel's others warns. A
+   column the profile does not use is left out instead, and said.
    A declared unit of another kind than the profile's (a speed for an angle) is an error. An
    angular channel taken as radians (declared ``rad`` or, undeclared, ``rad`` in the profile)
    whose values exceed what radians can physically reach gives a warning
@@ -21,7 +23,8 @@ steps every format shares happen here, in this order:
 4. **Time.** A step longer than :data:`GAP_FACTOR` times the median step is a gap: the file splits
    into several runs. Within a run, time stamps off the uniform grid by up to :data:`JITTER_MAX` of
    a step are accepted and every channel is resampled onto the grid by linear interpolation (the
-   jitter is recorded in the run's metadata); larger irregularity is an error.
+   jitter is recorded in the run's metadata); larger irregularity is an error. A sample rate that
+   changes within the file (:func:`_rate_change`) is refused, naming where, both rates and the fix.
 
 Warnings and notes go to stderr and into the run's ``warnings`` / ``notes`` metadata.
 """
@@ -37,7 +40,7 @@ import numpy as np
 
 from ..errors import RunError
 from . import units as U
-from .runs import TIME, Run, check_time, uneven_steps
+from .runs import TIME, UNIFORM_RTOL, Run, check_time, uneven_steps
 
 GAP_FACTOR = 1.5
 JITTER_MAX = 0.05
@@ -48,6 +51,13 @@ KINEMATIC_SS_RATIO = 0.5  # the degree factor must leave at most this share of t
 DEGREE_FACTOR_BAND = 1.5  # a ratio within 57.3 / 1.5 .. 57.3 x 1.5 is the degree factor
 COARSE_MARGIN = 0.05  # a duplicated or missing row in 20 is a row, not a coarse clock
 SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft dynamics
+FAST_STEP = 1e-5  # s: no flight-test record is sampled faster than 100 kHz
+# values loggers write for a missing sample; one that lies far outside a channel's other values is flagged
+TYPICAL_MARKERS = (-999.0, -9999.0, -99999.0, -999999.0, 999.0, 9999.0, 99999.0, 999999.0)
+MARKER_DISTANCE = 1.0  # flagged beyond this many times the other values' range from them
+RATE_WINDOW = 7  # steps in the running median that tells a sample rate from single gaps
+RATE_TOL = 0.1  # a running median step off the rate by more than this share is another rate (jitter: 5 %)
+RATE_MIN_STEPS = 10  # ... when it holds that many steps (fewer: lone samples between gaps)
 _DERIVATIVE_OF = {"angle": "angular rate", "angular rate": "angular acceleration", "length": "speed",
                   "speed": "acceleration"}
 
@@ -74,6 +84,7 @@ class Raw:
     specs: dict | None = None  # the channel map's channels, column numbers made 0-based
     notes: list[str] = field(default_factory=list)  # what the reader guessed or repaired, said and recorded
     time_resolution: tuple[float, str] | None = None  # the smallest time difference the file can hold, and why
+    missing: object = None  # the map's "missing": marker value(s) of missing samples, or {name: value(s)}
 
 
 def is_index(v) -> bool:
@@ -150,12 +161,15 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
             continue
         values[name], described[name] = v, how
     meta = {**_meta(raw, described, resolver.derived), **meta_time}
-    t, values, lines, rows = _missing(t, values, raw, options, meta)
+    notes += resolver.marker_notes(meta)
+    warnings += [w for n, w in resolver.suspects.items() if n in values or n not in channels]  # operands too
+    t, values, lines, rows = _missing(t, values, raw, options, meta, resolver.marked)
     notes += lines
+    t, values, rows = _one_rate(t, values, rows, raw, options, meta, notes)
     if len(rows) != len(raw.time):  # samples cut or dropped: messages still name the file's rows
         raw = replace(raw, row=lambda i, rows=rows, row=raw.row: row(int(rows[i])))
     warnings += _unit_checks(raw, t, values, described, profile)
-    warnings += _plausibility(raw, t, values, used)
+    warnings += _plausibility(raw, t, values, used, set(profile.inputs) if profile is not None else set())
     segments = _split_gaps(t, raw, meta, notes)
     runs = []
     for k, (lo, hi) in enumerate(segments):
@@ -175,8 +189,9 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
     return Ingested(runs, [f"note: {n}" for n in notes] + [f"warning: {w}" for w in warnings])
 
 
-def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
-    """Time, channels, the notes and the file rows (indices) kept, after the NaN policy."""
+def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict, marked: dict | None = None):
+    """Time, channels, the notes and the file rows (indices) kept, after the NaN policy; ``marked``
+    the channels whose missing-value markers were read as NaN (named in a refusal)."""
     rows = np.arange(len(t))
     if not values:
         return t, values, [], rows
@@ -203,7 +218,8 @@ def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict):
         name = next(n for n, v in values.items() if not np.all(np.isfinite(v)))
         v = values[name]
         first = np.flatnonzero(~np.isfinite(v))
-        raise RunError(f"{raw.source}: {raw.row(rows[first[0]])}, channel '{name}': {v[first[0]]} value "
+        what = f"missing value (marker {marked[name]} in the file)" if name in (marked or {}) else f"{v[first[0]]} value"
+        raise RunError(f"{raw.source}: {raw.row(rows[first[0]])}, channel '{name}': {what} "
                        f"({first.size} missing or non-finite value(s) in the window; --nan drop or --nan "
                        f"interpolate reads them)")
     where = ", ".join(raw.row(i) for i in rows[bad][:5]) + (f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else "")
@@ -266,17 +282,51 @@ class Ingested:
 # -- time ------------------------------------------------------------------------------------------
 def _si_time(raw: Raw, meta: dict, notes: list) -> np.ndarray:
     t = np.asarray(raw.time, dtype=float).ravel()
+    resolution = _stored_resolution(t, raw.time_resolution)
     unit = raw.units.get(raw.time_name, raw.units.get(TIME))
     factor = 1.0
     if unit is not None:
         _, factor, kind = U.unit_info(unit, f"{raw.source}: channel '{raw.time_name}'")
         if kind != "time":
             raise RunError(f"{raw.source}: channel '{raw.time_name}': unit '{unit}' is not a time unit")
-        t = t * factor
-    if raw.time_resolution is not None:
-        t = _coarse_clock(t, raw.time_resolution[0] * factor, raw.time_resolution[1], raw, meta, notes)
+    t = _from_first_if_too_large(t, factor, raw, meta, notes) * factor
+    if resolution is not None:
+        t = _coarse_clock(t, resolution[0] * factor, resolution[1], raw, meta, notes)
     check_time(t, raw.source, raw.row, uniform=False)
     return t
+
+
+def _from_first_if_too_large(t: np.ndarray, factor: float, raw: Raw, meta: dict, notes: list) -> np.ndarray:
+    """Time stamps so large that double precision cannot hold their step evenly (Unix time in s:
+    1.7e9 s holds 2.4e-7 s; a MATLAB datenum in days) are counted from the first, in their own unit
+    (the difference of two close doubles is exact), and that is said: windows then count from it too."""
+    finite = t[np.isfinite(t)]
+    if finite.size < 2:
+        return t
+    step = float(np.median(np.abs(np.diff(finite))))
+    if not (step > 0 and 4 * np.spacing(float(np.max(np.abs(finite)))) > UNIFORM_RTOL * step):
+        return t
+    t0 = float(finite[0])
+    text = (f"time stamps as large as {t0 * factor:.10g} s cannot hold a uniform {step * factor:.3g} s step in double "
+            f"precision: counted from the first stamp ({t0:.10g} in the file), --t-start/--t-end too")
+    meta["time_origin"] = text
+    notes.append(f"{raw.source}: {text}")
+    return t - t0
+
+
+def _stored_resolution(t: np.ndarray, given: tuple[float, str] | None) -> tuple[float, str] | None:
+    """The smallest time difference the stored stamps hold (in their own unit): the file's (single
+    precision, decimals written) or double precision's at the clock offset, whichever is coarser --
+    a MATLAB datenum (days near 7.4e5) holds about 1e-5 s. Twice the spacing: a stamp and the grid's
+    ends through the first and the last each round by half of it."""
+    finite = t[np.isfinite(t)]
+    if not finite.size:
+        return given
+    peak = float(np.max(np.abs(finite)))
+    double = 2 * float(np.spacing(peak))
+    if given is None or double > given[0]:
+        return double, f"double precision at {peak:.10g}"
+    return given
 
 
 def _coarse_clock(t: np.ndarray, resolution: float, why: str, raw: Raw, meta: dict, notes: list) -> np.ndarray:
@@ -292,7 +342,10 @@ def _coarse_clock(t: np.ndarray, resolution: float, why: str, raw: Raw, meta: di
     grid = np.linspace(t[0], t[-1], t.size)
     off = float(np.max(np.abs(t - grid)))
     ratio = (grid[1] - grid[0]) / resolution
-    if abs(ratio - round(ratio)) <= COARSE_MARGIN or off > 0.5 * resolution * (1 + 1e-6) + 1e-12:
+    # a step of many resolution units: a repeated or missing row moves the stamps by that many, far
+    # beyond the half unit allowed, so only a step of a few units needs the multiple test
+    exact = ratio < 1 / COARSE_MARGIN and abs(ratio - round(ratio)) <= COARSE_MARGIN
+    if exact or off > 0.5 * resolution * (1 + 1e-6) + 1e-12:
         return t
     text = (f"time stamps resolve only {resolution:.3g} s ({why}), coarser than their spacing: rebuilt as the uniform "
             f"{grid[1] - grid[0]:.6g} s grid from {t[0]:.10g} to {t[-1]:.10g} s (every stamp within half a "
@@ -347,6 +400,53 @@ def _regularise(t: np.ndarray, channels: dict, raw: Raw, offset: int, meta: dict
     return grid, {k: np.interp(grid, t, v) for k, v in channels.items()}
 
 
+def _rate_change(t: np.ndarray):
+    """The first change of sample rate, ``(i, step before, step after)`` with ``i`` the first step
+    at the new rate, or None. The running median of :data:`RATE_WINDOW` steps ignores single gaps
+    and jitter; a median off the rate by more than :data:`RATE_TOL` for :data:`RATE_MIN_STEPS`
+    steps is another rate."""
+    steps = np.diff(t)
+    if steps.size < 2 * RATE_MIN_STEPS:
+        return None
+    half = RATE_WINDOW // 2
+    med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(steps, half, mode="edge"), RATE_WINDOW), axis=1)
+    level = float(np.median(med[:RATE_MIN_STEPS]))
+    off = np.abs(med - level) > RATE_TOL * level
+    i = 0
+    while i < off.size:
+        if not off[i]:
+            i += 1
+            continue
+        j = i + int(np.argmin(off[i:])) if not off[i:].all() else off.size
+        if j - i >= RATE_MIN_STEPS:  # the first step nearer the new rate, around where the median turned
+            new = float(np.median(med[i:j]))
+            near = steps[max(i - half, 0):i + half + 1]
+            return max(i - half, 0) + int(np.argmax(np.abs(near - new) < np.abs(near - level))), level, new
+        i = j
+    return None
+
+
+def _one_rate(t, values: dict, rows, raw: Raw, options: ReadOptions, meta: dict, notes: list):
+    """Refuse a file whose sample rate changes (a run holds one rate: resampling one part is the
+    engineer's choice of filter, not the reader's), naming where, the two rates and the fix; a
+    change outside the window ``--t-start/--t-end`` cuts the run to the window, said."""
+    change = _rate_change(t)
+    if change is None:
+        return t, values, rows
+    i, before, after = change
+    where = (f"the sample rate changes at {raw.row(int(rows[i]))} (t = {t[i]:.6g} s): {1 / before:.4g} Hz "
+             f"(step {before:.6g} s) up to it, {1 / after:.4g} Hz (step {after:.6g} s) after it")
+    inside = options.inside(t)
+    if not inside.all() and inside.sum() >= 2 and _rate_change(t[inside]) is None:
+        text = f"{where}, outside the window t = {options.t_start}..{options.t_end} s: the run is cut to the window"
+        meta["rate_change_outside_window"] = text
+        notes.append(f"{raw.source}: {text}")
+        return t[inside], {n: v[inside] for n, v in values.items()}, rows[inside]
+    raise RunError(f"{raw.source}: {where}; a run holds one sample rate: resample the file to one rate, or "
+                   f"read one part, before or after t = {t[i]:.6g} s, with --t-start/--t-end (estimate, refine) "
+                   "or by cutting the file")
+
+
 # -- channels --------------------------------------------------------------------------------------
 class _Resolver:
     """Each run channel's SI values from its source; ``(values, (how, unit))`` per channel where how
@@ -357,6 +457,49 @@ class _Resolver:
         self.done: dict[str, tuple] = {}
         self.busy: set[str] = set()
         self.derived: dict[str, str] = {}
+        self.marked: dict[str, str] = {}  # channel: the declared marker(s) found in it
+        self.marked_rows: dict[str, str] = {}
+        self.suspects: dict[str, str] = {}  # channel: warning of an undeclared marker-like value
+
+    def marker_notes(self, meta: dict) -> list[str]:
+        """Notes of the declared markers read as missing (also recorded in ``meta``)."""
+        if not self.marked:
+            return []
+        text = "; ".join(f"'{n}': {self.marked_rows[n]}" for n in self.marked)
+        meta["missing_markers"] = text
+        return [f"{self.raw.source}: missing-value marker(s) read as missing (NaN): {text}"]
+
+    def _markers(self, name: str, spec, v: np.ndarray) -> np.ndarray:
+        """``v`` with the declared missing-value markers made NaN; an undeclared value of
+        :data:`TYPICAL_MARKERS` far outside the other values is kept and flagged."""
+        declared = _declared_markers(self.raw.missing, name, spec)
+        if declared is not None:
+            hit = np.isin(v, declared)
+            if hit.any():
+                found = ", ".join(f"{m:g}" for m in np.unique(v[hit]))
+                self.marked[name] = found
+                self.marked_rows[name] = f"{int(hit.sum())} x {found} ({self._rows(hit)})"
+                v = np.where(hit, np.nan, v)
+            return v
+        finite = v[np.isfinite(v)]
+        for marker in TYPICAL_MARKERS:
+            hit = v == marker
+            others = finite[finite != marker]
+            if not hit.any() or others.size < 2:
+                continue
+            lo, hi = float(others.min()), float(others.max())
+            if min(abs(marker - lo), abs(marker - hi)) > MARKER_DISTANCE * (hi - lo) and not lo <= marker <= hi:
+                self.suspects[name] = (
+                    f"{self.raw.source}: channel '{name}': {int(hit.sum())} value(s) exactly {marker:g} "
+                    f"({self._rows(hit)}), far outside its other values ({lo:.6g} .. {hi:.6g}): a missing-value "
+                    f"marker? Read as data; to read them as missing declare it in the channel map "
+                    f"(\"missing\": {marker:g}), then --nan drop or --nan interpolate")
+                break
+        return v
+
+    def _rows(self, hit: np.ndarray) -> str:
+        idx = np.flatnonzero(hit)
+        return ", ".join(self.raw.row(int(i)) for i in idx[:5]) + (f" and {idx.size - 5} more" if idx.size > 5 else "")
 
     def get(self, name: str):
         if name in self.done:
@@ -381,7 +524,7 @@ class _Resolver:
         return next(iter(found.values()), None)
 
     def _plain(self, name: str, spec):
-        raw_values = np.asarray(self.raw.column(spec, name), dtype=float).ravel()
+        raw_values = self._markers(name, spec, np.asarray(self.raw.column(spec, name), dtype=float).ravel())
         unit = self._unit(name, spec if isinstance(spec, str) else None)
         if unit is None:
             return raw_values, ("undeclared", None)
@@ -416,6 +559,15 @@ class _Resolver:
             raise RunError(f"{where}: a unit is declared both for '{name}' ({unit}) and for its operand(s) "
                            f"{', '.join(declared)}; declare one")
         return U.to_si(values, unit, f"{self.raw.source}: channel '{name}'"), ("declared", unit)
+
+
+def _declared_markers(missing, name: str, spec):
+    """The missing-value markers declared for a channel (by its name or its column's), or None."""
+    if isinstance(missing, dict):
+        missing = missing.get(name, missing.get(spec) if isinstance(spec, str) else None)
+    if missing is None:
+        return None
+    return np.atleast_1d(np.asarray(missing, dtype=float))
 
 
 def _is_name(spec: str) -> bool:
@@ -515,18 +667,24 @@ def _unit_checks(raw: Raw, t: np.ndarray, values: dict, described: dict, profile
     return out
 
 
-def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set) -> list[str]:
+def _plausibility(raw: Raw, t: np.ndarray, values: dict, used: set, controls: set) -> list[str]:
     """Warnings for what reads without error but cannot be flight data as taken: a sample interval
-    over :data:`SLOW_STEP` (time in milliseconds read as seconds) and a used channel that never
-    changes (a dead sensor or an unconnected column: nothing can be identified from it)."""
+    over :data:`SLOW_STEP` (time in milliseconds read as seconds) or under :data:`FAST_STEP` (days read
+    as seconds), and a used measured channel that never changes (a dead sensor or an unconnected
+    column: nothing can be identified from it). A control held still is not one: flight tests fly
+    one run per axis, the other controls at trim (an input no run moves is refused later)."""
     out = []
     step = float(np.median(np.diff(t)))
     if step > SLOW_STEP:
         out.append(f"{raw.source}: channel '{raw.time_name}': the time step is {step:.6g} s ({1 / step:.3g} Hz), "
-                   f"too slow for flight dynamics; if the time is in milliseconds declare its unit "
-                   f"({U.declare_hint(raw.time_name, 'ms', raw.file_format)})")
+                   f"too slow for flight dynamics; if the time is in milliseconds (or microseconds: 'us') declare its "
+                   f"unit ({U.declare_hint(raw.time_name, 'ms', raw.file_format)})")
+    elif step < FAST_STEP:  # e.g. a MATLAB datenum (days) read as seconds: 50 Hz looks like 4 MHz
+        out.append(f"{raw.source}: channel '{raw.time_name}': the time step is {step:.3g} s ({1 / step:.3g} Hz), "
+                   f"too fast for a flight-test record; if the time is in days (a MATLAB datenum) declare its "
+                   f"unit ({U.declare_hint(raw.time_name, 'day', raw.file_format)})")
     for name, v in values.items():
-        if name in used and v.size > 1 and np.all(v == v[0]):
+        if name in used and name not in controls and v.size > 1 and np.all(v == v[0]):
             out.append(f"{raw.source}: channel '{name}' is constant ({v[0]:.6g} in all {v.size} samples): "
                        "a dead sensor or an unconnected column? Nothing is identified from it")
     return out

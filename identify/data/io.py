@@ -24,7 +24,8 @@ def load_channel_map(spec: str | Path) -> dict:
 
     Form: ``{"channels": {channel: variable, column or expression}, "units": {name: unit},
     "time": variable or column, "matrix": name or pattern ("{stem}": the file's name), "dt":
-    seconds, "columns": [names of a headerless text file's columns], "index_base": 0 or 1}``; a
+    seconds, "columns": [names of a headerless text file's columns], "index_base": 0 or 1, "missing":
+    marker value(s) of missing samples (-999 or [-999, 99999]), or {name: value(s)} per channel}``; a
     flat ``{channel: variable or column}`` is read as ``{"channels": ...}``.
     """
     text = str(spec)
@@ -40,7 +41,7 @@ def load_channel_map(spec: str | Path) -> dict:
         raise RunError(f"{source}: channel map must be a JSON object")
     if "channels" not in data:
         data = {"channels": data}
-    unknown = set(data) - {"channels", "time", "matrix", "dt", "units", "columns", "index_base"}
+    unknown = set(data) - {"channels", "time", "matrix", "dt", "units", "columns", "index_base", "missing"}
     if unknown:
         raise RunError(f"{source}: channel map has unknown key(s) {', '.join(sorted(unknown))}")
     if not isinstance(data["channels"], dict) or not data["channels"]:
@@ -53,7 +54,22 @@ def load_channel_map(spec: str | Path) -> dict:
     columns = data.get("columns")
     if columns is not None and (not isinstance(columns, list) or not all(isinstance(c, str) and c for c in columns)):
         raise RunError(f"{source}: channel map 'columns' must be a list of column names")
+    _check_missing(data.get("missing"), source)
     return data
+
+
+def _check_missing(missing, source) -> None:
+    """The map's "missing": a number, a list of numbers, or {name: number or list}."""
+    def numbers(v):
+        items = v if isinstance(v, list) else [v]
+        return bool(items) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in items)
+
+    if missing is None or numbers(missing):
+        return
+    if isinstance(missing, dict) and missing and all(numbers(v) for v in missing.values()):
+        return
+    raise RunError(f"{source}: channel map 'missing' must be a number (the value written for a missing sample, "
+                   f"e.g. -999), a list of numbers, or {{channel: number or list}}, got {missing!r}")
 
 
 def read_run_file(path: str | Path, channel_map: dict | None = None, profile=None, options=None) -> Run:
@@ -83,7 +99,7 @@ def _ingest(path, channel_map, profile, options=None):
         cmap = channel_map or {}
         got = mat_runs(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
                        dt=cmap.get("dt"), units=cmap.get("units"), meta=None, profile=profile,
-                       index_base=cmap.get("index_base"), options=options)
+                       index_base=cmap.get("index_base"), options=options, missing=cmap.get("missing"))
     digest = file_sha256(path)
     for run in got.runs:  # provenance: which bytes these numbers came from
         if run.meta.get("sha256", digest) != digest:  # a file written from another (compat's corrected runs)

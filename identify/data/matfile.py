@@ -61,25 +61,26 @@ def read_mat_runs(path: str | Path, channels: dict[str, str | int] | None = None
 
 
 def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None, meta=None, profile=None,
-             index_base=None, options=None):
+             index_base=None, options=None, missing=None):
     """A ``.mat`` file's runs with the notes and warnings of reading it, not yet said
     (an :class:`~identify.data.ingest.Ingested`); arguments as :func:`read_mat`, ``index_base``
-    the map's column numbering, ``options`` a :class:`~identify.data.ingest.ReadOptions`."""
+    the map's column numbering, ``options`` a :class:`~identify.data.ingest.ReadOptions`, ``missing`` the
+    map's missing-value markers."""
     path = Path(path)
     variables, version = _load(path)
     elements = _struct_elements(variables, channels, time)
     if elements:
         parts = [_mat_file_runs(path, _element(variables, s, k), version, channels, time, matrix, dt, units,
                                 dict(meta or {}, struct_element=f"{s}({k})"), profile, index_base, options,
-                                f"{path} [{s}({k})]")
+                                f"{path} [{s}({k})]", missing)
                  for s, k in elements]
         return Ingested([r for p in parts for r in p.runs], [m for p in parts for m in p.messages])
     return _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, meta, profile, index_base,
-                          options, str(path))
+                          options, str(path), missing)
 
 
 def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, meta, profile, index_base,
-                   options, source):
+                   options, source, missing=None):
     channels = dict(channels) if channels is not None else None
     uses_columns = any(is_index(v) for v in (channels or {}).values()) or is_index(time)
     data_name = [None, None]
@@ -115,7 +116,7 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
         info["matrix"] = data_name[0] + (f" ({data_name[1]})" if data_name[1] else "")
     info.update(meta or {})
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
-              time_name=time_name, file_format="mat", notes=notes, time_resolution=resolution)
+              time_name=time_name, file_format="mat", notes=notes, time_resolution=resolution, missing=missing)
     return build_runs(raw, channels, profile, options)
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import RunError
 
 TIME = "time"
-_UNIFORM_RTOL = 1e-6
+UNIFORM_RTOL = 1e-6
 
 
 @dataclass
@@ -132,7 +132,7 @@ def check_time(t: np.ndarray, source: str, where=lambda i: f"row {i + 1}", unifo
 def uneven_steps(steps: np.ndarray) -> np.ndarray:
     """Indices of time steps off the median (the nominal step) by more than rounding."""
     dt = float(np.median(steps))
-    return np.flatnonzero(np.abs(steps - dt) > _UNIFORM_RTOL * max(dt, 1e-12) + 1e-9)
+    return np.flatnonzero(np.abs(steps - dt) > UNIFORM_RTOL * max(dt, 1e-12) + 1e-9)
 
 
 def _one_line(value) -> str:

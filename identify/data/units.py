@@ -41,7 +41,8 @@ UNITS: dict[str, tuple[float, str]] = {
     # accelerations
     "m/s^2": (1.0, "acceleration"), "ft/s^2": (FT, "acceleration"), "g": (G0, "acceleration"),
     # time
-    "s": (1.0, "time"), "ms": (1e-3, "time"), "min": (60.0, "time"),
+    "s": (1.0, "time"), "ms": (1e-3, "time"), "us": (1e-6, "time"), "min": (60.0, "time"),
+    "day": (86400.0, "time"),  # a MATLAB datenum counts days
     # forces, pressures
     "n": (1.0, "force"), "lbf": (4.4482216152605, "force"),
     "pa": (1.0, "pressure"), "kpa": (1e3, "pressure"), "hpa": (100.0, "pressure"), "mbar": (100.0, "pressure"),

@@ -213,6 +213,12 @@ class Estimator:
 
         return predict(profile, runs, zero_shifts, segment, start=start)
 
+    @staticmethod
+    def fitted_noise(result) -> dict | None:
+        """Noise parameters a fit estimated that its prediction re-fits (a filter's F and R, as
+        ``ModelFit.noise``), handed back as the prediction's ``noise_start``; None: none."""
+        return None
+
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True,
                       segment: float = math.inf):
         from .prediction import evaluate, simulated_terms, state_terms

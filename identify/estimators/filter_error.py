@@ -193,27 +193,43 @@ class FEM(Estimator):
         return math.inf
 
     def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
-                   start=None, noise: dict | None = None):
+                   start=None, noise: dict | None = None, noise_start: dict | None = None):
         """The profile's one-step-ahead prediction of ``runs``: residuals are the innovations, with
         the nuisance (F, R, each run's initial state and zero shifts) fitted, the derivatives held.
         ``noise``: the ``ModelFit.noise`` (F and R) of the same profile's prediction of the fitting
         runs, held: the prediction of held-out data by the fitted model, its filter gain included
-        (only each run's initial state and zero shifts are fitted there)."""
-        return self._innovations(profile, runs, zero_shifts, jacobian=False, noise=noise)[0]
+        (only each run's initial state and zero shifts are fitted there). ``noise_start``: F and R
+        of the fit that gave the profile (:meth:`fitted_noise`), the start of their fit on the same
+        runs: the fit's own optimum, where a start from scratch can end in another local optimum of
+        the noise's likelihood (seen: 6000 below the fit's at the same derivatives)."""
+        return self._innovations(profile, runs, zero_shifts, jacobian=False, noise=noise, start=noise_start)[0]
+
+    @staticmethod
+    def fitted_noise(result: IdentificationResult) -> dict | None:
+        """The fitted F and R of a FEM ``result`` as ``ModelFit.noise`` holds them."""
+        pn, mn = result.info.get("process_noise"), result.info.get("measurement_noise")
+        if pn is None or mn is None:
+            return None
+        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()])}
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
         (N_r, ny, k) = -d(innovations)/d(F, R, the run's initial state and zero shifts) per run
         (F and R are shared by the runs; as per-run columns the score test is a little conservative).
         A candidate term built from states (q|q|) gets its column from the extended filter at the
-        term's null value: the term on the filter's own states, never on the measured ones."""
-        return self._innovations(profile, runs, zero_shifts, jacobian=True)[0]
+        term's null value: the term on the filter's own states, never on the measured ones.
+        F and R start from the ``null`` prediction's (its residuals are the score test's): the
+        columns of the same filter, not of another local optimum of the noise's likelihood."""
+        start = getattr(null, "noise", None)
+        return self._innovations(profile, runs, zero_shifts, jacobian=True, start=start)[0]
 
-    def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform):
+    def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform,
+                       noise_start: dict | None = None):
         """Per run (N_r, ny): the filter's one-step prediction's response to ``transform(u, dt)`` of
         one input (the others zero, from rest), with the gain of the profile's fitted noise: how
-        the innovations would change (with the opposite sign) were that input added."""
-        fit, prob, ev = self._innovations(profile, runs, True, jacobian=False)
+        the innovations would change (with the opposite sign) were that input added.
+        ``noise_start`` as :meth:`prediction`'s."""
+        fit, prob, ev = self._innovations(profile, runs, True, jacobian=False, start=noise_start)
         j = prob.profile.input_names.index(input_name)
         u = [np.zeros((len(r), prob.m)) for r in runs]
         for ur, run in zip(u, runs):
@@ -225,14 +241,19 @@ class FEM(Estimator):
         x = propagate(Phi - Kp @ model.C, (Gamma - Kp @ Dh) @ U, np.zeros((prob.n, prob.n_runs)))
         return prob.per_run(model.C @ x + Dh @ U)
 
-    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool, noise: dict | None = None):
+    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool, noise: dict | None = None,
+                     start: dict | None = None):
         """``(ModelFit, problem, filtered)`` of the profile's derivatives on ``runs``, the nuisance
-        fitted, F and R too unless ``noise`` holds them (cached per profile and runs: refine asks
-        for the same prediction several ways)."""
+        fitted, F and R too unless ``noise`` holds them; ``start``: F and R to start their fit
+        from, not relaxed (cached per profile and runs: refine asks for the same prediction
+        several ways)."""
         from .prediction import ModelFit  # the protocol's result type
 
-        held = None if noise is None else (tuple(map(float, noise["f"])), tuple(map(float, noise["r"])))
-        key = (profile.to_toml(), zero_shifts, jacobian, held,
+        def values(d):
+            return None if d is None else (tuple(map(float, d["f"])), tuple(map(float, d["r"])))
+
+        held, begin = values(noise), None if noise is not None else values(start)
+        key = (profile.to_toml(), zero_shifts, jacobian, held, begin,
                tuple((r.source, len(r), hash(r.matrix(profile.channels).tobytes())) for r in runs))
         cache = self.__dict__.setdefault("_innovation_cache", {})
         if key in cache:
@@ -244,13 +265,15 @@ class FEM(Estimator):
         runs = est.check_runs(runs)
         prob, beta, active = est._problem(runs)
         active[prob.index["theta"]] = False
-        if held is not None:  # the fitted model's noise, hence its filter gain, on held-out data
-            for part, values in zip(("f", "r"), held):
-                if len(values) != len(prob.index[part]):
-                    raise EstimationError(f"FEM: the held noise has {len(values)} values of {part.upper()}, "
+        for given in (held, begin):  # the fitted model's noise (its filter gain) held, or the start
+            for part, vals in zip(("f", "r"), given or ()):
+                if len(vals) != len(prob.index[part]):
+                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part.upper()}, "
                                           f"the profile {len(prob.index[part])}")
-                beta[prob.index[part]], active[prob.index[part]] = values, False
-        solver = _Solver(est, prob, beta, active, nuisance_only=True, hold_noise=held is not None)
+                beta[prob.index[part]] = vals
+                active[prob.index[part]] &= given is begin
+        solver = _Solver(est, prob, beta, active, nuisance_only=True, hold_noise=held is not None,
+                         start_noise=begin is not None)
         solver.run()
         try:
             ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
@@ -259,7 +282,7 @@ class FEM(Estimator):
         _, f, x0, b, rv = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
-                       runs=runs, noise={"f": f.copy(), "r": rv.copy()})
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start_gain_held": solver.relaxed_gain_held})
         if jacobian:
             G, n, ny = prob.G, prob.n, prob.ny
             L, _, k, R = ev.dnu.shape
@@ -333,6 +356,8 @@ class FEM(Estimator):
             "zero_shifts": [dict(zip(p.outputs, map(float, b[:, k]))) for k in range(prob.n_runs)],
             "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, k]))) for k in range(prob.n_runs)],
             "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
+            # outputs whose R started from the innovation covariance with the gain held (_Solver._relax)
+            "r_start_gain_held": list(sv.relaxed_gain_held),
             "not_determined": {**{f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not "
                                                  "determined" for s in sv.at_zero},
                                **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
@@ -655,9 +680,11 @@ class _Solver:
     :class:`identify.estimators.ml._Solver`)."""
 
     def __init__(self, fem: FEM, prob: FilterProblem, beta, active, nuisance_only: bool = False,
-                 hold_noise: bool = False):
+                 hold_noise: bool = False, start_noise: bool = False):
         self.fem, self.prob, self.beta = fem, prob, beta.copy()
         self.hold_noise = hold_noise  # F and R given (a held-out prediction): never relaxed nor released
+        self.start_noise = start_noise  # F and R of a fit given as the start: not relaxed, then stepped
+        self.relaxed_gain_held: list[str] = []  # outputs whose R started from the gain-held form (_relax)
         self.history, self.step_history = [], []
         self.iterations, self.converged, self.stop, self.lam, self.rejected = 0, False, "max_iter", 0.0, 0
         self.radius = MAX_REL_STEP
@@ -697,15 +724,38 @@ class _Solver:
             return None
 
     def _relax(self) -> None:
-        """R's start: the innovations' mean squares minus the process noise's share (C P C^T)."""
+        """R's start: the innovations' mean squares minus the process noise's share (C P C^T).
+
+        That share comes from the P of the current R: far too large a start R (the outputs' whole
+        variance) leaves the filter almost open-loop, P of a velocity with process noise grows to
+        its open-loop spread and the difference falls below zero, so the variance would start on
+        its floor with ``(C K)_jj = 1``: the filter follows that output exactly, a boundary the
+        steps never leave (seen: R of w at 1.6e-10 and a likelihood 6000 below the fit's at the
+        same derivatives). For such an output R comes from the innovation covariance with the gain
+        held instead (Maine & Iliff's form, ``R = (I - C K) S_hat``, at the steady state ``I - C K
+        = R S^-1``: a multiplicative step, positive while ``diag(C K) < 1``); said on screen and
+        listed in ``relaxed_gain_held``. With ``start_noise`` (F and R of a fit, given) no
+        relaxation: the start is already consistent."""
         prob, ev = self.prob, self.ev
-        if self.hold_noise:
-            self.r_floor = np.zeros(prob.ny)
-            return
         ms = np.einsum("kir,kir->i", ev.nu, ev.nu) / prob.N
+        self.r_floor = np.zeros(prob.ny) if self.hold_noise else R_FLOOR * np.maximum(ms, 1e-300)
+        if self.hold_noise or self.start_noise:
+            return
         C = ev.model.C
-        self.r_floor = R_FLOOR * np.maximum(ms, 1e-300)
-        self.beta[prob.index["r"]] = np.maximum(ms - np.diag(C @ ev.P @ C.T), self.r_floor)
+        compensated = ms - np.diag(C @ ev.P @ C.T)
+        low = compensated <= self.r_floor
+        S_hat = np.einsum("kir,kjr->ij", ev.nu, ev.nu) / prob.N
+        gain_held = np.diag((np.eye(prob.ny) - C @ ev.K) @ S_hat)
+        self.beta[prob.index["r"]] = np.maximum(np.where(low, gain_held, compensated), self.r_floor)
+        if low.any():
+            names = [y for y, b in zip(prob.profile.outputs, low) if b]
+            new = [y for y in names if y not in self.relaxed_gain_held]
+            self.relaxed_gain_held += new
+            if new:
+                warnings.warn(f"FEM: the F-compensated start of R ({', '.join(new)}) fell below its floor (the "
+                              f"process noise's share C P C^T exceeds the innovations' mean square): started "
+                              f"from the innovation covariance with the gain held, R = (I - C K) S_hat, instead",
+                              stacklevel=2)
         self.ev = self._evaluate(self.beta, jacobian=False)
         if self.ev is None:
             raise EstimationError("FEM: the filter has no steady state after the noise covariance was relaxed")

@@ -121,9 +121,7 @@ class Candidate:
         """Fits as ``(profile, result, parameters, kind)``, the more likely first: one re-fit of the
         extended profile (``fitting.refit``), the parameters with the estimator's bounds."""
         new_p, result = fitting.refit(self.profile(p), p)
-        params = {k: {"value": float(result.theta[result.names.index(k)]),
-                      "std": float(result.std[result.names.index(k)])} for k in self.params}
-        return [(new_p, result, params, self.kind)]
+        return [(new_p, result, parameters_of(result, self.params), self.kind)]
 
     @classmethod
     def revisit(cls, fitting, p: Profile, result, noise, steps: list) -> tuple:
@@ -618,3 +616,9 @@ def catalogue(p: Profile, context: Context, kinds=KINDS) -> list[Candidate]:
 __all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Derivative", "Delay", "Lag", "OutputTerm", "Bias",
            "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
            "prepare_runs", "extend_all"]
+
+
+def parameters_of(result, names) -> dict:
+    """``{name: {"value", "std"}}`` of the ``names`` in an identification result."""
+    return {k: {"value": float(result.theta[result.names.index(k)]),
+                "std": float(result.std[result.names.index(k)])} for k in names}

@@ -49,7 +49,7 @@ from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
-from .candidates import KIND_CLASSES, KINDS
+from .candidates import KIND_CLASSES, KINDS, parameters_of
 from .evaluation import MIN_SAMPLES, check_identifiable, errors, split_validation
 from .fitting import Fitting
 from .scoring import ScoreTest, score_candidates
@@ -317,6 +317,11 @@ class Refine:
             null_cost = noise.cost(fitting.residuals(p))
             own = result.compare_lr_test(null_result) if null_result is not None else None
             lr = null_cost - noise.cost(fitting.residuals(new_p)) if own is None else own[0]
+            failed = _failed_refit(result, lr, null_cost, best.threshold, own is not None)
+            attempts = []
+            if failed and own is None and lr < 0 and math.isfinite(lr):
+                new_p, result, params, lr, failed, attempts = self._second_attempt(
+                    cand, p, noise, null_cost, best.threshold, (new_p, result, params, lr, failed), held_data)
             held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
                     for data in held_data}
             # the size of the prediction change there: the spread of the held-out cost change
@@ -327,11 +332,11 @@ class Refine:
             # estimator's errors in the other parameters, which do not make the delay less present
             wald = float(sum((v["value"] / s) ** 2 if (s := v.get("std_profile", v["std"])) > 0 else math.inf
                              for v in params.values()))
-            failed = _failed_refit(result, lr, null_cost, best.threshold, own is not None)
             step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
                         error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
                         held_change=spread, noise_order=noise.order,
-                        lr_criterion=result.info["criterion"]["kind"] if own is not None else "", **common)
+                        lr_criterion=result.info["criterion"]["kind"] if own is not None else "",
+                        attempts=attempts, **common)
             reason = failed or cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
@@ -341,6 +346,54 @@ class Refine:
             step.accepted, step.reason = False, reason
             first = first or (step, new_p, result)
         return first
+
+    def _second_attempt(self, cand, p: Profile, noise, null_cost: float, threshold: float, first: tuple,
+                        held_data: list[str]):
+        """A re-fit that ended below the nested null in the test's metric (``first`` = its
+        ``(profile, result, parameters, lr, reason)``) gets a second look, said on screen and
+        recorded (``Step.attempts``): a fit in the test's metric itself from the warm start (the
+        current estimates, the new parameters at their null value,
+        :meth:`~identify.refine.fitting.Fitting.refit_in_metric`); where that finds a better
+        likelihood than the null, the estimator is restarted from that point. Its fit is kept if it
+        no longer ends below the null; else the refusal says that the estimator's optimum and the
+        test's metric disagree (seen: output error on strongly coloured residuals, whose white
+        likelihood has its optimum elsewhere), not that the fit lost its way.
+        Returns ``(profile, result, parameters, lr, reason, attempts)``."""
+        fitting, method = self.fitting_, self.estimator_.method.upper()
+        new_p, result, params, lr, failed = first
+        attempts = [{"fit": f"{method}, warm start", "parameters": params, "lr_statistic": float(lr)}]
+        start = cand.profile(p)
+        if set(start.free) != set(new_p.free):  # a searched structure (a delay): no null start to re-fit
+            return new_p, result, params, lr, failed, attempts
+        fitting.say(f"  the {method} re-fit ends below the nested null in the test's metric (ratio {lr:.3g}): "
+                    "re-fitting in that metric, then restarting the estimator from there")
+        check_p, check_cost, check_params = fitting.refit_in_metric(start, noise)
+        check_lr = null_cost - check_cost
+        attempts.append({"fit": "the test's metric, warm start", "parameters": _only(check_params, cand.params),
+                         "lr_statistic": float(check_lr)})
+        if not check_lr > 0:
+            return new_p, result, params, lr, failed, attempts
+        try:
+            again_p, again = fitting.refit(check_p, p)
+            [fitting.prediction(again_p, d) for d in held_data]  # as every option: not divergent there
+        except PseudostepError as exc:
+            attempts.append({"fit": f"{method}, restarted from the test's metric's fit", "error": str(exc)})
+            return new_p, result, params, lr, failed, attempts
+        again_params = parameters_of(again, cand.params)
+        again_lr = null_cost - noise.cost(fitting.residuals(again_p))
+        attempts.append({"fit": f"{method}, restarted from the test's metric's fit", "parameters": again_params,
+                         "lr_statistic": float(again_lr)})
+        again_failed = _failed_refit(again, again_lr, null_cost, threshold)
+        fitting.say(f"  restarted {method} re-fit: ratio {again_lr:.3g}" + (" (kept)" if not again_failed else ""))
+        if not again_failed:
+            return again_p, again, again_params, again_lr, "", attempts
+        shown = ", ".join(f"{k} = {v['value']:.3g}" for k, v in attempts[1]["parameters"].items())
+        mine = ", ".join(f"{k} = {v['value']:.3g}" for k, v in params.items())
+        reason = (f"the {method} re-fit ({mine}) ends below the nested null in the test's noise-model metric "
+                  f"(ratio {lr:.3g}; restarted from the metric's own fit, {again_lr:.3g}), where a fit in that "
+                  f"metric finds {shown} (ratio {check_lr:.3g}): the {method} estimator's likelihood and the "
+                  f"test's metric disagree about this effect; not added")
+        return new_p, result, params, float("nan"), reason, attempts
 
     @staticmethod
     def _refusal(step: Step, wald_threshold: float) -> str:
@@ -353,6 +406,10 @@ class Refine:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
         return _held_out_refusal(step.held_out, step.held_change, "choosing", "choosing")
+
+
+def _only(params: dict, names) -> dict:
+    return {k: v for k, v in params.items() if k in names}
 
 
 def _failed_refit(result, lr: float, null_cost: float, threshold: float, own: bool = False) -> str:

@@ -29,6 +29,7 @@ class Step:
     metric: str = "residual"  # the noise model of the test: of the residual, or of the candidate's alternative
     held_out: dict = field(default_factory=dict)  # data -> (cost before, cost after), noise-model metric
     held_change: dict = field(default_factory=dict)  # data -> cost of the prediction change alone (its size)
+    attempts: list = field(default_factory=list)  # the re-fits of a fit that ended below the null, in order
     lr_criterion: str = ""  # the estimator's own criterion of the likelihood ratio ('': the noise-model metric)
 
     def to_dict(self) -> dict:

@@ -103,7 +103,7 @@ def test_bad_input_gives_one_line_and_status_2(runs, tmp_path, capsys, s61):
     one_error_line(_in_process(base + ["--channel-map", "{bad", tmp_path / "f.mat"], capsys), "JSON")
     # a state not measured: equation error says why it needs it
     t = np.arange(101) * DT
-    partial = Run(t, {"theta_s": np.zeros(101), "theta_c": np.zeros(101), "q": np.zeros(101)}).to_csv(
+    partial = Run(t, {"theta_s": np.zeros(101), "theta_c": np.zeros(101), "q": np.sin(t)}).to_csv(
         tmp_path / "partial.csv")
     one_error_line(_in_process(base + ["--method", "ls", partial], capsys), "partial.csv", "every state", "theta_R")
     # and through a real subprocess: no traceback, exit status 2

@@ -6,7 +6,8 @@ import pytest
 from scipy.io import savemat
 
 from identify import RunError
-from identify.data.io import read_file_runs, read_run_file
+from identify.data.ingest import ReadOptions
+from identify.data.io import load_channel_map, read_file_runs, read_run_file
 from tests.identify.data.test_ingest import CHANNELS, PROFILE, truth_run  # noqa: F401
 
 DEG = np.pi / 180
@@ -99,12 +100,27 @@ def test_time_in_milliseconds_undeclared_warns_with_the_fix(truth_run, tmp_path)
     assert "warnings" not in read_run_file(tmp_path / "ms2.csv").meta
 
 
+def test_time_in_days_undeclared_warns_and_reads_when_declared(truth_run, tmp_path):
+    """A MATLAB datenum (days) read as seconds makes 50 Hz look like 4 MHz: said, with the unit to declare."""
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{739000 + a / 86400:.12f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "d.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    warned = read_run_file(tmp_path / "d.csv").meta["warnings"]
+    assert "too fast for a flight-test record" in warned and "a header 'time [day]'" in warned
+    (tmp_path / "d2.csv").write_text("time [day],q [deg/s],theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "d2.csv")
+    assert "warnings" not in run.meta
+    np.testing.assert_allclose(np.diff(run.time), np.diff(t), atol=1e-4)
+
+
 def test_a_constant_channel_the_profile_uses_warns(truth_run, tmp_path):
     t, q, th = _table(truth_run)
-    rows = "\n".join(f"{a:.6f},{b:.9f},2.5" for a, b in zip(t, q))
-    (tmp_path / "dead.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    rows = "\n".join(f"{a:.6f},{b:.9f},2.5,0" for a, b in zip(t, q))
+    (tmp_path / "dead.csv").write_text("time,q [deg/s],theta [deg],eta\n" + rows + "\n")
     run = read_run_file(tmp_path / "dead.csv", profile=PROFILE)
     assert "channel 'theta' is constant (0.0436332 in all 60 samples)" in run.meta["warnings"]
+    # a control held at trim is how a run of another axis is flown, not a dead sensor
+    assert "'eta' is constant" not in run.meta["warnings"]
 
 
 @pytest.mark.parametrize("consistent", [False, True])
@@ -164,3 +180,131 @@ def test_map_dt_in_seconds_agrees_with_a_time_column_in_milliseconds(truth_run, 
     _check(run, truth_run)
     with pytest.raises(RunError, match="disagrees with the time column"):
         read_run_file(tmp_path / "ms.csv", {"dt": 2 * step})
+
+
+def _rows_csv(path, t, q, th, fmt="{:.6f}"):
+    rows = "\n".join(f"{fmt.format(a)},{b:.9g},{c:.9g}" for a, b, c in zip(t, q, th))
+    path.write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    return path
+
+
+def test_declared_missing_value_markers_are_nan_then_the_nan_policy(truth_run, tmp_path, capsys):
+    """-999 in the file is a missing sample when the map says so ("missing": number, list or per
+    channel), in file units (before deg -> rad); the NaN policy then applies, said and recorded."""
+    t, q, th = _table(truth_run)
+    q, th = q.copy(), th.copy()
+    q[[10, 30]], th[20] = -999.0, 99999.0
+    path = _rows_csv(tmp_path / "m.csv", t, q, th)
+    with pytest.raises(RunError, match=r"line 12, channel 'q': missing value \(marker -999 in the file\)"):
+        read_run_file(path, {"channels": {"q": "q", "theta": "theta"}, "missing": [-999, 99999]})
+    for missing in ([-999, 99999], {"q": -999, "theta": [99999]}):
+        run = read_run_file(path, {"channels": {"q": "q", "theta": "theta"}, "missing": missing},
+                            options=ReadOptions("interpolate"))
+        assert len(run) == 60 and np.all(np.isfinite(run["q"]))
+        np.testing.assert_allclose(run["q"][9:12], np.interp(t[9:12], t[[9, 11]], truth_run["q"][[9, 11]]))
+        assert "'q': 2 x -999 (line 12, line 32)" in run.meta["missing_markers"]
+        assert "'theta': 1 x 99999 (line 22)" in run.meta["missing_markers"]
+        assert "warnings" not in run.meta
+    assert "marker(s) read as missing" in capsys.readouterr().err
+    run = read_file_runs(path, {"channels": {"q": "q", "theta": "theta"}, "missing": -999}, options=ReadOptions("drop"))
+    assert "dropped_samples" in run[0].meta
+
+
+def test_an_undeclared_marker_like_value_warns_with_the_count_and_the_fix(truth_run, tmp_path, capsys):
+    t, q, th = _table(truth_run)
+    q = q.copy()
+    q[[5, 6, 40]] = -9999.0
+    run = read_run_file(_rows_csv(tmp_path / "s.csv", t, q, th))
+    assert "channel 'q': 3 value(s) exactly -9999 (line 7, line 8, line 42), far outside" in run.meta["warnings"]
+    assert "\"missing\": -9999" in capsys.readouterr().err
+    run = read_run_file(tmp_path / "s.csv", {"channels": {"q2": "2 * q", "theta": "theta"}})  # an operand's too
+    assert "channel 'q': 3 value(s) exactly -9999" in run.meta["warnings"]
+    # a value of the list within a channel's range is data: a pressure of 999 hPa among 990 .. 1010
+    p = np.linspace(990.0, 1010.0, 60)
+    p[17] = 999.0
+    assert "warnings" not in read_run_file(_rows_csv(tmp_path / "p.csv", t, p, th)).meta
+
+
+def test_markers_in_a_mat_file(truth_run, tmp_path):
+    q = np.degrees(truth_run["q"]).copy()
+    q[100] = -999.0
+    savemat(tmp_path / "m.mat", {"t": truth_run.time, "q": q})
+    run = read_run_file(tmp_path / "m.mat", {"channels": {"q": "q"}, "units": {"q": "deg/s"}})
+    assert "channel 'q': 1 value(s) exactly -999 (sample 101)" in run.meta["warnings"]
+    run = read_run_file(tmp_path / "m.mat", {"channels": {"q": "q"}, "units": {"q": "deg/s"}, "missing": -999},
+                        options=ReadOptions("interpolate"))
+    assert "'q': 1 x -999 (sample 101)" in run.meta["missing_markers"] and np.all(np.isfinite(run["q"]))
+    with pytest.raises(RunError, match="'missing' must be a number"):
+        load_channel_map('{"channels": {"q": "q"}, "missing": "-999"}')
+
+
+def _two_rates(truth_run):
+    """The truth run at 25 Hz for its first 4 s, at 50 Hz after."""
+    keep = np.r_[0:200:2, 200:len(truth_run)]
+    return truth_run.time[keep], np.degrees(truth_run["q"][keep]), np.degrees(truth_run["theta"][keep])
+
+
+def test_a_sample_rate_changing_within_a_file_is_refused_once_naming_where_and_the_fix(truth_run, tmp_path):
+    t, q, th = _two_rates(truth_run)
+    path = _rows_csv(tmp_path / "r.csv", t, q, th)
+    with pytest.raises(RunError, match=r"the sample rate changes at line 102 \(t = 4 s\): 25 Hz \(step 0.04 s\) "
+                                       r"up to it, 50 Hz \(step 0.02 s\) after it; .*resample the file to one rate, "
+                                       r"or read one part, before or after t = 4 s, with --t-start/--t-end"):
+        read_file_runs(path)
+    savemat(tmp_path / "r.mat", {"t": t, "q": q, "theta": th})
+    with pytest.raises(RunError, match=r"changes at sample 101 \(t = 4 s\): 25 Hz"):
+        read_file_runs(tmp_path / "r.mat")
+    # the window of one rate reads that part, said
+    run = read_run_file(path, options=ReadOptions(t_start=5.0))
+    assert run.time[0] == pytest.approx(5.0) and run.dt == pytest.approx(0.02)
+    assert "outside the window" in run.meta["rate_change_outside_window"]
+    # single gaps and lone samples between gaps stay gaps, not rate changes
+    keep = np.r_[0:300, 305, 310:len(truth_run)]
+    gapped = _rows_csv(tmp_path / "g.csv", truth_run.time[keep], truth_run["q"][keep], truth_run["theta"][keep])
+    assert len(read_file_runs(gapped)) == 2
+
+
+def _clock(seconds: float) -> str:
+    h, rest = divmod(seconds % 86400, 3600)
+    return f"{int(h):02d}:{int(rest // 60):02d}:{rest % 60:06.3f}"
+
+
+@pytest.mark.parametrize("form", ["clock", "iso", "dated_blank", "midnight"])
+def test_clock_time_stamps_are_read_as_seconds_from_the_first_sample_and_said(truth_run, tmp_path, form):
+    t, q, th = _table(truth_run)
+    start = 86400 - 0.5 if form == "midnight" else 12 * 3600 + 34 * 60 + 56.02
+    stamps = [_clock(start + a) for a in t]
+    if form == "iso":
+        stamps = [f"2026-11-26T{s}" for s in stamps]
+    if form == "dated_blank":  # whitespace-separated, the date and the clock two words of one cell
+        rows = "\n".join(f"2026-11-26 {s} {b:.9f} {c:.9f}" for s, b, c in zip(stamps, q, th))
+        (tmp_path / "c.txt").write_text("time q theta\n" + rows + "\n")
+        run = read_run_file(tmp_path / "c.txt", {"channels": {"q": "q", "theta": "theta"},
+                                                 "units": {"q": "deg/s", "theta": "deg"}})
+    else:
+        rows = "\n".join(f"{s},{b:.9f},{c:.9f}" for s, b, c in zip(stamps, q, th))
+        (tmp_path / "c.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+        run = read_run_file(tmp_path / "c.csv")
+    np.testing.assert_allclose(run.time, t, atol=1e-6)
+    _check(run, truth_run)
+    assert f"clock time stamps{' with a date' if form in ('iso', 'dated_blank') else ''} (first" in run.meta["time_from"]
+    assert ("midnight rollover at line 27: 24 h added" in run.meta["notes"]) == (form == "midnight")
+
+
+def test_clock_stamps_mixed_with_numbers_are_refused(tmp_path):
+    (tmp_path / "mix.csv").write_text("time,q\n12:00:00.00,1\n12:00:00.02,2\n0.04,3\n")
+    with pytest.raises(RunError, match="mixes clock stamps"):
+        read_run_file(tmp_path / "mix.csv")
+
+
+def test_unix_time_stamps_are_counted_from_the_first_and_said(truth_run, tmp_path, capsys):
+    """1.7e9 s holds steps only to 2.4e-7 s in double precision: read from the first stamp, said,
+    and the window counts from it too."""
+    t, q, th = _table(truth_run)
+    rows = "\n".join(f"{1.7e9 + a:.6f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "unix.csv").write_text("time,q [deg/s],theta [deg]\n" + rows + "\n")
+    run = read_run_file(tmp_path / "unix.csv")
+    _check(run, truth_run)
+    np.testing.assert_allclose(run.time, t - t[0], atol=1e-9)
+    assert "counted from the first stamp (1700000000" in run.meta["time_origin"]
+    assert "counted from the first stamp" in capsys.readouterr().err
