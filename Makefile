@@ -24,7 +24,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests
 
-# `make benchmarks`: every script in benchmarks/ at a reduced size (18 min on an idle 2-core machine; the
+# `make benchmarks`: every script in benchmarks/ at a reduced size (15-16 min on an idle 2-core machine; the
 # measured list is in docs/benchmarks.md). Run alone, each script keeps its full-size default;
 # `make benchmarks BENCH_FULL=1` runs them all at full size (about 2 h), `BENCHES="benchmarks/x.py ..."`
 # a selection (benchmarks/_*.py are helpers, not benchmarks; `python benchmarks/x.py --help` lists a
