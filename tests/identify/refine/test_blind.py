@@ -53,39 +53,21 @@ def test_two_effects_under_a_pilot_and_gusts_both_found():
     assert abs(m_v["value"] - M_V) < 4 * m_v["std"], m_v
 
 
-PITCH_QQ = """
-name = "pitch with q|q|"
-states = { u = "m/s", q = "rad/s", theta = "rad" }
-inputs = { eta = "rad", q_absq = "-" }
-outputs = ["u", "q", "theta"]
-[free]
-X_u = -0.5
-M_q = -2.0
-M_theta = -4.0
-M_eta = 5.0
-M_q_absq = -20.0
-[fixed]
-X_theta = -9.81
-theta_q = 1.0
-[meta]
-pseudo_inputs = { q_absq = { product = ["q", "q"], abs = [false, true] } }
-"""
-
-
 def test_a_slowly_settling_state_term_is_not_called_divergent(monkeypatch):
     """The audit's Navion refused u^2 in X with 'the term makes the model diverge' where the
     fixed-point iteration still converged (change 3e-6 after 20 iterations, tolerance 1e-6)."""
     import pytest
 
-    from identify import EstimationError, parse_profile, simulate_run
+    from identify import EstimationError, simulate_run
     from identify.estimators import prediction
     from identify.refine.candidates import prepare_runs
+    from tests.identify.estimators.test_filter_error_nonlinear import nonlinear_profile
+    from tests.identify.refine.test_refine import PROFILE
 
-    p = parse_profile(PITCH_QQ)
+    p = nonlinear_profile(-20.0)
     t = np.arange(501) * DT
     eta = np.repeat(np.random.default_rng(1).choice([-1.0, 0.0, 1.0], size=21), 25)[:501] * 0.05
-    linear = LinearModel(parse_profile(PITCH_QQ.replace("M_q_absq = -20.0", "")
-                                       .replace(', q_absq = "-"', "").split("[meta]")[0]))
+    linear = LinearModel(PROFILE)
     run = prepare_runs(p, [simulate_run(linear, t, eta[:, None], noise_fraction=0.01, seed=1)])[0]
     prediction.predict(p, [run])  # settles within the iteration limit
     monkeypatch.setattr(prediction, "PREDICT_ITER", 2)
