@@ -42,6 +42,9 @@ def check_jobs(jobs) -> int:
 
 def _init(objective, fly) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the workers
+    # a fork inherits the parent's handlers: after pygame's SDL has caught SIGTERM in the parent
+    # (the cueing display), terminate() would only queue a quit event in the worker
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         from threadpoolctl import threadpool_limits
         _STATE["blas"] = threadpool_limits(limits=1, user_api="blas")
@@ -96,24 +99,35 @@ def run_tasks(task, arg_list, objective, fly, jobs: int = 1, progress=None) -> l
 
 
 def _stop(pool: ProcessPoolExecutor, others: set) -> None:
-    """Cancel what has not started and terminate the workers (a running task is not waited for),
-    then wait for the pool's manager thread, which reaps what is left (a broken pool's workers).
+    """Cancel what has not started and terminate the workers (a running task is not waited for);
+    kill what survives 5 s. Returns when every worker's exit is recorded.
     ``others``: pids of children that are not the pool's."""
     # an interrupt inside submit() can land after a worker is forked but before the pool lists
     # it: every child born since the pool was made is one of its workers
     processes = list((getattr(pool, "_processes", None) or {}).values())
     listed = {p.pid for p in processes}
     processes += [c for c in multiprocessing.active_children() if c.pid not in others | listed]
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown(wait=False) forgets it
     pool.shutdown(wait=False, cancel_futures=True)
     for p in processes:
         if p.is_alive():
             p.terminate()
-    pool.shutdown(wait=True)  # every worker is dying: the manager thread ends at once
-    # the manager thread may reap a worker while we join it (then join returns early): poll
-    deadline = time.monotonic() + 5
-    while any(p.is_alive() for p in processes) and time.monotonic() < deadline:
+    if not _exited(processes, 5):
+        for p in processes:
+            if p.is_alive():
+                p.kill()
+    if manager is not None and manager.is_alive():
+        manager.join(timeout=5)  # it reaps a broken pool's workers: its dying workers end it
+    # the manager thread reaps workers too, and a join that loses that race returns before the
+    # exit is recorded (the process would still be listed as alive): wait for the record
+    _exited(processes, 5)
+
+
+def _exited(processes, timeout: float) -> bool:
+    """Whether every process's exit is recorded within ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while any(p.is_alive() for p in processes):
+        if time.monotonic() >= deadline:
+            return False
         time.sleep(0.01)
-    for p in processes:
-        if p.is_alive():
-            p.kill()
-        p.join(timeout=5)  # reaped here, not left to the pool's manager thread (slow on a loaded machine)
+    return True

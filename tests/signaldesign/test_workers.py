@@ -88,3 +88,38 @@ def test_an_interrupt_stops_the_workers_at_once():
         signal.signal(signal.SIGALRM, old)
     assert time.perf_counter() - t0 < 10
     assert not multiprocessing.active_children()
+
+
+def test_workers_die_of_the_terminate_even_when_the_parent_catches_sigterm(monkeypatch):
+    """pygame's SDL catches SIGTERM in the process that shows the cueing display; a forked worker
+    inherits that handler and would outlive terminate() until killed 5 s later. Each worker must
+    end by the SIGTERM itself, and be recorded as ended when the interrupt reaches the caller."""
+    import signal
+    from concurrent.futures import ProcessPoolExecutor
+
+    import signaldesign.workers as workers
+
+    spawned = []
+
+    class Recording(ProcessPoolExecutor):
+        def _spawn_process(self):
+            super()._spawn_process()
+            spawned.extend(p for p in self._processes.values() if p not in spawned)
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(workers, "ProcessPoolExecutor", Recording)
+    old_term = signal.signal(signal.SIGTERM, lambda signum, frame: None)
+    old_alarm = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        with pytest.raises(KeyboardInterrupt):
+            run_tasks(_sleeps, [(i,) for i in range(4)], None, None, jobs=2)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old_alarm)
+        signal.signal(signal.SIGTERM, old_term)
+    assert len(spawned) == 2
+    assert [p.exitcode for p in spawned] == [-signal.SIGTERM] * 2
+    assert not multiprocessing.active_children()
