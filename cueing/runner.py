@@ -15,6 +15,9 @@ from __future__ import annotations
 
 import json
 import platform
+import signal
+import threading
+from contextlib import contextmanager
 from collections import deque
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -33,6 +36,30 @@ DEFAULT_RATE = 60.0  # Hz
 RECOVERY_MARGIN = 0.05  # a low frame rate counts as recovered at LOW_RATE + this fraction of the target
 WINDOW = "window"
 HEADLESS = "headless"
+
+
+class Terminated(SystemExit):
+    """SIGTERM during a run: the log is closed as aborted, then the program ends (status 143)."""
+
+
+@contextmanager
+def _sigterm_ends_the_run():
+    """SIGTERM raises :class:`Terminated` while a run is flown; the handler before it is restored
+    afterwards. Why: SDL takes SIGTERM when the display starts if nobody holds it, and keeps it
+    after the run, turning every later ``kill`` of the program (and of design workers forked from
+    it) into a quit event nobody reads."""
+    if threading.current_thread() is not threading.main_thread():  # only there can it be set
+        yield
+        return
+
+    def terminate(signum, frame):
+        raise Terminated(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:  # None: a handler set outside Python (SDL's, by an earlier display)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 @dataclass(frozen=True)
@@ -195,7 +222,12 @@ class Runner:
     # -- the loop -------------------------------------------------------------------------------
     def fly(self, score_lines=None):
         """Fly one run; returns the frame log read back. ``score_lines(log) -> [str]`` fills the
-        end-of-run screen. A closed window or Escape ends the run early, marked aborted."""
+        end-of-run screen. A closed window or Escape ends the run early, marked aborted; so do
+        Ctrl-C and SIGTERM, which then go on to end the program."""
+        with _sigterm_ends_the_run():
+            return self._fly(score_lines)
+
+    def _fly(self, score_lines):
         self._setup_display()
         self.ticker = Ticker(self.audio)
         self.source.start(self.signals, self.preview > 0)
@@ -208,6 +240,9 @@ class Runner:
             status = self._loop(writer, t0)
         except KeyboardInterrupt:
             writer.close("aborted (interrupted)")
+            raise
+        except Terminated:
+            writer.close("aborted (terminated: SIGTERM)")
             raise
         except BaseException as exc:
             writer.close(f"aborted (error: {exc})")

@@ -200,6 +200,10 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
+    except SystemExit as exc:  # a signal made an exit during the work (cueing's run under SIGTERM)
+        if isinstance(exc.code, int) and exc.code > 128:
+            print(f"{parser.prog}: terminated (signal {exc.code - 128})", file=sys.stderr)
+        raise
 
 
 def _stdout_to_devnull() -> None:

@@ -31,19 +31,44 @@ def two_axis_file(tmp_path):
                         tmp_path / "two.json")
 
 
-def test_sigkill_leaves_a_readable_log_missing_at_most_0_2_s(sig_file, tmp_path):
+def _flying(sig_file, tmp_path):
+    """``cueing fly`` (off-screen display, simulated pilot) in a process, once its frame log holds
+    frames and 1.5 s more have passed: (process, frame log path, run file path)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy")
     out = tmp_path / "run.csv"
     log_path = tmp_path / "run.frames.csv"
     proc = subprocess.Popen([sys.executable, "-m", "cueing", "fly", "--signal", str(sig_file), "--source", "pilot",
                              "--headless", "--countdown", "0.5", "--out", str(out)], cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while time.time() < deadline and not (log_path.is_file() and log_path.stat().st_size > 2000):
+        time.sleep(0.02)
+    if not log_path.is_file():
+        proc.kill()
+        pytest.fail("the frame log never appeared")
+    time.sleep(1.5)
+    return proc, log_path, out
+
+
+def test_sigterm_ends_the_run_marked_terminated(sig_file, tmp_path):
+    """The off-screen display starts SDL, which takes SIGTERM if nobody holds it and turns it into
+    a quit event: the run then ended as 'window closed'. It must say what happened and exit 143."""
+    proc, log_path, out = _flying(sig_file, tmp_path)
     try:
-        deadline = time.time() + 60
-        while time.time() < deadline and not (log_path.is_file() and log_path.stat().st_size > 2000):
-            time.sleep(0.02)
-        assert log_path.is_file(), "the frame log never appeared"
-        time.sleep(1.5)
+        proc.send_signal(sig.SIGTERM)
+        proc.wait(timeout=20)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + sig.SIGTERM
+    assert "terminated (signal 15)" in proc.stderr.read().decode()
+    log = read_frame_log(log_path)
+    assert log.aborted and log.status == "aborted (terminated: SIGTERM)"
+    assert log.time[-1] > 1.0 and not out.exists()
+
+
+def test_sigkill_leaves_a_readable_log_missing_at_most_0_2_s(sig_file, tmp_path):
+    proc, log_path, out = _flying(sig_file, tmp_path)
+    try:
         killed_at = time.time()
         proc.send_signal(sig.SIGKILL)
         proc.wait(timeout=10)

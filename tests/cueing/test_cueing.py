@@ -3,6 +3,9 @@
 Everything off-screen (SDL dummy drivers, set in conftest) and on a fake clock, so it is fast and
 deterministic; the real-clock timing lives in benchmarks/cueing_timing.py.
 """
+import os
+import signal
+
 import numpy as np
 import pygame
 import pytest
@@ -41,6 +44,26 @@ def needle_columns(surface, color, rows):
     band = px[:, rows[0]:rows[1], :]
     hit = np.all(band == np.array(color), axis=2).any(axis=1)
     return np.flatnonzero(hit)
+
+
+def _sigterm_caught() -> bool:
+    """Whether anything (Python or C, such as SDL) catches SIGTERM in this process (Linux)."""
+    line = next(l for l in open("/proc/self/status") if l.startswith("SigCgt:"))
+    return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="reads the signal mask from /proc")
+def test_a_run_on_a_display_leaves_sigterm_as_it_found_it(s3211, tmp_path):
+    """SDL takes SIGTERM when the display starts if nobody holds it and keeps it after the run:
+    a later kill of the program, or of design workers it forks, then only queued a quit event."""
+    pygame.display.quit()  # SDL starts afresh, as in a new program (an earlier test may have started it)
+    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        Runner([s3211], ScriptedSource(lambda t: 0.0), tmp_path / "a.frames.csv", clock=FakeClock(), audio=False,
+               schedule=Schedule(countdown=0.0, tail=0.1), screen=Screen(display="headless")).fly()
+        assert not _sigterm_caught()
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def test_screenshot_shows_both_needles_where_signal_and_input_put_them(s3211, tmp_path):
