@@ -96,15 +96,15 @@ F_ZERO = 1e-3  # an F below this share of its start value is at the boundary F =
 FLAT_STEPS, FLAT_COST = 3, 1e-3  # converged when this many steps each lower the cost by less (log-likelihood units)
 INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
 GAIN_STEP = 1e-5  # relative step of the central differences of Qd
-# Where F compensation puts a start of R below its floor, the likelihood has (measured) more than one
-# optimum and no single start found the best on every seed: FEM runs from each of these starts
-# (R where the floor binds: gain-held innovation covariance, or the floor; F's start times a factor)
-# and keeps the highest likelihood (docs/filter_error.md, "Two optima")
-R_STARTS = {"gain_held": ("gain_held", 1.0), "floor": ("floor", 1.0), "floor_wide_f": ("floor", 10 / 3)}
+# Where F compensation puts a start of R below its floor the likelihood can have two optima (the
+# model's misfit taken by the measurement noise, or by the process noise with q and theta tracked
+# tightly), and neither the gain-held start of R nor the floor found the better on every seed: FEM
+# also runs from the process-noise side, F from the states' whole measured rms (F_WIDE instead of
+# F_START) with R on its floor, and keeps the higher likelihood (docs/filter_error.md, "Two optima")
+F_WIDE = 1.0
+R_STARTS = {"gain_held": ("gain_held", 1.0), "wide_f": ("floor", F_WIDE / F_START)}  # name: (R's start, F's factor)
+START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_START:.3g} with R on its floor"}
 SAME_OPTIMUM = 0.01  # starts whose -log L differ by less ended at the same optimum (FLAT_COST: 1e-3 per step)
-START_NAMES = {"gain_held": "R = (I - C K) S_hat", "floor": "R on its floor",
-               "floor_wide_f": "R on its floor, F from 10/3 of its start"}
-
 
 class FEM(Estimator):
     """Filter-error maximum-likelihood estimator (process and measurement noise).
@@ -188,9 +188,9 @@ class FEM(Estimator):
 
     def _solve(self, prob: "FilterProblem", beta, active, **options) -> "_Solver":
         """The fit from the start (``_Solver``); where F compensation put a start of R below its
-        floor (``_Solver.floor_bound``) from every start of R_STARTS, the highest likelihood kept:
-        the likelihood has two optima there, and each single start missed the better one on some
-        seeds. The starts' -log L and the one kept in ``solver.starts``, said in one line."""
+        floor (``_Solver.floor_bound``) from every start of R_STARTS too, the highest likelihood
+        kept: the likelihood can have two optima there, and each single start missed the better one
+        on some seeds. The starts' -log L and the one kept in ``solver.starts``, said in one line."""
         solver = _Solver(self, prob, beta, active, **options)
         solver.run()
         if not solver.floor_bound:
@@ -214,7 +214,8 @@ class FEM(Estimator):
                        "cost": {k: float(v.history[-1]) for k, v in tried.items()}, "failed": failed}
         costs = ", ".join(f"{START_NAMES[k]}: {v.history[-1]:.6g}" for k, v in tried.items())
         warnings.warn(f"FEM: the F-compensated start of R ({', '.join(solver.floor_bound)}) fell below its floor "
-                      f"(two optima): fitted from {len(tried)} starts, -log L {costs}; kept {START_NAMES[kept]}"
+                      f"(the likelihood can have two optima): fitted from {len(tried)} starts, -log L {costs}; "
+                      f"kept {START_NAMES[kept]}"
                       + (f" ({', '.join(failed)} failed)" if failed else ""), stacklevel=4)
         return best
 
