@@ -104,7 +104,7 @@ GAIN_STEP = 1e-5  # relative step of the central differences of Qd
 F_WIDE = 1.0
 R_STARTS = {"gain_held": ("gain_held", 1.0), "wide_f": ("floor", F_WIDE / F_START)}  # name: (R's start, F's factor)
 START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_START:.3g} with R on its floor"}
-SAME_OPTIMUM = 0.01  # starts whose -log L differ by less ended at the same optimum (FLAT_COST: 1e-3 per step)
+SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likelihood ratio far from significant)
 
 class FEM(Estimator):
     """Filter-error maximum-likelihood estimator (process and measurement noise).
