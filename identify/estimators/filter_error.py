@@ -34,7 +34,10 @@ R starts by *relaxation* from the first innovations, with the process noise's sh
 ("F compensation"): ``R_jj = mean(nu_j^2) - (C P C^T)_jj`` (floored at a tiny positive share of
 mean(nu_j^2)); from then on its variances are unknowns of the same scoring steps (relaxation
 alone stalled on a wrong fixed point in the tests: with R held, the likelihood's dependence on
-it through the gain is lost). R >= 0 keeps the filter physically admissible:
+it through the gain is lost). Where that start falls below the floor, R starts from the innovation
+covariance with the gain held; the likelihood can then have two optima, and FEM also fits from the
+process noise's side (F from the states' whole rms, R on its floor), keeping the higher likelihood
+(:meth:`FEM._solve`, ``info["r_start"]``). R >= 0 keeps the filter physically admissible:
 ``C K = I - R S^-1`` has ``diag(C K) = 1 - R_jj (S^-1)_jj <= 1`` (reported as ``info["diag_CK"]``).
 An F that falls to ~0 (calm air on that state) or a variance pushed onto its floor is held
 there: a boundary estimate, its bound "not determined" (NaN, listed in ``info["not_determined"]``).
@@ -106,6 +109,7 @@ R_STARTS = {"gain_held": ("gain_held", 1.0), "wide_f": ("floor", F_WIDE / F_STAR
 START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_START:.3g} with R on its floor"}
 SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likelihood ratio far from significant)
 
+
 class FEM(Estimator):
     """Filter-error maximum-likelihood estimator (process and measurement noise).
 
@@ -124,7 +128,8 @@ class FEM(Estimator):
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
     ``result_.info``: ``process_noise`` {state: {F, std}}, ``measurement_noise`` {output:
-    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, per-run initial states
+    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, ``r_start`` (the two
+    starts' -log L and the one kept, where R's start fell below its floor), per-run initial states
     and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
     :class:`ConvergenceWarning` when not converged). ``result_.profile`` is the a priori profile
     with the fitted F as its ``[process_noise]``: ``identified_profile()`` starts the next fit there.
@@ -776,8 +781,8 @@ class _Solver:
         same derivatives). For such an output (listed in ``floor_bound``) R comes from the
         innovation covariance with the gain held instead (``r_start="gain_held"``, Maine & Iliff's
         form, ``R = (I - C K) S_hat``, at the steady state ``I - C K = R S^-1``: a multiplicative
-        step, positive while ``diag(C K) < 1``), or stays on the floor (``"floor"``): FEM runs
-        both (:meth:`FEM._solve`). With ``start_noise`` (F and R of a fit, given) no relaxation:
+        step, positive while ``diag(C K) < 1``), or stays on the floor (``"floor"``, FEM's second
+        start, from the process noise's side: :meth:`FEM._solve`). With ``start_noise`` (F and R of a fit, given) no relaxation:
         the start is already consistent."""
         prob, ev = self.prob, self.ev
         ms = np.einsum("kir,kir->i", ev.nu, ev.nu) / prob.N
