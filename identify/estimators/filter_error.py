@@ -782,8 +782,8 @@ class _Solver:
         innovation covariance with the gain held instead (``r_start="gain_held"``, Maine & Iliff's
         form, ``R = (I - C K) S_hat``, at the steady state ``I - C K = R S^-1``: a multiplicative
         step, positive while ``diag(C K) < 1``), or stays on the floor (``"floor"``, FEM's second
-        start, from the process noise's side: :meth:`FEM._solve`). With ``start_noise`` (F and R of a fit, given) no relaxation:
-        the start is already consistent."""
+        start, from the process noise's side: :meth:`FEM._solve`). With ``start_noise`` (F and R
+        of a fit, given) no relaxation: the start is already consistent."""
         prob, ev = self.prob, self.ev
         ms = np.einsum("kir,kir->i", ev.nu, ev.nu) / prob.N
         self.r_floor = np.zeros(prob.ny) if self.hold_noise else R_FLOOR * np.maximum(ms, 1e-300)
