@@ -34,7 +34,10 @@ R starts by *relaxation* from the first innovations, with the process noise's sh
 ("F compensation"): ``R_jj = mean(nu_j^2) - (C P C^T)_jj`` (floored at a tiny positive share of
 mean(nu_j^2)); from then on its variances are unknowns of the same scoring steps (relaxation
 alone stalled on a wrong fixed point in the tests: with R held, the likelihood's dependence on
-it through the gain is lost). R >= 0 keeps the filter physically admissible:
+it through the gain is lost). Where that start falls below the floor, R starts from the innovation
+covariance with the gain held; the likelihood can then have two optima, and FEM also fits from the
+process noise's side (F from the states' whole rms, R on its floor), keeping the higher likelihood
+(:meth:`FEM._solve`, ``info["r_start"]``). R >= 0 keeps the filter physically admissible:
 ``C K = I - R S^-1`` has ``diag(C K) = 1 - R_jj (S^-1)_jj <= 1`` (reported as ``info["diag_CK"]``).
 An F that falls to ~0 (calm air on that state) or a variance pushed onto its floor is held
 there: a boundary estimate, its bound "not determined" (NaN, listed in ``info["not_determined"]``).
@@ -96,6 +99,15 @@ F_ZERO = 1e-3  # an F below this share of its start value is at the boundary F =
 FLAT_STEPS, FLAT_COST = 3, 1e-3  # converged when this many steps each lower the cost by less (log-likelihood units)
 INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
 GAIN_STEP = 1e-5  # relative step of the central differences of Qd
+# Where F compensation puts a start of R below its floor the likelihood can have two optima (the
+# model's misfit taken by the measurement noise, or by the process noise with q and theta tracked
+# tightly), and neither the gain-held start of R nor the floor found the better on every seed: FEM
+# also runs from the process-noise side, F from the states' whole measured rms (F_WIDE instead of
+# F_START) with R on its floor, and keeps the higher likelihood (docs/filter_error.md, "Two optima")
+F_WIDE = 1.0
+R_STARTS = {"gain_held": ("gain_held", 1.0), "wide_f": ("floor", F_WIDE / F_START)}  # name: (R's start, F's factor)
+START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_START:.3g} with R on its floor"}
+SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likelihood ratio far from significant)
 
 
 class FEM(Estimator):
@@ -116,7 +128,8 @@ class FEM(Estimator):
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
     ``result_.info``: ``process_noise`` {state: {F, std}}, ``measurement_noise`` {output:
-    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, per-run initial states
+    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, ``r_start`` (the two
+    starts' -log L and the one kept, where R's start fell below its floor), per-run initial states
     and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
     :class:`ConvergenceWarning` when not converged). ``result_.profile`` is the a priori profile
     with the fitted F as its ``[process_noise]``: ``identified_profile()`` starts the next fit there.
@@ -171,13 +184,45 @@ class FEM(Estimator):
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         started = _time.perf_counter()
         prob, beta, active = self._problem(runs)
-        solver = _Solver(self, prob, beta, active)
-        solver.run()
+        solver = self._solve(prob, beta, active)
         if not solver.converged:
             warnings.warn(f"FEM did not converge: {solver.stop}; the estimates are not final "
                           f"(raise max_iter, or start from better a priori values)", ConvergenceWarning, stacklevel=3)
         self.problem_, self.beta_ = prob, solver.beta
         return self._result(runs, prob, solver, _time.perf_counter() - started)
+
+    def _solve(self, prob: "FilterProblem", beta, active, **options) -> "_Solver":
+        """The fit from the start (``_Solver``); where F compensation put a start of R below its
+        floor (``_Solver.floor_bound``) from every start of R_STARTS too, the highest likelihood
+        kept: the likelihood can have two optima there, and each single start missed the better one
+        on some seeds. The starts' -log L and the one kept in ``solver.starts``, said in one line."""
+        solver = _Solver(self, prob, beta, active, **options)
+        solver.run()
+        if not solver.floor_bound:
+            return solver
+        tried, failed = {"gain_held": solver}, {}
+        for name, (r_start, f_factor) in R_STARTS.items():
+            if name in tried:
+                continue
+            b = beta.copy()
+            b[prob.index["f"]] *= f_factor
+            try:
+                tried[name] = _Solver(self, prob, b, active, r_start=r_start, **options)
+                tried[name].run()
+            except EstimationError as e:  # a start whose filter has no steady state: the others stand
+                tried.pop(name, None)
+                failed[name] = str(e)
+        low = min(v.history[-1] for v in tried.values())  # the first start at the best optimum (ties: the default)
+        kept = next(k for k, v in tried.items() if v.history[-1] <= low + SAME_OPTIMUM)
+        best = tried[kept]
+        best.starts = {"floor_bound": list(solver.floor_bound), "kept": kept,
+                       "cost": {k: float(v.history[-1]) for k, v in tried.items()}, "failed": failed}
+        costs = ", ".join(f"{START_NAMES[k]}: {v.history[-1]:.6g}" for k, v in tried.items())
+        warnings.warn(f"FEM: the F-compensated start of R ({', '.join(solver.floor_bound)}) fell below its floor "
+                      f"(the likelihood can have two optima): fitted from {len(tried)} starts, -log L {costs}; "
+                      f"kept {START_NAMES[kept]}"
+                      + (f" ({', '.join(failed)} failed)" if failed else ""), stacklevel=4)
+        return best
 
     # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
     simulates_state_terms = False  # state-built terms come from the filter's own states ...
@@ -272,9 +317,8 @@ class FEM(Estimator):
                                           f"the profile {len(prob.index[part])}")
                 beta[prob.index[part]] = vals
                 active[prob.index[part]] &= given is begin
-        solver = _Solver(est, prob, beta, active, nuisance_only=True, hold_noise=held is not None,
-                         start_noise=begin is not None)
-        solver.run()
+        solver = est._solve(prob, beta, active, nuisance_only=True, hold_noise=held is not None,
+                            start_noise=begin is not None)
         try:
             ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
         except (np.linalg.LinAlgError, ValueError):
@@ -282,7 +326,7 @@ class FEM(Estimator):
         _, f, x0, b, rv = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
-                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start_gain_held": solver.relaxed_gain_held})
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start": solver.starts})
         if jacobian:
             G, n, ny = prob.G, prob.n, prob.ny
             L, _, k, R = ev.dnu.shape
@@ -356,8 +400,9 @@ class FEM(Estimator):
             "zero_shifts": [dict(zip(p.outputs, map(float, b[:, k]))) for k in range(prob.n_runs)],
             "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, k]))) for k in range(prob.n_runs)],
             "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
-            # outputs whose R started from the innovation covariance with the gain held (_Solver._relax)
-            "r_start_gain_held": list(sv.relaxed_gain_held),
+            # where F compensation put a start of R below its floor: the starts' -log L, the one kept
+            # (FEM._solve); None where it did not (one start)
+            "r_start": sv.starts,
             "not_determined": {**{f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not "
                                                  "determined" for s in sv.at_zero},
                                **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
@@ -680,11 +725,13 @@ class _Solver:
     :class:`identify.estimators.ml._Solver`)."""
 
     def __init__(self, fem: FEM, prob: FilterProblem, beta, active, nuisance_only: bool = False,
-                 hold_noise: bool = False, start_noise: bool = False):
+                 hold_noise: bool = False, start_noise: bool = False, r_start: str = "gain_held"):
         self.fem, self.prob, self.beta = fem, prob, beta.copy()
         self.hold_noise = hold_noise  # F and R given (a held-out prediction): never relaxed nor released
         self.start_noise = start_noise  # F and R of a fit given as the start: not relaxed, then stepped
-        self.relaxed_gain_held: list[str] = []  # outputs whose R started from the gain-held form (_relax)
+        self.r_start = r_start  # R's start where F compensation falls below the floor: "gain_held" or "floor"
+        self.floor_bound: list[str] = []  # the outputs where it did (_relax)
+        self.starts = None  # FEM._solve's record when it fitted from several starts
         self.history, self.step_history = [], []
         self.iterations, self.converged, self.stop, self.lam, self.rejected = 0, False, "max_iter", 0.0, 0
         self.radius = MAX_REL_STEP
@@ -731,11 +778,12 @@ class _Solver:
         its open-loop spread and the difference falls below zero, so the variance would start on
         its floor with ``(C K)_jj = 1``: the filter follows that output exactly, a boundary the
         steps never leave (seen: R of w at 1.6e-10 and a likelihood 6000 below the fit's at the
-        same derivatives). For such an output R comes from the innovation covariance with the gain
-        held instead (Maine & Iliff's form, ``R = (I - C K) S_hat``, at the steady state ``I - C K
-        = R S^-1``: a multiplicative step, positive while ``diag(C K) < 1``); said on screen and
-        listed in ``relaxed_gain_held``. With ``start_noise`` (F and R of a fit, given) no
-        relaxation: the start is already consistent."""
+        same derivatives). For such an output (listed in ``floor_bound``) R comes from the
+        innovation covariance with the gain held instead (``r_start="gain_held"``, Maine & Iliff's
+        form, ``R = (I - C K) S_hat``, at the steady state ``I - C K = R S^-1``: a multiplicative
+        step, positive while ``diag(C K) < 1``), or stays on the floor (``"floor"``, FEM's second
+        start, from the process noise's side: :meth:`FEM._solve`). With ``start_noise`` (F and R
+        of a fit, given) no relaxation: the start is already consistent."""
         prob, ev = self.prob, self.ev
         ms = np.einsum("kir,kir->i", ev.nu, ev.nu) / prob.N
         self.r_floor = np.zeros(prob.ny) if self.hold_noise else R_FLOOR * np.maximum(ms, 1e-300)
@@ -746,16 +794,9 @@ class _Solver:
         low = compensated <= self.r_floor
         S_hat = np.einsum("kir,kjr->ij", ev.nu, ev.nu) / prob.N
         gain_held = np.diag((np.eye(prob.ny) - C @ ev.K) @ S_hat)
-        self.beta[prob.index["r"]] = np.maximum(np.where(low, gain_held, compensated), self.r_floor)
-        if low.any():
-            names = [y for y, b in zip(prob.profile.outputs, low) if b]
-            new = [y for y in names if y not in self.relaxed_gain_held]
-            self.relaxed_gain_held += new
-            if new:
-                warnings.warn(f"FEM: the F-compensated start of R ({', '.join(new)}) fell below its floor (the "
-                              f"process noise's share C P C^T exceeds the innovations' mean square): started "
-                              f"from the innovation covariance with the gain held, R = (I - C K) S_hat, instead",
-                              stacklevel=2)
+        start = gain_held if self.r_start == "gain_held" else compensated
+        self.beta[prob.index["r"]] = np.maximum(np.where(low, start, compensated), self.r_floor)
+        self.floor_bound += [y for y, b in zip(prob.profile.outputs, low) if b and y not in self.floor_bound]
         self.ev = self._evaluate(self.beta, jacobian=False)
         if self.ev is None:
             raise EstimationError("FEM: the filter has no steady state after the noise covariance was relaxed")
