@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import RunError
 from . import units as U
+from .clockstamps import CLOCK, clock_cell, clock_from_first
 from .ingest import Raw, build_runs, zero_based
 from .runs import TIME, Run
 
@@ -323,57 +324,19 @@ def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_
         try:
             values[r] = [float(cell) for cell in cells]
         except ValueError:
-            values[r] = [_clock_cell(cell, clock) if clock and j == clock["col"] and _CLOCK.match(cell.strip())
+            values[r] = [clock_cell(cell, clock) if clock and j == clock["col"] and CLOCK.match(cell.strip())
                          else _cell(cell, f"{source}: line {lineno}, channel '{name}'")
                          for j, (cell, name) in enumerate(zip(cells, names))]
     return values, [n for n, _ in rows]
 
 
-_CLOCK = re.compile(r"^(?:(?P<date>\d{4}-\d{2}-\d{2})[T ])?(?P<h>\d{1,2}):(?P<m>\d{2}):(?P<s>\d{2}(?:\.\d*)?)Z?$")
 _DATE_TIME = re.compile(r"(\d{4}-\d{2}-\d{2}) (\d{1,2}:\d{2}:\d{2})")  # one cell in a blank-separated file
-DAY = 86400.0
-
-
-def _clock_cell(cell: str, clock: dict) -> float:
-    """Seconds of a clock stamp's day, plus its days since the first stamp's date when dated (small
-    numbers: seconds since a distant epoch would lose the microseconds)."""
-    import datetime
-
-    m = _CLOCK.match(cell.strip())
-    clock["rows"] += 1
-    clock.setdefault("first", cell.strip())
-    seconds = int(m["h"]) * 3600 + int(m["m"]) * 60 + float(m["s"])
-    if not m["date"]:
-        return seconds
-    clock["dated"] += 1
-    try:
-        day = datetime.date.fromisoformat(m["date"]).toordinal()
-    except ValueError:
-        return float("nan")  # refused with the other time checks, naming the line
-    return (day - clock.setdefault("day0", day)) * DAY + seconds
 
 
 def _clock_time(values, line_of, clock: dict, unit, meta: dict, notes: list, source: str) -> None:
-    """The clock column made seconds from the first sample (in place), a midnight rollover of
-    undated stamps (a step back by nearly a day) counted as the next day; said and recorded."""
-    j, n = clock["col"], len(values)
-    if clock["rows"] != n or clock["dated"] not in (0, n):
-        raise RunError(f"{source}: the time column mixes clock stamps ({clock['first']}) with numbers or with "
-                       f"stamps {'without' if clock['dated'] else 'with'} a date: write one form")
-    if unit is not None and U.canonical(unit) != "s":
-        raise RunError(f"{source}: the time column holds clock stamps ({clock['first']}) but is declared in {unit}: "
-                       "drop the unit")
-    t = values[:, j]
-    said = []
-    if not clock["dated"]:
-        back = np.flatnonzero(np.diff(t) < -DAY / 2)
-        for i in back:
-            t[i + 1:] += DAY
-        said = [f"midnight rollover at line {line_of[i + 1]}: 24 h added from there on" for i in back]
-    origin = t[0] if np.isfinite(t[0]) else 0.0
-    values[:, j] = t - origin
-    text = (f"clock time stamps{' with a date' if clock['dated'] else ''} (first {clock['first']}) read as seconds "
-            f"from the first sample" + "".join(f"; {s}" for s in said))
+    """The clock column made seconds from the first sample (in place), said and recorded."""
+    j = clock["col"]
+    text = clock_from_first(values[:, j], clock, unit, source, lambda i: f"line {line_of[i]}")
     meta["time_from"] = text
     notes.append(text)
 

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RunError
+from .clockstamps import CLOCK, clock_cell, clock_from_first
 from .ingest import Ingested, Raw, build_runs, is_index, zero_based
 from .runs import Run
 
@@ -90,9 +91,11 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
     if data is not None:
         channels, time = zero_based(channels or {}, time, index_base, data.shape[1], source)
 
-    t = _time(variables, data, time, dt, source)
-    n = len(t)
     time_name = time if isinstance(time, str) else (_time_name(variables) or "time")
+    t, clock = _time(variables, data, time, dt, (units or {}).get(time_name), source)
+    if clock:
+        notes.append(clock)
+    n = len(t)
     stored = variables[data_name[0]] if is_index(time) else variables.get(time_name)
     resolution = None
     if stored is not None and np.asarray(stored).dtype == np.float32:  # 24 bits: a clock offset eats them
@@ -114,6 +117,8 @@ def _mat_file_runs(path, variables, version, channels, time, matrix, dt, units, 
     info = {"source_format": f"MATLAB .mat {version}", "channel_map": json.dumps(channels, separators=(",", ":"))}
     if data is not None:
         info["matrix"] = data_name[0] + (f" ({data_name[1]})" if data_name[1] else "")
+    if clock:
+        info["time_from"] = clock
     info.update(meta or {})
     raw = Raw(source, t, column, list(variables), dict(units or {}), {k: str(v) for k, v in info.items()},
               time_name=time_name, file_format="mat", notes=notes, time_resolution=resolution, missing=missing)
@@ -232,6 +237,8 @@ def _flatten(variables: dict, prefix: str = "", skipped: list | None = None) -> 
                 out.update(_flatten(element, f"{prefix}{key}({k}).", skipped))
         elif isinstance(value, (np.ndarray, int, float)) and np.asarray(value).dtype != object:
             out[f"{prefix}{key}"] = value
+        elif isinstance(value, (list, np.ndarray)) and len(value) > 1 and all(isinstance(v, str) for v in value):
+            out[f"{prefix}{key}"] = np.asarray(value, dtype=str)  # a cell array of text: clock stamps, maybe
         elif skipped is not None:
             kind = "text" if isinstance(value, str) else f"cell array of {len(value) if hasattr(value, '__len__') else 1}"
             skipped.append(f"{prefix}{key} ({kind})")
@@ -304,13 +311,16 @@ def _time_name(variables: dict) -> str | None:
     return top or (fields[0] if len(fields) == 1 else None)
 
 
-def _time(variables: dict, data, time, dt, source: str) -> np.ndarray:
+def _time(variables: dict, data, time, dt, unit, source: str) -> tuple[np.ndarray, str | None]:
+    """The time vector, and what was done to it when it is text (clock stamps), else None."""
     if time is None:
         time = _time_name(variables)
+    if isinstance(time, str) and np.asarray(variables.get(time, 0)).dtype.kind == "U":
+        return _clock_stamps(variables[time], time, unit, source)
     if time is not None:
         t = _column(variables, data, time, source, "time")
         _finite(t, source, f"time ({_describe(time)})")
-        return t
+        return t, None
     if dt is None:
         raise RunError(f"{source}: no time variable ('t' or 'time') and no sample interval (dt) given "
                        f"(variables: {_listing(variables)})")
@@ -323,7 +333,22 @@ def _time(variables: dict, data, time, dt, source: str) -> np.ndarray:
         if not lengths:
             raise RunError(f"{source}: no numeric vector variables")
         n = max(lengths)
-    return np.arange(n) * float(dt)
+    return np.arange(n) * float(dt), None
+
+
+def _clock_stamps(values, name: str, unit, source: str) -> tuple[np.ndarray, str]:
+    """Time stored as text (a char matrix or cell array of ``12:34:56.020``, with a date or not)
+    as seconds from the first stamp, and what was done."""
+    cells = [str(c).strip() for c in np.ravel(values)]
+    bad = next((k for k, c in enumerate(cells) if not CLOCK.match(c)), None)
+    if bad is not None:
+        raise RunError(f"{source}: time variable '{name}' is text but sample {bad + 1} ({cells[bad]!r}) is no clock "
+                       "stamp (12:34:56.020, or 2024-05-17 12:34:56.020): store time as numbers")
+    clock = {"rows": 0, "dated": 0}
+    t = np.array([clock_cell(c, clock) for c in cells])
+    text = clock_from_first(t, clock, unit, f"{source}: variable '{name}'", lambda i: f"sample {i + 1}")
+    _finite(t, source, f"time ('{name}')")
+    return t, text
 
 
 def _finite(values: np.ndarray, source: str, what: str) -> None:

@@ -291,6 +291,30 @@ def test_clock_time_stamps_are_read_as_seconds_from_the_first_sample_and_said(tr
     assert ("midnight rollover at line 27: 24 h added" in run.meta["notes"]) == (form == "midnight")
 
 
+@pytest.mark.parametrize("form", ["char", "cellstr_dated", "midnight"])
+def test_clock_time_stored_as_text_in_a_mat_file(truth_run, tmp_path, form):
+    """datestr()'s char matrix or a cell array of stamps as a .mat file's time: read as seconds from
+    the first sample and said, as in a CSV file (they were refused as 'not a numeric vector')."""
+    t, q, th = _table(truth_run)
+    start = 86400 - 0.5 if form == "midnight" else 12 * 3600 + 34 * 60 + 56.02
+    stamps = [_clock(start + a) for a in t]
+    if form == "cellstr_dated":
+        stamps = np.array([f"2026-11-26 {s}" for s in stamps], dtype=object)  # saved as a cell array
+    savemat(tmp_path / "c.mat", {"time": stamps if form == "cellstr_dated" else np.array(stamps), "q": q, "theta": th})
+    run = read_run_file(tmp_path / "c.mat", {"channels": {"q": "q", "theta": "theta"},
+                                             "units": {"q": "deg/s", "theta": "deg"}})
+    np.testing.assert_allclose(run.time, t, atol=1e-6)
+    _check(run, truth_run)
+    assert f"clock time stamps{' with a date' if form == 'cellstr_dated' else ''} (first" in run.meta["time_from"]
+    assert ("midnight rollover at sample 26: 24 h added" in run.meta["notes"]) == (form == "midnight")
+
+
+def test_text_time_in_a_mat_file_that_is_no_clock_is_refused_naming_the_sample(tmp_path):
+    savemat(tmp_path / "x.mat", {"t": np.array(["12:00:00.00", "12:00:00.02", "noon"]), "q": np.arange(3.0)})
+    with pytest.raises(RunError, match=r"time variable 't' is text but sample 3 \('noon'\) is no clock stamp"):
+        read_run_file(tmp_path / "x.mat", {"channels": {"q": "q"}})
+
+
 def test_clock_stamps_mixed_with_numbers_are_refused(tmp_path):
     (tmp_path / "mix.csv").write_text("time,q\n12:00:00.00,1\n12:00:00.02,2\n0.04,3\n")
     with pytest.raises(RunError, match="mixes clock stamps"):
