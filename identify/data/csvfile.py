@@ -311,6 +311,11 @@ def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_
         lineno, line = rows.pop()
         notes.append(f"line {lineno}, the last, is cut short ({len(_cells(line, delim))} values for {len(names)} "
                      "columns, no line break at the end of the file: a write cut short): left out")
+    elif rows and not ends_with_break and _cut_in_last_cell(rows, delim, len(names)):
+        lineno, line = rows.pop()
+        notes.append(f"line {lineno}, the last, ends in a value shorter than every line before it writes that column "
+                     f"({_cells(line, delim)[len(names) - 1].strip()!r}), no line break at the end of the file: "
+                     "a write cut short inside its last value: left out")
     if len(rows) < 2:
         raise RunError(f"{source}: fewer than two data rows")
     values = np.empty((len(rows), len(names)))
@@ -328,6 +333,28 @@ def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_
                          else _cell(cell, f"{source}: line {lineno}, channel '{name}'")
                          for j, (cell, name) in enumerate(zip(cells, names))]
     return values, [n for n, _ in rows]
+
+
+CUT_CHECK_ROWS = 50  # rows before the last whose last column must all have one written width
+
+
+def _cut_in_last_cell(rows, delim, n: int) -> bool:
+    """Whether the last row's last value was cut: shorter after its decimal point than that column
+    in every one of the rows before it, which all write the same number of characters there (a
+    fixed format: with varying widths, %g, nothing can be told), or empty."""
+    cells = _cells(rows[-1][1], delim)
+    if len(cells) != n or len(rows) < 20:
+        return False
+    last = cells[-1].strip()
+
+    def decimals(cell: str) -> int | None:
+        return len(cell) - cell.find(".") - 1 if "." in cell else None
+
+    before = [_cells(line, delim) for _, line in rows[-CUT_CHECK_ROWS - 1:-1]]
+    widths = {decimals(c[n - 1].strip()) if len(c) >= n else None for c in before}
+    if len(widths) != 1 or None in widths:
+        return not last
+    return not last or decimals(last) is None or decimals(last) < widths.pop()
 
 
 _DATE_TIME = re.compile(r"(\d{4}-\d{2}-\d{2}) (\d{1,2}:\d{2}:\d{2})")  # one cell in a blank-separated file

@@ -82,6 +82,31 @@ def test_a_last_line_cut_short_is_left_out_and_said_a_short_line_inside_refused(
         read_run_file(tmp_path / "short.csv")
 
 
+@pytest.mark.parametrize("cut", ["0.12", "", "3"])
+def test_a_last_value_cut_inside_is_left_out_and_said(truth_run, tmp_path, cut):
+    """A logger writing a fixed format, stopped inside the last value (no line break at the end):
+    the line has all its values, but its last one is shorter than the column ever is; read as a
+    number it was a wrong sample."""
+    t, q, th = _table(truth_run)
+    text = "time,q [deg/s],theta [deg]\n" + "\n".join(f"{a:.3f},{b:.9f},{c:.9f}" for a, b, c in zip(t, q, th))
+    path = tmp_path / "cut.csv"
+    path.write_text(text[:text.rindex(",") + 1] + cut)
+    run = read_run_file(path)
+    assert len(run) == len(t) - 1
+    _check(run, truth_run)
+    assert f"ends in a value shorter than every line before it writes that column ('{cut}')" in run.meta["notes"]
+
+
+def test_a_varying_written_width_or_a_line_break_at_the_end_is_no_cut(truth_run, tmp_path):
+    t, q, th = _table(truth_run)
+    general = "\n".join(f"{a:g},{b:g},{c:g}" for a, b, c in zip(t, q, th))  # %g: widths vary
+    (tmp_path / "g.csv").write_text("time,q [deg/s],theta [deg]\n" + general)
+    assert len(read_run_file(tmp_path / "g.csv")) == len(t)
+    fixed = "\n".join(f"{a:.3f},{b:.6f},{c:.2f}" for a, b, c in zip(t, q, th))
+    (tmp_path / "f.csv").write_text("time,q [deg/s],theta [deg]\n" + fixed[:-1] + "\n")  # ends in a break
+    assert len(read_run_file(tmp_path / "f.csv")) == len(t)
+
+
 def test_a_data_matrix_with_channels_in_rows_is_read_transposed_and_said(truth_run, tmp_path):
     Z = np.column_stack([truth_run.time, truth_run["q"], truth_run["theta"]])
     savemat(tmp_path / "rows.mat", {"rows": Z.T})  # 3 x N: one channel per row
