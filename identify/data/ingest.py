@@ -53,7 +53,10 @@ COARSE_MARGIN = 0.05  # a duplicated or missing row in 20 is a row, not a coarse
 SLOW_STEP = 1.0  # s: flight-test data sampled slower than 1 Hz show no aircraft dynamics
 FAST_STEP = 1e-5  # s: no flight-test record is sampled faster than 100 kHz
 # values loggers write for a missing sample; one that lies far outside a channel's other values is flagged
-TYPICAL_MARKERS = (-999.0, -9999.0, -99999.0, -999999.0, 999.0, 9999.0, 99999.0, 999999.0)
+# the ±9..9 family; 16-bit integer extremes (an empty or saturated counter); the fill values of
+# Fortran/MATLAB tools (±1e30) and netCDF's default float fill (9.96921e36)
+TYPICAL_MARKERS = (-999.0, -9999.0, -99999.0, -999999.0, 999.0, 9999.0, 99999.0, 999999.0,
+                   -32768.0, 32767.0, 65535.0, -1e30, 1e30, float(np.float32(9.96921e36)))
 MARKER_DISTANCE = 1.0  # flagged beyond this many times the other values' range from them
 RATE_WINDOW = 7  # steps in the running median that tells a sample rate from single gaps
 RATE_TOL = 0.1  # a running median step off the rate by more than this share is another rate (jitter: 5 %)

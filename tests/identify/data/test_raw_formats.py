@@ -263,6 +263,17 @@ def test_markers_in_a_mat_file(truth_run, tmp_path):
         load_channel_map('{"channels": {"q": "q"}, "missing": "-999"}')
 
 
+@pytest.mark.parametrize("marker, shown", [(-32768.0, "-32768"), (1e30, "1e+30"),
+                                           (float(np.float32(9.96921e36)), "9.96921e+36")])
+def test_integer_extremes_and_fill_values_as_undeclared_markers_warn(truth_run, tmp_path, marker, shown):
+    t, q, th = _table(truth_run)
+    q = q.copy()
+    q[9] = marker
+    savemat(tmp_path / "f.mat", {"t": t, "q": q, "theta": th})
+    run = read_run_file(tmp_path / "f.mat", {"channels": {"q": "q", "theta": "theta"}})
+    assert f"channel 'q': 1 value(s) exactly {shown} (sample 10), far outside" in run.meta["warnings"]
+
+
 def _two_rates(truth_run):
     """The truth run at 25 Hz for its first 4 s, at 50 Hz after."""
     keep = np.r_[0:200:2, 200:len(truth_run)]
