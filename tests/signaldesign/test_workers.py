@@ -68,24 +68,31 @@ def _sleeps(objective, fly, i):
     return i
 
 
-def test_an_interrupt_stops_the_workers_at_once():
-    """Ctrl-C in the parent (here a KeyboardInterrupt raised by a timer) ends the search without
-    waiting for the running tasks, and no worker outlives it."""
+def _interrupt_sleeping_tasks_after(seconds: float) -> None:
+    """run_tasks on sleeping tasks in 2 workers, Ctrl-C in the parent (a KeyboardInterrupt raised
+    by a timer) after ``seconds``; passes when the interrupt reaches the caller."""
     import signal
-    import time
 
     def interrupt(signum, frame):
         raise KeyboardInterrupt
 
     old = signal.signal(signal.SIGALRM, interrupt)
-    t0 = time.perf_counter()
     try:
-        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        signal.setitimer(signal.ITIMER_REAL, seconds)
         with pytest.raises(KeyboardInterrupt):
             run_tasks(_sleeps, [(i,) for i in range(4)], None, None, jobs=2)
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+
+
+def test_an_interrupt_stops_the_workers_at_once():
+    """Ctrl-C in the parent ends the search without waiting for the running tasks, and no worker
+    outlives it."""
+    import time
+
+    t0 = time.perf_counter()
+    _interrupt_sleeping_tasks_after(0.5)
     assert time.perf_counter() - t0 < 10
     assert not multiprocessing.active_children()
 
@@ -106,20 +113,12 @@ def test_workers_die_of_the_terminate_even_when_the_parent_catches_sigterm(monke
             super()._spawn_process()
             spawned.extend(p for p in self._processes.values() if p not in spawned)
 
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt
-
     monkeypatch.setattr(workers, "ProcessPoolExecutor", Recording)
-    old_term = signal.signal(signal.SIGTERM, lambda signum, frame: None)
-    old_alarm = signal.signal(signal.SIGALRM, interrupt)
+    old = signal.signal(signal.SIGTERM, lambda signum, frame: None)
     try:
-        signal.setitimer(signal.ITIMER_REAL, 0.5)
-        with pytest.raises(KeyboardInterrupt):
-            run_tasks(_sleeps, [(i,) for i in range(4)], None, None, jobs=2)
+        _interrupt_sleeping_tasks_after(0.5)
     finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old_alarm)
-        signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGTERM, old)
     assert len(spawned) == 2
     assert [p.exitcode for p in spawned] == [-signal.SIGTERM] * 2
     assert not multiprocessing.active_children()
