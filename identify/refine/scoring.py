@@ -42,6 +42,7 @@ class ScoreTest:
     noise: NoiseModel
     metric: str
     hint: np.ndarray | None = None
+    nu: float = math.inf  # dof of the noise variance along the candidate (finite: F, not chi-square)
     n_tests: int = 1
     level: float = math.nan
     threshold: float = math.nan
@@ -117,7 +118,7 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
     best: dict[str, ScoreTest] = {}
     for t in tested:
         t.n_tests, t.level = n_tests, level
-        t.threshold = dg.sidak_threshold(alpha, n_tests, t.dof)
+        t.threshold = _threshold(level, t.dof, t.nu)
         name = t.candidate.name
         if name not in best or t.log_p < best[name].log_p:
             best[name] = t
@@ -160,9 +161,45 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
         if q == 0:
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
-        out.append(ScoreTest(c, stat, q, float(stats.chi2.logsf(stat, q)), noise, metric,
+        nu = _noise_dof(noise, design, sb, [d[:, :, [nb + k for k in cols]] for d in dy]) \
+            if metric == "alternative" else math.inf
+        out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
+
+
+def _log_sf(stat: float, q: int, nu: float) -> float:
+    """log p-value of a score statistic with ``q`` dof in a noise model whose level along the
+    candidate rests on ``nu`` dof, ``q`` of them the candidate's own fit removed before it was
+    fitted: ``stat (nu - q) / (q nu)`` against F(q, nu - q) (the Wald statistic's exact law in
+    linear regression, ``n`` observations, ``k`` parameters: ``q F n / (n - k)``); chi-square for
+    ``nu`` infinite."""
+    if not math.isfinite(nu):
+        return float(stats.chi2.logsf(stat, q))
+    d = max(nu - q, 1.0)
+    return float(stats.f.logsf(stat * d / (q * (d + q)), q, d))
+
+
+def _threshold(level: float, q: int, nu: float) -> float:
+    """The statistic :func:`_log_sf` gives the p-value ``level``."""
+    if not math.isfinite(nu):
+        return float(stats.chi2.isf(level, q))
+    d = max(nu - q, 1.0)
+    return float(q * (d + q) / d * stats.f.isf(level, q, d))
+
+
+def _noise_dof(noise: NoiseModel, design: tuple, sb: dg.ScoreBase, columns: list[np.ndarray]) -> float:
+    """Degrees of freedom of ``noise``'s variance along a candidate's ``columns`` (per run
+    (N_r, ny, q), whitened columns of ``sb``'s design) less their fit on the model's and nuisance
+    columns in that metric (:meth:`NoiseModel.effective_dof`)."""
+    residuals, dy, nuisance, nb = design
+    Jw = np.concatenate([noise.whiten(c).reshape(-1, c.shape[2]) for c in columns])
+    base = dg.block_design([d[:, :, :nb] for d in dy], nuisance)
+    base_w = dg.block_design([noise.whiten(d[:, :, :nb]) for d in dy], [noise.whiten(nu) for nu in nuisance])
+    coef = np.linalg.lstsq(sb.Q.T @ base_w, sb.Q.T @ Jw, rcond=None)[0]
+    rest = np.concatenate([c.reshape(-1, c.shape[2]) for c in columns]) - base @ coef
+    parts = np.split(rest, np.cumsum([c.shape[0] * c.shape[1] for c in columns])[:-1])
+    return noise.effective_dof([r.reshape(c.shape) for r, c in zip(parts, columns)])
 
 
 __all__ = ["ScoreTest", "ScoreRound", "score_candidates", "SIMPLER_FIRST", "TOP_ALTERNATIVE"]
