@@ -162,7 +162,7 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
         nu = _noise_dof(noise, design, sb, [d[:, :, [nb + k for k in cols]] for d in dy]) \
-            if metric == "alternative" else math.inf
+            if metric == "alternative" or c.removed_by_noise_fit else math.inf
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
