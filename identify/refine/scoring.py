@@ -110,7 +110,7 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
         for c, cols in [groups[i] for i in _explaining_most(energy, groups, residual_log_p)]:
             keep = list(range(nb)) + [nb + k for k in cols]
             alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
-                                 fitting.dt, f_min, segment=fitting.segment)
+                                 fitting.dt, f_min, segment=fitting.segment, deterministic=False)
             tested += _tests(alt, design, [(c, cols)], "alternative")
     # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
     n_tests = sum(t.candidate.n_tests for t in tested)
