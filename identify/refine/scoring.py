@@ -7,7 +7,15 @@ trends removed) tests every candidate, but learns an effect that dominates the r
 explain most of the residual's energy, and the ``TOP_ALTERNATIVE`` scoring highest in its metric,
 are tested again in an *alternative* model fitted with that candidate's own least-squares fit
 removed (all candidates' columns removed at once biased it:
-smooth terms scored 75 for a threshold of 22).
+smooth terms scored 75 for a threshold of 22), and nothing else (each run's mean, trend and line,
+removed before the residual model is fitted, took further low-frequency noise out of it).
+
+A noise model fitted without the candidate's own fit estimates the noise level along the
+candidate's columns from ``nu`` dof less the ``q`` that fit took: the statistic is then F-like,
+``S (nu - q) / (q nu)`` ~ F(q, nu - q), ``nu`` the Satterthwaite dof of that level
+(:meth:`NoiseModel.effective_dof`), few for a smooth column (a derivative, a drift: 13-30 on a
+30 s Navion run), hundreds for a broadband one (a delay). So are drift and bias in the residual
+model's metric: each run's trend and mean are removed before it is fitted.
 """
 from __future__ import annotations
 
