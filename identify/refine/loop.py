@@ -301,7 +301,8 @@ class Refine:
                      for t in sorted(tested, key=ScoreTest.rank)[1:4]]
         common = dict(statistic=best.statistic, threshold=best.threshold, dof=best.dof,
                       p_value=best.p_value, tested=len(tested), runner_up=runner_up,
-                      why=cand.spec.get("why", ""), metric=best.metric)
+                      why=cand.spec.get("why", ""), metric=best.metric,
+                      nu=best.nu if math.isfinite(best.nu) else None)
         held_data = [d for d in ("choosing", "validation") if fitting.data[d]]
         try:
             options = cand.estimate(fitting, p, noise, best.hint)

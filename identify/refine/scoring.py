@@ -71,7 +71,8 @@ class ScoreTest:
 
     def to_dict(self) -> dict:
         return {"effect": self.candidate.kind, "target": self.candidate.target, "statistic": self.statistic,
-                "threshold": self.threshold, "dof": self.dof, "metric": self.metric}
+                "threshold": self.threshold, "dof": self.dof, "metric": self.metric,
+                "nu": self.nu if math.isfinite(self.nu) else None}
 
 
 @dataclass
@@ -160,17 +161,19 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
     used = sorted({k for _, cols in groups for k in cols})  # whiten only the columns tested
     where = {k: i for i, k in enumerate(used)}
     dyw = [noise.whiten(d[:, :, list(range(nb)) + [nb + k for k in used]]) for d in dy]
-    sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals],
-                            dg.block_design([d[:, :, :nb] for d in dyw], [noise.whiten(nu) for nu in nuisance]),
-                            sigma=np.ones(len(noise.sigma)))
+    base_w = dg.block_design([d[:, :, :nb] for d in dyw], [noise.whiten(x) for x in nuisance])
+    sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals], base_w, sigma=np.ones(len(noise.sigma)))
     J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
     out = []
+    base = None  # the model's and nuisance columns unwhitened, for the F tests' dof (built once)
     for (c, cols), (stat, q) in zip(groups, sb.statistics(J, [[where[k] for k in cols] for _, cols in groups])):
         if q == 0:
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
-        nu = _noise_dof(noise, design, sb, [d[:, :, [nb + k for k in cols]] for d in dy]) \
-            if metric == "alternative" or c.removed_by_noise_fit else math.inf
+        nu = math.inf
+        if metric == "alternative" or c.removed_by_noise_fit:
+            base = dg.block_design([d[:, :, :nb] for d in dy], nuisance) if base is None else base
+            nu = _noise_dof(noise, sb, base, base_w, [d[:, :, [nb + k for k in cols]] for d in dy])
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
@@ -196,18 +199,15 @@ def _threshold(level: float, q: int, nu: float) -> float:
     return float(q * (d + q) / d * stats.f.isf(level, q, d))
 
 
-def _noise_dof(noise: NoiseModel, design: tuple, sb: dg.ScoreBase, columns: list[np.ndarray]) -> float:
-    """Degrees of freedom of ``noise``'s variance along a candidate's ``columns`` (per run
-    (N_r, ny, q), whitened columns of ``sb``'s design) less their fit on the model's and nuisance
-    columns in that metric (:meth:`NoiseModel.effective_dof`)."""
-    residuals, dy, nuisance, nb = design
+def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: np.ndarray, base_w: np.ndarray,
+               columns: list[np.ndarray]) -> float:
+    """Degrees of freedom of ``noise``'s level along a candidate's ``columns`` (per run (N_r, ny, q))
+    less their fit, in that metric, on the model's and nuisance columns (``base``, ``base_w``
+    whitened, whose basis is ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
     Jw = np.concatenate([noise.whiten(c).reshape(-1, c.shape[2]) for c in columns])
-    base = dg.block_design([d[:, :, :nb] for d in dy], nuisance)
-    base_w = dg.block_design([noise.whiten(d[:, :, :nb]) for d in dy], [noise.whiten(nu) for nu in nuisance])
     coef = np.linalg.lstsq(sb.Q.T @ base_w, sb.Q.T @ Jw, rcond=None)[0]
     rest = np.concatenate([c.reshape(-1, c.shape[2]) for c in columns]) - base @ coef
     parts = np.split(rest, np.cumsum([c.shape[0] * c.shape[1] for c in columns])[:-1])
     return noise.effective_dof([r.reshape(c.shape) for r, c in zip(parts, columns)])
-
 
 __all__ = ["ScoreTest", "ScoreRound", "score_candidates", "SIMPLER_FIRST", "TOP_ALTERNATIVE"]
