@@ -80,6 +80,9 @@ class Candidate:
     kind = "base"
     complexity = 0  # 1: ranked below the simpler explanations (nonlinear terms)
     linear = True  # score columns = output sensitivities of ``params`` at their null values
+    # its column is what the residual noise model's fit removes from each run first (a mean, a
+    # trend): in that model's metric too it is tested as in a model fitted without its own fit
+    removed_by_noise_fit = False
 
     target: str
     params: list[str]
@@ -451,12 +454,14 @@ class Bias(OutputTerm):
     """A bias common to all runs on an output (testable only without per-run zero shifts)."""
 
     kind, prefix, term, description, unit = "bias", "bias", "one", pi.constant(), "1"
+    removed_by_noise_fit = True
 
 
 class Drift(OutputTerm):
     """A linear drift of an output with the time from each run's start."""
 
     kind, prefix, term, description, unit = "drift", "drift", "t", pi.time(), "s"
+    removed_by_noise_fit = True
 
 
 class Scale(OutputTerm):

@@ -12,7 +12,8 @@ which it is, see :mod:`identify.estimators.base`), then repeats:
 2. a vector autoregressive noise model of those residuals (:mod:`identify.refine.noise`), and a score
    test of every candidate (:mod:`identify.refine.candidates`) at its null value in that noise model's
    metric (a GLS score test, valid for coloured residuals; :mod:`identify.refine.scoring`), against
-   the chi-square threshold at a Šidák-corrected family level ``alpha`` over all candidates tested;
+   the threshold at a Šidák-corrected family level ``alpha`` over all candidates tested (chi-square;
+   F where the noise model was fitted without the candidate's own fit, :mod:`identify.refine.scoring`);
 3. the most significant candidate (nonlinear terms ranked below simpler explanations) is
    estimated (a re-fit; a delay by a profile-likelihood search over tau, and a lag fitted too),
    and kept only if (a) the likelihood ratio of the re-fit in the same metric, (b) the Wald
@@ -300,7 +301,8 @@ class Refine:
                      for t in sorted(tested, key=ScoreTest.rank)[1:4]]
         common = dict(statistic=best.statistic, threshold=best.threshold, dof=best.dof,
                       p_value=best.p_value, tested=len(tested), runner_up=runner_up,
-                      why=cand.spec.get("why", ""), metric=best.metric)
+                      why=cand.spec.get("why", ""), metric=best.metric,
+                      nu=best.nu if math.isfinite(best.nu) else None)
         held_data = [d for d in ("choosing", "validation") if fitting.data[d]]
         try:
             options = cand.estimate(fitting, p, noise, best.hint)

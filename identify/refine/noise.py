@@ -61,6 +61,8 @@ class NoiseModel:
     segment: float = math.inf
     dt: float = 1.0
     white: bool = True  # the innovations passed the portmanteau test (False: the order is at its limit)
+    gram: np.ndarray | None = None  # (ny p, ny p) Gram matrix of the lagged data the A were fitted to
+    n_innov: int = 0  # degrees of freedom of the innovation covariance (innovations less the A's count)
 
     @property
     def order(self) -> int:
@@ -123,7 +125,8 @@ class NoiseModel:
         A = coef.T.reshape(ny, best, ny).transpose(1, 0, 2) if best else np.zeros((0, ny, ny))
         Sigma = innov.T @ innov / max(n - c, 1)
         Sigma += 1e-10 * np.trace(Sigma) / ny * np.eye(ny)  # exactly dependent outputs
-        return cls(sigma, A, np.linalg.inv(np.linalg.cholesky(Sigma)), segment, dt, white)
+        return cls(sigma, A, np.linalg.inv(np.linalg.cholesky(Sigma)), segment, dt, white,
+                   G[:c, :c] if c else None, max(n - c, 1))
 
     def whiten(self, x: np.ndarray) -> np.ndarray:
         """``W x`` of one run: ``x`` (N, ny, ...) residual or sensitivity columns, returns
@@ -142,6 +145,46 @@ class NoiseModel:
         for k in range(1, p + 1):
             out -= _on_outputs(self.A[k - 1], z[p - k:N - k])
         return _on_outputs(self.L_inv, out)
+
+    def effective_dof(self, columns: list[np.ndarray]) -> float:
+        """Degrees of freedom of this model's estimate of the noise variance along ``columns``
+        (one (N_r, ny, q) array per run: fixed sequences such as a candidate's columns less their
+        fit on the model's), Satterthwaite's ``2 f^2 / Var(f)`` (as Kenward and Roger's small-sample
+        F test with an estimated covariance): ``f = sum_j ||W z_j||^2`` over the q columns each
+        scaled to ``||W z_j|| = 1``, ``Var(f)`` by the delta method from the least-squares
+        covariance of the autoregressive matrices (``Sigma`` (x) ``gram^-1``) and the Wishart spread
+        of the innovation covariance (``n_innov`` dof).
+
+        A smooth column's whitened norm hangs on the model's gain at the lowest frequencies, which a
+        30 s run determines poorly for a 4-output model of order 25 (100 coefficients an equation):
+        a few tens of dof, against thousands for a broadband column (a delay's).
+        ``inf`` for a model without estimated colour (:meth:`white`)."""
+        if not self.n_innov:
+            return math.inf
+        p, ny, q = self.order, len(self.sigma), columns[0].shape[2]
+        S_inv = self.L_inv.T @ self.L_inv
+        coef = self.A.transpose(0, 2, 1).reshape(ny * p, ny)  # as fitted: lag-major rows
+        M, D = np.zeros((ny, ny)), np.zeros((ny * p, ny))
+        for j in range(q):
+            U, Z = [], []  # innovations (n, ny) of the column and its lags (n, ny p), runs stacked
+            for col in columns:
+                x = col[:, :, j] / self.sigma
+                for z in (_segments(x, self.dt, self.segment) if math.isfinite(self.segment) else [x]):
+                    if len(z) <= p:
+                        continue
+                    lags = np.hstack([z[p - k:len(z) - k] for k in range(1, p + 1)]) if p \
+                        else np.zeros((len(z), 0))
+                    U.append(z[p:] - lags @ coef)
+                    Z.append(lags)
+            u, lags = np.vstack(U), np.vstack(Z)
+            f = float(np.einsum("ti,ij,tj->", u, S_inv, u))
+            if f > 0:
+                M += u.T @ u / f
+                D -= 2.0 * lags.T @ u @ S_inv / f
+        var = float(np.trace(np.linalg.inv(S_inv) @ D.T @ np.linalg.solve(self.gram, D))) if p else 0.0
+        B = self.L_inv @ M @ self.L_inv.T  # Sigma^-1/2 M Sigma^-1/2
+        var += 2.0 / self.n_innov * float(np.sum(B * B))
+        return 2.0 * q * q / var if var > 0 else math.inf
 
     def cost(self, residuals: list[np.ndarray]) -> float:
         """Sum of squared whitened residuals over runs: twice the Gaussian negative log-likelihood

@@ -7,7 +7,15 @@ trends removed) tests every candidate, but learns an effect that dominates the r
 explain most of the residual's energy, and the ``TOP_ALTERNATIVE`` scoring highest in its metric,
 are tested again in an *alternative* model fitted with that candidate's own least-squares fit
 removed (all candidates' columns removed at once biased it:
-smooth terms scored 75 for a threshold of 22).
+smooth terms scored 75 for a threshold of 22), and nothing else (each run's mean, trend and line,
+removed before the residual model is fitted, took further low-frequency noise out of it).
+
+A noise model fitted without the candidate's own fit estimates the noise level along the
+candidate's columns from ``nu`` dof less the ``q`` that fit took: the statistic is then F-like,
+``S (nu - q) / (q nu)`` ~ F(q, nu - q), ``nu`` the Satterthwaite dof of that level
+(:meth:`NoiseModel.effective_dof`), few for a smooth column (a derivative, a drift: 13-30 on a
+30 s Navion run), hundreds for a broadband one (a delay). So are drift and bias in the residual
+model's metric: each run's trend and mean are removed before it is fitted.
 """
 from __future__ import annotations
 
@@ -42,6 +50,7 @@ class ScoreTest:
     noise: NoiseModel
     metric: str
     hint: np.ndarray | None = None
+    nu: float = math.inf  # dof of the noise variance along the candidate (finite: F, not chi-square)
     n_tests: int = 1
     level: float = math.nan
     threshold: float = math.nan
@@ -62,7 +71,8 @@ class ScoreTest:
 
     def to_dict(self) -> dict:
         return {"effect": self.candidate.kind, "target": self.candidate.target, "statistic": self.statistic,
-                "threshold": self.threshold, "dof": self.dof, "metric": self.metric}
+                "threshold": self.threshold, "dof": self.dof, "metric": self.metric,
+                "nu": self.nu if math.isfinite(self.nu) else None}
 
 
 @dataclass
@@ -109,7 +119,7 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
         for c, cols in [groups[i] for i in _explaining_most(energy, groups, residual_log_p)]:
             keep = list(range(nb)) + [nb + k for k in cols]
             alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
-                                 fitting.dt, f_min, segment=fitting.segment)
+                                 fitting.dt, f_min, segment=fitting.segment, deterministic=False)
             tested += _tests(alt, design, [(c, cols)], "alternative")
     # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
     n_tests = sum(t.candidate.n_tests for t in tested)
@@ -117,7 +127,7 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
     best: dict[str, ScoreTest] = {}
     for t in tested:
         t.n_tests, t.level = n_tests, level
-        t.threshold = dg.sidak_threshold(alpha, n_tests, t.dof)
+        t.threshold = _threshold(level, t.dof, t.nu)
         name = t.candidate.name
         if name not in best or t.log_p < best[name].log_p:
             best[name] = t
@@ -151,18 +161,53 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
     used = sorted({k for _, cols in groups for k in cols})  # whiten only the columns tested
     where = {k: i for i, k in enumerate(used)}
     dyw = [noise.whiten(d[:, :, list(range(nb)) + [nb + k for k in used]]) for d in dy]
-    sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals],
-                            dg.block_design([d[:, :, :nb] for d in dyw], [noise.whiten(nu) for nu in nuisance]),
-                            sigma=np.ones(len(noise.sigma)))
+    base_w = dg.block_design([d[:, :, :nb] for d in dyw], [noise.whiten(x) for x in nuisance])
+    sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals], base_w, sigma=np.ones(len(noise.sigma)))
     J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
     out = []
+    base = None  # the model's and nuisance columns unwhitened, for the F tests' dof (built once)
     for (c, cols), (stat, q) in zip(groups, sb.statistics(J, [[where[k] for k in cols] for _, cols in groups])):
         if q == 0:
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
-        out.append(ScoreTest(c, stat, q, float(stats.chi2.logsf(stat, q)), noise, metric,
+        nu = math.inf
+        if metric == "alternative" or c.removed_by_noise_fit:
+            base = dg.block_design([d[:, :, :nb] for d in dy], nuisance) if base is None else base
+            nu = _noise_dof(noise, sb, base, base_w, [d[:, :, [nb + k for k in cols]] for d in dy])
+        out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
 
+
+def _log_sf(stat: float, q: int, nu: float) -> float:
+    """log p-value of a score statistic with ``q`` dof in a noise model whose level along the
+    candidate rests on ``nu`` dof, ``q`` of them the candidate's own fit removed before it was
+    fitted: ``stat (nu - q) / (q nu)`` against F(q, nu - q) (the Wald statistic's exact law in
+    linear regression, ``n`` observations, ``k`` parameters: ``q F n / (n - k)``); chi-square for
+    ``nu`` infinite."""
+    if not math.isfinite(nu):
+        return float(stats.chi2.logsf(stat, q))
+    d = max(nu - q, 1.0)
+    return float(stats.f.logsf(stat * d / (q * (d + q)), q, d))
+
+
+def _threshold(level: float, q: int, nu: float) -> float:
+    """The statistic :func:`_log_sf` gives the p-value ``level``."""
+    if not math.isfinite(nu):
+        return float(stats.chi2.isf(level, q))
+    d = max(nu - q, 1.0)
+    return float(q * (d + q) / d * stats.f.isf(level, q, d))
+
+
+def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: np.ndarray, base_w: np.ndarray,
+               columns: list[np.ndarray]) -> float:
+    """Degrees of freedom of ``noise``'s level along a candidate's ``columns`` (per run (N_r, ny, q))
+    less their fit, in that metric, on the model's and nuisance columns (``base``, ``base_w``
+    whitened, whose basis is ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
+    Jw = np.concatenate([noise.whiten(c).reshape(-1, c.shape[2]) for c in columns])
+    coef = np.linalg.lstsq(sb.Q.T @ base_w, sb.Q.T @ Jw, rcond=None)[0]
+    rest = np.concatenate([c.reshape(-1, c.shape[2]) for c in columns]) - base @ coef
+    parts = np.split(rest, np.cumsum([c.shape[0] * c.shape[1] for c in columns])[:-1])
+    return noise.effective_dof([r.reshape(c.shape) for r, c in zip(parts, columns)])
 
 __all__ = ["ScoreTest", "ScoreRound", "score_candidates", "SIMPLER_FIRST", "TOP_ALTERNATIVE"]
