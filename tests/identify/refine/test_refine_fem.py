@@ -123,3 +123,44 @@ def test_prediction_of_a_fitted_model_on_its_fitting_runs_is_the_fit():
     np.testing.assert_allclose(np.std(ev.residuals[0], axis=0), np.std(innovations, axis=0), rtol=1e-3)
     cols = fitting.sensitivities(fitted, ev.runs, ev)
     np.testing.assert_allclose(cols.noise["r"], ev.noise["r"], rtol=1e-3)
+
+
+def test_a_nested_fit_starts_from_the_noise_of_the_fit_it_extends():
+    # FEM fits from two starts where R's start falls below its floor (two optima on this gusty,
+    # piloted Navion); a nested fit of refine starts F and R from the fit it extends instead (one
+    # start, at the optimum the parent's two starts chose): never worse than the parent there, and
+    # at the optimum a fit from scratch of the same model finds
+    from identify import load_profile
+    from identify.estimators.filter_error import SAME_OPTIMUM, WARM_SLACK
+    from identify.model.pseudo_inputs import prepare
+    from identify.refine.candidates import Derivative
+    from identify.refine.fitting import Fitting
+    from tests.identify.estimators.test_filter_error import gusty_piloted_run
+
+    navion = load_profile("navion_cruise_long")
+    runs = [gusty_piloted_run(0, duration=20.0)]
+    fitting = Fitting(FEM(navion), {"fit": runs, "choosing": [], "validation": []}, navion)
+    fitted, null = fitting.refit(navion, navion)
+    assert null.info["start"] is None and null.info["r_start"] is not None  # the declared model: both starts
+    ext = Derivative("X_delta_e").profile(fitted)
+    _, warm = fitting.refit(ext, fitted)
+    record = warm.info["noise_start"]
+    assert record["kept"] == "warm" and set(record["cost"]) == {"warm"}, record
+    assert warm.info["start"].startswith("warm") and warm.info["r_start"] is None  # one start
+    assert record["parent_cost"] == null.info["cost"][-1]
+    assert warm.info["cost"][-1] <= null.info["cost"][-1] + WARM_SLACK
+    scratch = FEM(ext).fit(prepare(ext, runs)).result_
+    assert scratch.info["r_start"] is not None  # from scratch: both starts
+    assert warm.info["cost"][-1] <= scratch.info["cost"][-1] + SAME_OPTIMUM
+    theta = dict(zip(warm.names, warm.theta))
+    for name, value, std in zip(scratch.names, scratch.theta, scratch.std):
+        assert abs(theta[name] - value) < 0.05 * std, name
+
+    # a warm fit that ends above the parent's -log L is not at its optimum: fitted from scratch too
+    lowered = {**FEM.fitted_noise(null), "cost": null.info["cost"][-1] - 100.0}
+    with pytest.warns(UserWarning, match="fitted from scratch too"):
+        again = FEM(ext, noise_start=lowered).fit(prepare(ext, runs)).result_
+    record = again.info["noise_start"]
+    assert set(record["cost"]) == {"warm", "scratch"} and "ended above the parent's" in record["reason"]
+    assert again.info["start"].startswith("from scratch too")
+    assert again.info["cost"][-1] <= min(record["cost"].values()) + SAME_OPTIMUM  # the better one kept
