@@ -15,14 +15,11 @@ subclassing :class:`Estimator` and overriding what differs:
 ``get_params()`` / ``clone(profile, **changes)``
     scikit-learn's: the constructor arguments, and a new unfitted estimator with the same ones for
     another (an extended) profile. Refine holds one estimator instance and clones it per fit.
-``nested(profile, *, zero_shifts, segment, bounds, start)``
+``nested(profile, *, zero_shifts, segment, bounds)``
     the estimator for one of refine's nested fits: ``clone(profile)`` adjusted so that the
     likelihoods of fits before and after an added effect compare (the same nuisance: per-run zero
     shifts or not; the same multiple-shooting ``segment``); ``bounds=False`` when only the estimate
-    and its likelihood are used (may skip costly standard errors). ``start``: the
-    ``fitted_noise`` of the fit of the model this one extends, on the same runs (None: none), for
-    an estimator that fits noise parameters to start them there (a warm start; FEM's F and R),
-    which then says in ``result.info["start"]`` how the fit started. Default: ``clone(profile)``.
+    and its likelihood are used (may skip costly standard errors). Default: ``clone(profile)``.
 ``prediction_segment(model, duration)``
     the segment length (s) the estimator's predictions restart at (``inf``: whole runs).
 ``prediction(profile, runs, *, zero_shifts, segment, start)``
@@ -201,7 +198,7 @@ class Estimator:
         return type(self)(**params)
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True, start: dict | None = None) -> "Estimator":
+               bounds: bool = True) -> "Estimator":
         return self.clone(profile)
 
     def prediction_segment(self, model, duration: float) -> float:
@@ -219,8 +216,7 @@ class Estimator:
     @staticmethod
     def fitted_noise(result) -> dict | None:
         """Noise parameters a fit estimated that its prediction re-fits (a filter's F and R, as
-        ``ModelFit.noise``, with the fit's ``cost``), handed back as the prediction's
-        ``noise_start`` and as the ``start`` of the nested fits of models that extend it; None: none."""
+        ``ModelFit.noise``), handed back as the prediction's ``noise_start``; None: none."""
         return None
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True,

@@ -108,7 +108,6 @@ F_WIDE = 1.0
 R_STARTS = {"gain_held": ("gain_held", 1.0), "wide_f": ("floor", F_WIDE / F_START)}  # name: (R's start, F's factor)
 START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_START:.3g} with R on its floor"}
 SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likelihood ratio far from significant)
-WARM_SLACK = 1e-3  # a warm fit's -log L above its parent's by more than this (FLAT_COST): not at the optimum
 
 
 class FEM(Estimator):
@@ -122,11 +121,7 @@ class FEM(Estimator):
     ``progress``, ``verbose`` as ML. ``coloured``: standard errors corrected for coloured
     innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`)
     or (default) the plain Cramér-Rao bounds; both are then in ``info["std_coloured"]`` and
-    ``info["std_white"]`` (theta only). ``noise_start``: ``{"f", "r", "cost"}`` (:meth:`fitted_noise`
-    of a fit on the same runs of a model this one extends: refine's warm start, :meth:`nested`):
-    F and R start there, not relaxed, in one start; where that fit's -log L ends above ``cost``
-    (which a model containing the other cannot, at its optimum) FEM also fits from scratch and
-    keeps the higher likelihood (said; ``info["noise_start"]``, ``info["start"]``). Opt-in: measured, it helps with coloured measurement noise
+    ``info["std_white"]`` (theta only). Opt-in: measured, it helps with coloured measurement noise
     but over-widens the velocity derivatives' bounds (median 1.6-1.9x) on the piloted S 61 case of
     benchmarks/filter_error.py, where the plain bounds are calibrated (docs/filter_error.md).
 
@@ -134,8 +129,7 @@ class FEM(Estimator):
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
     ``result_.info``: ``process_noise`` {state: {F, std}}, ``measurement_noise`` {output:
     {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, ``r_start`` (the two
-    starts' -log L and the one kept, where R's start fell below its floor), ``noise_start`` and
-    ``start`` (with ``noise_start``: the warm and any from-scratch -log L, the one kept), per-run initial states
+    starts' -log L and the one kept, where R's start fell below its floor), per-run initial states
     and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
     :class:`ConvergenceWarning` when not converged). ``result_.profile`` is the a priori profile
     with the fitted F as its ``[process_noise]``: ``identified_profile()`` starts the next fit there.
@@ -145,10 +139,9 @@ class FEM(Estimator):
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
-                 progress=None, verbose: bool = False, coloured: bool = False, noise_start: dict | None = None):
+                 progress=None, verbose: bool = False, coloured: bool = False):
         super().__init__(profile)
         self.process_noise, self.x0, self.coloured = process_noise, x0, coloured
-        self.noise_start = noise_start
         self.max_iter, self.tol = max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.progress, self.verbose = progress, verbose
@@ -191,7 +184,7 @@ class FEM(Estimator):
     def _fit(self, runs: list[Run]) -> IdentificationResult:
         started = _time.perf_counter()
         prob, beta, active = self._problem(runs)
-        solver = self._solve(prob, beta, active) if self.noise_start is None else self._solve_warm(prob, beta, active)
+        solver = self._solve(prob, beta, active)
         if not solver.converged:
             warnings.warn(f"FEM did not converge: {solver.stop}; the estimates are not final "
                           f"(raise max_iter, or start from better a priori values)", ConvergenceWarning, stacklevel=3)
@@ -231,52 +224,14 @@ class FEM(Estimator):
                       + (f" ({', '.join(failed)} failed)" if failed else ""), stacklevel=4)
         return best
 
-    def _solve_warm(self, prob: "FilterProblem", beta, active) -> "_Solver":
-        """The fit with F and R started from ``noise_start`` (one start, not relaxed): the parent's
-        optimum, where both starts of :meth:`_solve` were tried. A model that contains the parent
-        cannot end above the parent's -log L at its optimum; where the warm fit does (or cannot
-        start: an F of the parent on its boundary 0, which the steps cannot leave; other noise
-        dimensions; no steady state), FEM also fits from scratch and keeps the higher likelihood
-        (ties: from scratch), said in one line. The record in ``solver.warm``."""
-        given, ix = self.noise_start, prob.index
-        f, r = (np.asarray(given.get(k, ()), float) for k in ("f", "r"))
-        parent = given.get("cost")
-        record = {"parent_cost": None if parent is None else float(parent), "cost": {}}
-        why = ("its noise has other dimensions" if (len(f), len(r)) != (len(ix["f"]), len(ix["r"])) else
-               "an F of it is on the boundary 0" if np.any(f == 0) else "")
-        warm = None
-        if not why:
-            b = beta.copy()
-            b[ix["f"]], b[ix["r"]] = f, r
-            try:
-                warm = _Solver(self, prob, b, active, start_noise=True)
-                warm.run()
-                record["cost"]["warm"] = float(warm.history[-1])
-            except EstimationError as e:
-                warm, why = None, f"the warm start failed ({e})"
-        if warm is not None and (parent is None or warm.history[-1] <= parent + WARM_SLACK):
-            warm.warm = {**record, "kept": "warm"}
-            return warm
-        if warm is not None:
-            why = f"the warm fit's -log L {warm.history[-1]:.6g} ended above the parent's {parent:.6g}"
-        scratch = self._solve(prob, beta, active)
-        record["cost"]["scratch"] = float(scratch.history[-1])
-        best = warm if warm is not None and warm.history[-1] < scratch.history[-1] - SAME_OPTIMUM else scratch
-        best.warm = {**record, "kept": "warm" if best is warm else "scratch", "reason": why}
-        warnings.warn(f"FEM: not started from the extended fit's F and R alone: {why}; fitted from scratch too "
-                      f"(-log L {scratch.history[-1]:.6g}), kept the {best.warm['kept']} fit", stacklevel=4)
-        return best
-
     # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
     simulates_state_terms = False  # state-built terms come from the filter's own states ...
     builds_state_terms = True  # ... inside each fit (the extended filter): one fit, no settling loop
     progress_quantity = "cost"
 
-    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True,
-               start: dict | None = None) -> "FEM":
-        """Refine's nested fit: the loop's zero shifts (the filter needs no segments); F and R
-        started from ``start``, the fitted noise of the model it extends (``noise_start``)."""
-        return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured and bounds, noise_start=start)
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
+        """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
+        return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured and bounds)
 
     def prediction_segment(self, model, duration: float) -> float:
         """Whole runs: the filter stabilises the prediction of an unstable model."""
@@ -296,13 +251,11 @@ class FEM(Estimator):
 
     @staticmethod
     def fitted_noise(result: IdentificationResult) -> dict | None:
-        """The fitted F and R of a FEM ``result`` as ``ModelFit.noise`` holds them, and the fit's
-        final -log L (``cost``: what a nested fit started there must not end above)."""
+        """The fitted F and R of a FEM ``result`` as ``ModelFit.noise`` holds them."""
         pn, mn = result.info.get("process_noise"), result.info.get("measurement_noise")
         if pn is None or mn is None:
             return None
-        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()]),
-                "cost": float(result.info["cost"][-1])}
+        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()])}
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
@@ -450,9 +403,6 @@ class FEM(Estimator):
             # where F compensation put a start of R below its floor: the starts' -log L, the one kept
             # (FEM._solve); None where it did not (one start)
             "r_start": sv.starts,
-            # with noise_start: the warm fit's and any from-scratch fit's -log L, the parent's, the one kept
-            "noise_start": sv.warm,
-            "start": _start_line(sv.warm),
             "not_determined": {**{f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not "
                                                  "determined" for s in sv.at_zero},
                                **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
@@ -782,7 +732,6 @@ class _Solver:
         self.r_start = r_start  # R's start where F compensation falls below the floor: "gain_held" or "floor"
         self.floor_bound: list[str] = []  # the outputs where it did (_relax)
         self.starts = None  # FEM._solve's record when it fitted from several starts
-        self.warm = None  # FEM._solve_warm's record when F and R were given as the start
         self.history, self.step_history = [], []
         self.iterations, self.converged, self.stop, self.lam, self.rejected = 0, False, "max_iter", 0.0, 0
         self.radius = MAX_REL_STEP
@@ -989,18 +938,6 @@ class _Solver:
                 self.rejected += 1
             self.lam, nu = max(self.lam, INITIAL_DAMPING) * nu, 2 * nu
         return None
-
-
-def _start_line(warm: dict | None) -> str | None:
-    """How a fit with ``noise_start`` started, in one line (None: it had none)."""
-    if warm is None:
-        return None
-    cost = warm["cost"]
-    if warm["kept"] == "warm" and "scratch" not in cost:
-        parent = "?" if warm["parent_cost"] is None else f"{warm['parent_cost']:.6g}"
-        return f"warm: F and R from the fit it extends (-log L {parent} -> {cost['warm']:.6g})"
-    return (f"from scratch too: {warm['reason']}; -log L " + ", ".join(f"{k} {v:.6g}" for k, v in cost.items())
-            + f"; kept the {warm['kept']} fit")
 
 
 def _state_terms(p: Profile) -> list[str]:

@@ -116,10 +116,9 @@ class ML(Estimator):
         self.covariance_ = self.problem_ = self.beta_ = None
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True, start: dict | None = None) -> "ML":
+               bounds: bool = True) -> "ML":
         """Refine's nested fit: the loop's zero shifts and segments (so that likelihoods before and
-        after an added effect compare); without ``bounds`` the coloured-residual correction is skipped.
-        ``start`` is ignored: ML's noise covariance is relaxed in closed form, no fit to start."""
+        after an added effect compare); without ``bounds`` the coloured-residual correction is skipped."""
         return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds)
 
     def prediction_segment(self, model: LinearModel, duration: float) -> float:

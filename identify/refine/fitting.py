@@ -89,12 +89,10 @@ class Fitting:
                                              input_name=input_name, transform=transform,
                                              **({"noise_start": start} if start else {}))
 
-    def estimate(self, profile: Profile, runs: list[Run], bounds: bool = True, start=None) -> IdentificationResult:
+    def estimate(self, profile: Profile, runs: list[Run], bounds: bool = True) -> IdentificationResult:
         """Fit ``profile`` with the shared nuisance and segments; ``bounds=False`` when only the
-        estimate and its likelihood are used (the fits inside a delay search); ``start`` the
-        fitted noise of the fit it extends (:meth:`refit`)."""
-        estimator = self.estimator.nested(profile, zero_shifts=self.zero_shifts, segment=self.segment, bounds=bounds,
-                                          start=start)
+        estimate and its likelihood are used (the fits inside a delay search)."""
+        estimator = self.estimator.nested(profile, zero_shifts=self.zero_shifts, segment=self.segment, bounds=bounds)
         with warnings.catch_warnings():
             # recorded below, once per fit, instead of interleaved with the progress lines
             warnings.simplefilter("ignore", ConvergenceWarning)
@@ -109,20 +107,13 @@ class Fitting:
     def refit(self, ext_p: Profile, p: Profile, bounds: bool = True) -> tuple[Profile, IdentificationResult]:
         """Fit of an extended profile: the fitted profile (named as ``p``) and the result.
         State-built terms come from the predicted states of the model being fitted (:func:`settle`),
-        or from the estimator's own state estimates inside its fit (``builds_state_terms``).
-
-        The noise parameters start from the fit of ``p`` (``fitted_noise``; of ``ext_p`` itself
-        where that is a fitted profile, re-fitted with its bounds): the model extends it, so its
-        likelihood is at least ``p``'s there, where ``p``'s fit already tried the estimator's
-        starts (FEM's two). The estimator checks that and falls back to its own starts
-        (``result.info["start"]``, :meth:`~identify.estimators.base.Estimator.nested`)."""
+        or from the estimator's own state estimates inside its fit (``builds_state_terms``)."""
         builds = self.estimator.builds_state_terms
-        start = self.fitted_noise.get(ext_p.to_toml()) or self.fitted_noise.get(p.to_toml())
 
         def fit(prof: Profile):
             simulated = state_terms(prof) and not builds
             runs = self.prediction(prof).runs if simulated else prepare(prof, self.data["fit"])
-            result = self.estimate(prof, runs, bounds=bounds, start=start)
+            result = self.estimate(prof, runs, bounds=bounds)
             fitted = _keep_meta(result.identified_profile(p.name), ext_p)
             noise = self.estimator.fitted_noise(result)
             if noise is not None:

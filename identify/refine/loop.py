@@ -336,7 +336,7 @@ class Refine:
                         error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
                         held_change=spread, noise_order=noise.order,
                         lr_criterion=result.info["criterion"]["kind"] if own is not None else "",
-                        attempts=attempts, fit_start=result.info.get("start") or "", **common)
+                        attempts=attempts, **common)
             reason = failed or cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail

@@ -194,8 +194,6 @@ def _evidence(s) -> list[str]:
                  + (f" (the estimator's own criterion: {s.lr_criterion})" if s.lr_criterion else "")
                  + "; Wald statistic of the estimate "
                  f"(coloured-residual bounds) {s.wald:.4g}")
-    if s.fit_start:
-        lines.append(f"- the re-fit's start: {s.fit_start}")
     for name, v in s.parameters.items():
         lines.append(f"- `{name}` = {v['value']:.6g} ± {v['std']:.3g}" + (
             f" (± {v['std_profile']:.3g} from the profile's curvature alone, the other parameters' errors "

@@ -31,7 +31,6 @@ class Step:
     held_change: dict = field(default_factory=dict)  # data -> cost of the prediction change alone (its size)
     attempts: list = field(default_factory=list)  # the re-fits of a fit that ended below the null, in order
     lr_criterion: str = ""  # the estimator's own criterion of the likelihood ratio ('': the noise-model metric)
-    fit_start: str = ""  # how the estimator started the re-fit (its info["start"]: a warm start from the null's noise)
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
