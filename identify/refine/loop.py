@@ -365,7 +365,8 @@ class Refine:
         new_p, result, params, lr, failed = first
         attempts = [{"fit": f"{method}, warm start", "parameters": params, "lr_statistic": float(lr)}]
         start = cand.profile(p)
-        if set(start.free) != set(new_p.free):  # a searched structure (a delay): no null start to re-fit
+        # a searched structure (a delay: its tau in meta, not free; a lag's other state): no null start to re-fit
+        if set(start.free) != set(new_p.free) or not set(cand.params) <= set(start.free):
             return new_p, result, params, lr, failed, attempts
         fitting.say(f"  the {method} re-fit ends below the nested null in the test's metric (ratio {lr:.3g}): "
                     "re-fitting in that metric, then restarting the estimator from there")

@@ -123,3 +123,28 @@ def test_prediction_of_a_fitted_model_on_its_fitting_runs_is_the_fit():
     np.testing.assert_allclose(np.std(ev.residuals[0], axis=0), np.std(innovations, axis=0), rtol=1e-3)
     cols = fitting.sensitivities(fitted, ev.runs, ev)
     np.testing.assert_allclose(cols.noise["r"], ev.noise["r"], rtol=1e-3)
+
+
+def test_a_delay_whose_refit_ends_below_the_null_gets_no_second_attempt():
+    # a delay is searched (tau in the profile's meta, not a free parameter): there is no null start
+    # to re-fit in the test's metric, and reading tau from such a re-fit's result crashed refine
+    # (refine_blind.py lag_de --method fem seed 3: "'tau_delta_e' is not in list")
+    from types import SimpleNamespace
+
+    from identify.refine.candidates import Delay
+    from identify.refine.loop import Refine
+
+    profile = parse_profile(FOUR_AXES)
+    cand = Delay("d_lon")
+    refine = Refine(profile)
+
+    def refit_in_metric(*args):
+        raise AssertionError("a delay has no null start to re-fit in the test's metric")
+
+    refine.fitting_ = SimpleNamespace(say=lambda msg: None, refit_in_metric=refit_in_metric)
+    refine.estimator_ = SimpleNamespace(method="fem")
+    failed = "re-fit failed: its likelihood is below the nested null's"
+    first = (cand.profile(profile, {"tau_d_lon": 0.08}), None, {"tau_d_lon": {"value": 0.08, "std": 0.001}},
+             -50.0, failed)
+    new_p, _, params, lr, reason, attempts = refine._second_attempt(cand, profile, None, 1e4, 10.0, first, [])
+    assert reason == failed and lr == -50.0 and len(attempts) == 1
