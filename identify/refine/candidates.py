@@ -343,9 +343,13 @@ def _with_estimate_error(fitting, noise, prof, res, plus, minus, step: float, cu
     if not free:
         return 1 / math.sqrt(curv)
     vJ = np.empty(len(free))
+    fitted = fitting.prediction(prof).noise  # a filter's F and R at the fit (None: no noise parameters)
     for k, i in enumerate(free):  # central differences, one standard error each side
         name, d = res.names[i], float(res.std[i])
         up, down = (replace(prof, free={**prof.free, name: prof.free[name] + s * d}) for s in (1.0, -1.0))
+        if fitted:  # their noise from the fit's, not from scratch: a difference across two optima means nothing
+            for q in (up, down):
+                fitting.fitted_noise.setdefault(q.to_toml(), fitted)
         vJ[k] = v @ (white(up) - white(down)) / (2 * d)
     C = res.parameter_covariance()[np.ix_(free, free)]
     extra = float(vJ @ C @ vJ) / curv ** 2
