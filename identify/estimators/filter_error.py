@@ -111,7 +111,7 @@ START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_ST
 # Both starts begin at the a priori derivatives; on refine's blind lag_de (seed 3) both ended on the
 # worse optimum (-log L 1987 above), and the process-noise side's start from the better fit's
 # derivatives reached the better one: FEM restarts there once more (docs/filter_error.md)
-RESTART = "wide_f"  # None: no restart (benchmarks/filter_error_starts.py measures both)
+RESTART = ("floor", F_WIDE / F_START)  # (R's start, F's factor), as wide_f; None: no restart (benchmarks measure both)
 SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likelihood ratio far from significant)
 
 
@@ -236,9 +236,10 @@ class FEM(Estimator):
         added to ``tried`` (or its error to ``failed``)."""
         b = beta.copy()
         b[:prob.p] = best.beta[:prob.p]
-        b[prob.index["f"]] *= R_STARTS[RESTART][1]
+        r_start, f_factor = RESTART
+        b[prob.index["f"]] *= f_factor
         try:
-            tried["restart"] = _Solver(self, prob, b, active, r_start=R_STARTS[RESTART][0], **options)
+            tried["restart"] = _Solver(self, prob, b, active, r_start=r_start, **options)
             tried["restart"].run()
         except EstimationError as e:
             tried.pop("restart", None)
