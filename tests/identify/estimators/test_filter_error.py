@@ -232,10 +232,12 @@ def test_ml_on_turbulent_data_says_fem_is_the_estimator(navion):
     assert calm.info["estimator_advice"] is None
 
 
-def gusty_piloted_run(seed: int, duration: float = 30.0) -> Run:
+def gusty_piloted_run(seed: int, duration: float = 30.0, lag: float = 0.0) -> Run:
     """The Navion flown as refine's blind audit flies it (benchmarks/refine_blind.py): coloured gusts
     on u, w and q (q's outside FEM's default process noise), a pilot holding theta (0.2 s late),
-    sensor noise 2 % of each output's spread, half of it coloured: a likelihood with two optima."""
+    sensor noise 2 % of each output's spread, half of it coloured: a likelihood with two optima.
+    ``lag``: a first-order actuator lag (s) on delta_e the Navion's profile lacks, the run then as
+    refine_blind.py's lag_de flies it (its stick's last 0.5 s step runs past the last second)."""
     from scipy import signal
 
     truth = LinearModel(load_profile("navion_cruise_long"))
@@ -248,13 +250,16 @@ def gusty_piloted_run(seed: int, duration: float = 30.0) -> Run:
     Phi, Gamma = discretize(truth.A, truth.B, DT)
     steps = np.repeat([1, 1, 1, -1, -1, 1, -1] + list(rng.choice([-1.0, 0.0, 1.0], size=n // 25)), 25)
     stick = np.zeros(n)
-    stick[50:n - 50] = 0.02 * steps[:n - 100]
+    end = 50 + 25 * math.ceil((n - 100) / 25) if lag else n - 50
+    stick[50:end] = 0.02 * steps[:end - 50]
     gust = ar1(math.exp(-2 * DT), 4) * np.array([0.02, 0.1, 0.02, 0.0]) * DT
     x, X, u = np.zeros(4), np.zeros((n, 4)), stick.copy()
+    a, felt = (math.exp(-DT / lag) if lag else 0.0), 0.0
     for k in range(n):
         u[k] += 0.15 * X[k - 10, 3] if k >= 10 else 0.0
         X[k] = x
-        x = Phi @ x + Gamma[:, 0] * u[k] + gust[k]
+        x = Phi @ x + Gamma[:, 0] * (felt if lag else u[k]) + gust[k]
+        felt = a * felt + (1 - a) * u[k]
     Y = X @ truth.C.T
     Y = Y + 0.02 * Y.std(0) * (0.5 * ar1(0.8, 4) + 0.5 * rng.standard_normal((n, 4)))
     return Run(np.arange(n) * DT, {"delta_e": u, **dict(zip(truth.profile.outputs, Y.T))}, source=f"<gusty {seed}>")
@@ -282,10 +287,10 @@ def test_where_the_floor_binds_fem_keeps_the_better_of_the_two_optima(navion, se
     # gain-held one, finds the better one; seed 0: it does not). FEM also runs from the process
     # noise's side (F from the states' whole rms, R on its floor) and keeps the higher likelihood
     runs = [gusty_piloted_run(seed)]
-    with pytest.warns(UserWarning, match=r"can have two optima\): fitted from 2 starts.*kept F x3.33"):
+    with pytest.warns(UserWarning, match=r"can have two optima\): fitted from 3 starts.*kept F x3.33"):
         r = FEM(navion).fit(runs).result_
     starts = r.info["r_start"]
-    assert r.converged and starts["failed"] == {} and set(starts["cost"]) == {"gain_held", "wide_f"}
+    assert r.converged and starts["failed"] == {} and set(starts["cost"]) == {"gain_held", "wide_f", "restart"}
     assert r.info["cost"][-1] == pytest.approx(min(starts["cost"].values()), abs=0.01)
     assert starts["cost"]["gain_held"] > r.info["cost"][-1] + 1000 and starts["kept"] == "wide_f"
     # the true derivatives (the runs' own), their noise fitted from near the better optimum: the
@@ -295,3 +300,16 @@ def test_where_the_floor_binds_fem_keeps_the_better_of_the_two_optima(navion, se
         warnings.simplefilter("ignore")
         truth = FEM(navion)._innovations(navion, runs, True, jacobian=False, start=near)[2]
     assert r.info["cost"][-1] < truth.cost, (r.info["cost"][-1], truth.cost)
+
+
+def test_fem_restarts_from_the_best_fits_derivatives(navion):
+    # refine's blind lag_de (seed 3): an actuator lag the profile lacks; both starts from the a priori
+    # derivatives end on the worse optimum (-log L -26008.5, R of w 2e-6), the process-noise side's
+    # start from the fit's own derivatives on the better one, about 2000 higher in log-likelihood
+    runs = [gusty_piloted_run(3, lag=0.1)]
+    with pytest.warns(UserWarning, match=r"fitted from 3 starts.*kept the best fit's derivatives"):
+        r = FEM(navion).fit(runs).result_
+    starts = r.info["r_start"]
+    assert r.converged and starts["kept"] == "restart" and set(starts["cost"]) == {"gain_held", "wide_f", "restart"}
+    assert r.info["cost"][-1] == pytest.approx(starts["cost"]["restart"], abs=0.01)
+    assert min(starts["cost"]["gain_held"], starts["cost"]["wide_f"]) > r.info["cost"][-1] + 1000
