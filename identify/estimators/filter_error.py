@@ -36,7 +36,8 @@ mean(nu_j^2)); from then on its variances are unknowns of the same scoring steps
 alone stalled on a wrong fixed point in the tests: with R held, the likelihood's dependence on
 it through the gain is lost). Where that start falls below the floor, R starts from the innovation
 covariance with the gain held; the likelihood can then have two optima, and FEM also fits from the
-process noise's side (F from the states' whole rms, R on its floor), keeping the higher likelihood
+process noise's side (F from the states' whole rms, R on its floor), then once more from the better
+fit's derivatives with the noise started afresh from that side, keeping the higher likelihood
 (:meth:`FEM._solve`, ``info["r_start"]``). R >= 0 keeps the filter physically admissible:
 ``C K = I - R S^-1`` has ``diag(C K) = 1 - R_jj (S^-1)_jj <= 1`` (reported as ``info["diag_CK"]``).
 An F that falls to ~0 (calm air on that state) or a variance pushed onto its floor is held
@@ -133,9 +134,9 @@ class FEM(Estimator):
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
     ``result_.info``: ``process_noise`` {state: {F, std}}, ``measurement_noise`` {output:
-    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, ``r_start`` (the two
-    starts' -log L and the one kept, where R's start fell below its floor), per-run initial states
-    and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
+    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, ``r_start`` (the
+    starts' -log L, the restart's among them, and the one kept, where R's start fell below its
+    floor), per-run initial states and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
     :class:`ConvergenceWarning` when not converged). ``result_.profile`` is the a priori profile
     with the fitted F as its ``[process_noise]``: ``identified_profile()`` starts the next fit there.
     """
@@ -200,7 +201,9 @@ class FEM(Estimator):
         """The fit from the start (``_Solver``); where F compensation put a start of R below its
         floor (``_Solver.floor_bound``) from every start of R_STARTS too, the highest likelihood
         kept: the likelihood can have two optima there, and each single start missed the better one
-        on some seeds. The starts' -log L and the one kept in ``solver.starts``, said in one line."""
+        on some seeds; then once more from the better fit's derivatives (:meth:`_restart`), since
+        both starts from the a priori derivatives can miss it too. The starts' -log L and the one
+        kept in ``solver.starts``, said in one line."""
         solver = _Solver(self, prob, beta, active, **options)
         solver.run()
         if not solver.floor_bound:
