@@ -201,7 +201,7 @@ class FEM(Estimator):
         """The fit from the start (``_Solver``); where F compensation put a start of R below its
         floor (``_Solver.floor_bound``) from every start of R_STARTS too, the highest likelihood
         kept: the likelihood can have two optima there, and each single start missed the better one
-        on some seeds; then once more from the better fit's derivatives (:meth:`_restart`), since
+        on some seeds; then once more from the better fit's derivatives (``RESTART``), since
         both starts from the a priori derivatives can miss it too. The starts' -log L and the one
         kept in ``solver.starts``, said in one line."""
         solver = _Solver(self, prob, beta, active, **options)
@@ -209,20 +209,13 @@ class FEM(Estimator):
         if not solver.floor_bound:
             return solver
         tried, failed = {"gain_held": solver}, {}
-        for name, (r_start, f_factor) in R_STARTS.items():
-            if name in tried:
-                continue
+        for name, start in R_STARTS.items():
+            if name not in tried:
+                self._try(name, start, beta, prob, active, tried, failed, **options)
+        if RESTART is not None:  # the a priori derivatives' starts missed it too (refine_blind lag_de seed 3)
             b = beta.copy()
-            b[prob.index["f"]] *= f_factor
-            try:
-                tried[name] = _Solver(self, prob, b, active, r_start=r_start, **options)
-                tried[name].run()
-            except EstimationError as e:  # a start whose filter has no steady state: the others stand
-                tried.pop(name, None)
-                failed[name] = str(e)
-        best = tried[_kept(tried)]
-        if RESTART is not None:
-            self._restart(prob, beta, active, best, tried, failed, **options)
+            b[:prob.p] = tried[_kept(tried)].beta[:prob.p]
+            self._try("restart", RESTART, b, prob, active, tried, failed, **options)
         kept = _kept(tried)
         best = tried[kept]
         best.starts = {"floor_bound": list(solver.floor_bound), "kept": kept,
@@ -234,19 +227,18 @@ class FEM(Estimator):
                       + (f" ({', '.join(failed)} failed)" if failed else ""), stacklevel=4)
         return best
 
-    def _restart(self, prob, beta, active, best, tried, failed, **options) -> None:
-        """One more fit from the best one's derivatives, F and R started afresh (RESTART's start),
-        added to ``tried`` (or its error to ``failed``)."""
+    def _try(self, name, start, beta, prob, active, tried, failed, **options) -> None:
+        """The fit from ``beta`` with ``start`` = (R's start, F's factor), into ``tried[name]``, or
+        its error into ``failed[name]`` (a start whose filter has no steady state: the others stand)."""
+        r_start, f_factor = start
         b = beta.copy()
-        b[:prob.p] = best.beta[:prob.p]
-        r_start, f_factor = RESTART
         b[prob.index["f"]] *= f_factor
         try:
-            tried["restart"] = _Solver(self, prob, b, active, r_start=r_start, **options)
-            tried["restart"].run()
+            tried[name] = _Solver(self, prob, b, active, r_start=r_start, **options)
+            tried[name].run()
         except EstimationError as e:
-            tried.pop("restart", None)
-            failed["restart"] = str(e)
+            tried.pop(name, None)
+            failed[name] = str(e)
 
     # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
     simulates_state_terms = False  # state-built terms come from the filter's own states ...
