@@ -225,7 +225,7 @@ def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict, marked
         raise RunError(f"{raw.source}: {raw.row(rows[first[0]])}, channel '{name}': {what} "
                        f"({first.size} missing or non-finite value(s) in the window; --nan drop or --nan "
                        f"interpolate reads them)")
-    where = ", ".join(raw.row(i) for i in rows[bad][:5]) + (f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else "")
+    where = _listed_rows(raw, rows[bad])
     good = ~bad
     if options.nan == "interpolate":
         lo, hi = np.flatnonzero(good)[[0, -1]] if good.any() else (0, -1)
@@ -481,7 +481,7 @@ class _Resolver:
             if hit.any():
                 found = ", ".join(f"{m:g}" for m in np.unique(v[hit]))
                 self.marked[name] = found
-                self.marked_rows[name] = f"{int(hit.sum())} x {found} ({self._rows(hit)})"
+                self.marked_rows[name] = f"{int(hit.sum())} x {found} ({_listed_rows(self.raw, np.flatnonzero(hit))})"
                 v = np.where(hit, np.nan, v)
             return v
         finite = v[np.isfinite(v)]
@@ -494,15 +494,12 @@ class _Resolver:
             if min(abs(marker - lo), abs(marker - hi)) > MARKER_DISTANCE * (hi - lo) and not lo <= marker <= hi:
                 self.suspects[name] = (
                     f"{self.raw.source}: channel '{name}': {int(hit.sum())} value(s) exactly {marker:g} "
-                    f"({self._rows(hit)}), far outside its other values ({lo:.6g} .. {hi:.6g}): a missing-value "
+                    f"({_listed_rows(self.raw, np.flatnonzero(hit))}), far outside its other values "
+                    f"({lo:.6g} .. {hi:.6g}): a missing-value "
                     f"marker? Read as data; to read them as missing declare it in the channel map "
                     f"(\"missing\": {marker:g}), then --nan drop or --nan interpolate")
                 break
         return v
-
-    def _rows(self, hit: np.ndarray) -> str:
-        idx = np.flatnonzero(hit)
-        return ", ".join(self.raw.row(int(i)) for i in idx[:5]) + (f" and {idx.size - 5} more" if idx.size > 5 else "")
 
     def get(self, name: str):
         if name in self.done:
@@ -562,6 +559,11 @@ class _Resolver:
             raise RunError(f"{where}: a unit is declared both for '{name}' ({unit}) and for its operand(s) "
                            f"{', '.join(declared)}; declare one")
         return U.to_si(values, unit, f"{self.raw.source}: channel '{name}'"), ("declared", unit)
+
+
+def _listed_rows(raw: Raw, rows: np.ndarray) -> str:
+    """The file's rows ``rows`` (indices) as a message names them: the first five and how many more."""
+    return ", ".join(raw.row(int(i)) for i in rows[:5]) + (f" and {rows.size - 5} more" if rows.size > 5 else "")
 
 
 def _declared_markers(missing, name: str, spec):
