@@ -8,6 +8,7 @@ from scipy.io import savemat
 from identify import RunError
 from identify.data.ingest import ReadOptions
 from identify.data.io import load_channel_map, read_file_runs, read_run_file
+from identify.data.provenance import provenance
 from tests.identify.data.test_ingest import CHANNELS, PROFILE, truth_run  # noqa: F401
 
 DEG = np.pi / 180
@@ -368,3 +369,4 @@ def test_unix_time_stamps_are_counted_from_the_first_and_said(truth_run, tmp_pat
     np.testing.assert_allclose(run.time, t - t[0], atol=1e-9)
     assert "counted from the first stamp (1700000000" in run.meta["time_origin"]
     assert "counted from the first stamp" in capsys.readouterr().err
+    assert provenance([run])["runs"][0]["time_origin"] == run.meta["time_origin"]  # and in the report's record
