@@ -336,6 +336,7 @@ def _csv_values(lines, header_line, names, delim, trailing, source, notes, ends_
 
 
 CUT_CHECK_ROWS = 50  # rows before the last whose last column must all have one written width
+CUT_MIN_ROWS = 20  # fewer rows: too few to call a width the column's format
 
 
 def _cut_in_last_cell(rows, delim, n: int) -> bool:
@@ -343,7 +344,7 @@ def _cut_in_last_cell(rows, delim, n: int) -> bool:
     in every one of the rows before it, which all write the same number of characters there (a
     fixed format: with varying widths, %g, nothing can be told), or empty."""
     cells = _cells(rows[-1][1], delim)
-    if len(cells) != n or len(rows) < 20:
+    if len(cells) != n or len(rows) < CUT_MIN_ROWS:
         return False
     last = cells[-1].strip()
 
