@@ -6,9 +6,11 @@ flies it), one 30 s run per seed: a likelihood with two optima (the misfit taken
 measurement noise, or q and theta tracked tightly with R of w large). Per seed, the final
 -log L from each single start: R from the gain-held innovation covariance (the start before this
 change), R on its floor (the start before that), F from the states' whole rms with R on its floor
-(the process noise's side); FEM's fit (both starts where the floor binds, the higher likelihood
-kept) and whether it reached the best of the three. Cost: FEM's fit against the same fit with the
-single gain-held start, wall time in the same run, as a ratio (per seed and in total).
+(the process noise's side); FEM's fit (both starts where the floor binds, then the restart from the
+better fit's derivatives, the higher likelihood kept) and whether it reached the best of the three,
+with and without the restart. Cost: FEM's fit against the same fit with the single gain-held start,
+and against the two starts without the restart, wall time in the same run, as ratios (per seed and in
+total).
 
     .venv/bin/python benchmarks/filter_error_starts.py [seeds, default 15] [--seed FIRST]   # --help
 """
