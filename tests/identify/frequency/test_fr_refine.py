@@ -100,6 +100,6 @@ def test_compare_lr_test_only_where_the_estimator_states_its_criterion():
     assert np.isnan(lr) and df == 1
     ml = IdentificationResult("ml", full, np.zeros(20), np.ones(20))
     assert ml.compare_lr_test(IdentificationResult("ml", small, np.zeros(19), np.ones(19))) is None
-    from identify.refine.loop import _failed_refit
+    from identify.refine.acceptance import failed_refit as _failed_refit
 
     assert "likelihood ratio is not determined" in _failed_refit(fr(full, 10.0, {}), lr, 1e4, 10.0, own=True)

@@ -87,7 +87,7 @@ def test_refine_with_fem_finds_a_delay_in_turbulence():
 def test_a_failed_refit_is_no_likelihood_ratio():
     from types import SimpleNamespace
 
-    from identify.refine.loop import _failed_refit
+    from identify.refine.acceptance import failed_refit as _failed_refit
 
     ok = SimpleNamespace(converged=True, info={"stop": "gradient"})
     assert _failed_refit(ok, 30.0, 1e4, 10.0) == ""
