@@ -55,6 +55,7 @@ from .scoring import ScoreTest, score_candidates
 from .steps import Step
 
 LABELS = {"choosing": "choosing", "validation": "judging"}
+ERROR_REFUSALS = ("makes the", "does not lower", "lowers the")  # error_refusal's: other missing effects may cause them
 
 
 class Refine:
@@ -150,7 +151,7 @@ class Refine:
     def _loop(self, current: Profile, result):
         """Score, fit and check candidates until none is significant or a limit is reached; then
         each accepted kind's last look at the final model."""
-        excluded: set[str] = set()
+        excluded, deferred = set(), set()
         self.tries_ = 0
         self.last_scores_: list[ScoreTest] = []
         self.noise_orders_, self.noise_white_ = [], []  # per step: the order, whether its innovations were white
@@ -177,19 +178,19 @@ class Refine:
                       f"(score {best.statistic:.3g} > {best.threshold:.3g}, try {self.tries_})")
             step, new_profile, new_result = self._try(current, result, best, tested)
             self._say(f"  {'accepted' if step.accepted else 'rejected: ' + step.reason}")
-            if step.accepted:
+            if step.accepted:  # a candidate the held-out errors refused may be right beside this one
                 self.steps_.append(step)
                 current, result, noise = new_profile, new_result, best.noise
+                excluded -= deferred
             else:
                 self.rejected_.append(step)
                 excluded.add(best.candidate.name)
+                deferred |= {best.candidate.name} if step.reason.startswith(ERROR_REFUSALS) else set()
         for kind in dict.fromkeys(KIND_CLASSES[s.effect] for s in self.steps_):
             current, result = kind.revisit(self.fitting_, current, result, noise, self.steps_)
         return current, result
 
-    @property
-    def nothing_found(self) -> bool:
-        return not self.steps_
+    nothing_found = property(lambda self: not self.steps_)
 
     evaluations_ = property(lambda self: self.fitting_.evaluations)
 
@@ -321,7 +322,7 @@ class Refine:
             reason = step.reason or cand.implausible(step.parameters) or self._refusal(step, best, changes)
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
-                reason = self._confirmation(changes, best.noise)
+                reason = self._confirmation(step, changes, best.noise)
                 step.accepted, step.reason = not reason, reason
                 return step, new_p, result
             step.accepted, step.reason = False, reason
@@ -379,16 +380,15 @@ class Refine:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
         return held_out_refusal(step.held_out, step.held_change, "choosing", "choosing") or \
-            error_refusal(changes, None, LABELS)
+            error_refusal({d: c for d, c in changes.items() if d == "choosing"}, LABELS)
 
     @staticmethod
-    def _confirmation(changes: dict, noise) -> str:
-        """The judging data's verdict ('' to accept): the report's validation error must fall beyond
-        its noise and no held-out error rise beyond it (:func:`~identify.refine.acceptance.error_refusal`).
+    def _confirmation(step: Step, changes: dict, noise) -> str:
+        """The judging data's verdict ('' to accept; :func:`~identify.refine.acceptance.error_refusal`).
         Without judging data the tests decide alone, unless they are outside their validity (the
         residual noise model at its order cap, innovations still not white)."""
         if "validation" in changes:
-            return error_refusal(changes, "validation", LABELS)
+            return error_refusal(changes, LABELS, "validation", step.held_out, step.held_change)
         if not noise.white:
             return ("no held-out data to confirm it, and the tests are outside their validity (the residual noise "
                     "model reached its order cap with innovations still not white): nothing is accepted on them alone")
