@@ -1,0 +1,149 @@
+"""A priori weighting: what the wind tunnel or the last flight knew, as a Gaussian per parameter.
+
+A profile's ``[prior]`` table gives free parameters a prior distribution (Maine & Iliff's a priori
+weighting, Morelli & Klein's mixed estimation)::
+
+    [prior]
+    M_q = 0.4                            # std around its [free] value
+    L_v = { value = 0.0, std = 0.02 }    # its own centre (the fit still starts at [free])
+
+The parsed table is ``Profile.prior``: ``{name: {"value": centre, "std": std}}`` with the centre
+written out (a profile whose [free] values later move -- an identified model, refine's start --
+keeps the prior where it was). Parameters without an entry have no prior (the data alone).
+
+:func:`relative_prior` gives every free parameter one (``--prior-relative PCT``) and
+:func:`prior_from_file` takes a previous result's estimates and standard errors (``--prior FILE``).
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from dataclasses import replace
+from pathlib import Path
+
+from ..errors import ProfileError
+
+
+def parse_prior(table, free: dict[str, float], source: str) -> dict[str, dict[str, float]]:
+    """``[prior]`` as ``{name: {"value", "std"}}``; one ProfileError naming the entry at fault."""
+    if not isinstance(table, dict):
+        raise ProfileError(f"{source}: [prior] must be a table of parameter = std or {{ value = ..., std = ... }}")
+    out = {}
+    for name, spec in table.items():
+        if name not in free:
+            raise ProfileError(f"{source}: [prior] {name}: not a free parameter (free: {', '.join(free)})")
+        if isinstance(spec, dict):
+            if set(spec) - {"value", "std"} or "std" not in spec:
+                raise ProfileError(f"{source}: [prior] {name} = {spec!r}: expected {{ value = ..., std = ... }}")
+            value, std = spec.get("value", free[name]), spec["std"]
+        else:
+            value, std = free[name], spec
+        for what, v in (("value", value), ("std", std)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ProfileError(f"{source}: [prior] {name}: {what} {v!r} is not a finite number")
+        if not std > 0:
+            raise ProfileError(f"{source}: [prior] {name}: std {std!r} must be positive "
+                               f"(a known value belongs in [fixed])")
+        out[name] = {"value": float(value), "std": float(std)}
+    return out
+
+
+def prior_toml_lines(prior: dict[str, dict[str, float]]) -> list[str]:
+    """The ``[prior]`` table as TOML lines (centres written out), empty when there is none."""
+    if not prior:
+        return []
+    return ["", "[prior]"] + [f"{_key(k)} = {{ value = {v['value']!r}, std = {v['std']!r} }}"
+                              for k, v in prior.items()]
+
+
+def _key(k: str) -> str:
+    return k if all(c.isalnum() or c in "_-" for c in k) else json.dumps(k)
+
+
+def with_prior(profile, prior: dict[str, dict[str, float]]):
+    """``profile`` with ``prior`` entries added (replacing those it had for the same parameters);
+    entries for parameters that are not free are refused."""
+    table = {**profile.prior, **{k: dict(v) for k, v in prior.items()}}
+    return replace(profile, prior=parse_prior(table, profile.free, profile.source))
+
+
+# -- --prior-relative -------------------------------------------------------------------------
+KIN_FLOOR = 0.1  # a near-zero parameter's std: percent % of a tenth of its largest kin's magnitude
+
+
+def relative_prior(profile, percent: float) -> tuple[dict[str, dict[str, float]], list[str]]:
+    """Every free parameter's prior: centre its [free] value, std ``percent`` % of the larger of
+    its own magnitude and the floor, ``KIN_FLOOR`` (a tenth) of the largest a priori magnitude of
+    its *kin* -- the free parameters on the same equation and on a variable of the same unit
+    (``L_u``, ``L_v``, ``L_w`` are kin: one equation, velocities in m/s). The floor keeps a
+    derivative whose a priori value is near zero (a coupling term) from a prior that would pin it
+    to exactly that value. A parameter whose kin are all zero gets no prior (listed in the second
+    return, to be said). A tie (a parameter acting on several entries) is its own kin."""
+    if not (math.isfinite(percent) and percent > 0):
+        raise ProfileError(f"--prior-relative: the percentage must be positive, got {percent!r}")
+    kin = defaultdict(list)
+    for name, value in profile.free.items():
+        kin[_kin_key(profile, name)].append(abs(value))
+    out, none = {}, []
+    for name, value in profile.free.items():
+        scale = max(abs(value), KIN_FLOOR * max(kin[_kin_key(profile, name)]))
+        if scale == 0:
+            none.append(name)
+            continue
+        out[name] = {"value": float(value), "std": percent / 100 * scale}
+    return out, none
+
+
+def _kin_key(profile, name: str):
+    if name in profile.ties:
+        return ("tie", name)
+    entry = profile.parse_entry(name)
+    cols = profile.states if entry.matrix in "AC" else profile.inputs
+    return entry.matrix, entry.row, cols[list(cols)[entry.col]]
+
+
+# -- --prior FILE -----------------------------------------------------------------------------
+def prior_from_file(path: str | Path, profile) -> tuple[dict[str, dict[str, float]], list[str]]:
+    """The prior a previous identification gives: from a ``result.json`` (its estimates and
+    standard errors) or a profile TOML whose ``meta.std`` holds standard errors (a stitched model
+    at a condition). Returns ``{name: {"value", "std"}}`` for the free parameters of ``profile``
+    the file gives with a finite positive std, and the free parameters it leaves without a prior
+    (to be said)."""
+    path = Path(path)
+    values, stds = _read_estimates(path)
+    out, missing = {}, []
+    for name in profile.free:
+        v, s = values.get(name), stds.get(name)
+        if v is None or s is None or not (math.isfinite(v) and math.isfinite(s) and s > 0):
+            missing.append(name)
+        else:
+            out[name] = {"value": float(v), "std": float(s)}
+    if not out:
+        raise ProfileError(f"{path}: gives no free parameter of '{profile.name}' a value with a finite std")
+    return out, missing
+
+
+def _read_estimates(path: Path) -> tuple[dict, dict]:
+    from ..errors import read_text
+
+    text = read_text(path, ProfileError, "prior (result.json or profile)")
+    if path.suffix.lower() == ".json":
+        try:
+            params = json.loads(text)["parameters"]
+            return ({n: p["value"] for n, p in params.items()},
+                    {n: p["std"] for n, p in params.items() if p.get("std") is not None})
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ProfileError(f"{path}: not a result.json that identify wrote ({exc})") from None
+    from .profile import parse_profile
+    from .schedule import schedule_of
+
+    prof = parse_profile(text, source=str(path))
+    if schedule_of(prof) is not None:
+        raise ProfileError(f"{path}: a scheduled (stitched) profile: take it at the test point's condition first "
+                           f"(identify model {path.name} --at <condition>=<value> --save <file>)")
+    std = prof.meta.get("std")
+    if not isinstance(std, dict) or not std:
+        raise ProfileError(f"{path}: the profile holds no standard errors (meta.std); a prior needs them: "
+                           f"use the result.json of its identification")
+    return prof.parameters, {k: float(v) for k, v in std.items()}
