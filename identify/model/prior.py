@@ -147,3 +147,23 @@ def _read_estimates(path: Path) -> tuple[dict, dict]:
         raise ProfileError(f"{path}: the profile holds no standard errors (meta.std); a prior needs them: "
                            f"use the result.json of its identification")
     return prof.parameters, {k: float(v) for k, v in std.items()}
+
+
+def prior_options(profile, relative: float | None = None, file: str | Path | None = None):
+    """``profile`` with the command line's prior: ``--prior FILE`` (a previous identification's
+    estimates and stds) and/or ``--prior-relative PCT`` (every free parameter; with a file, only
+    those the file leaves without one), over the profile's own ``[prior]`` entries. Returns the
+    profile and the lines to say (what got a prior, what has none)."""
+    lines, prior = [], {}
+    if file is not None:
+        prior, missing = prior_from_file(file, profile)
+        lines.append(f"--prior {file}: {len(prior)} parameters from its estimates and stds"
+                     + (f"; none for {', '.join(missing)}" if missing else ""))
+    if relative is not None:
+        rel, none = relative_prior(profile, relative)
+        added = {k: v for k, v in rel.items() if k not in prior}
+        prior = {**added, **prior}
+        lines.append(f"--prior-relative {relative:g}: {len(added)} parameters, std {relative:g} % of the a priori value "
+                     f"(at least of a tenth of the largest of its equation's and unit's)"
+                     + (f"; none for {', '.join(none)} (a priori zero, and so are its kin)" if none else ""))
+    return (with_prior(profile, prior) if prior else profile), lines
