@@ -22,43 +22,10 @@ from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 
-from ..errors import ProfileError
-
-
-def parse_prior(table, free: dict[str, float], source: str) -> dict[str, dict[str, float]]:
-    """``[prior]`` as ``{name: {"value", "std"}}``; one ProfileError naming the entry at fault."""
-    if not isinstance(table, dict):
-        raise ProfileError(f"{source}: [prior] must be a table of parameter = std or {{ value = ..., std = ... }}")
-    out = {}
-    for name, spec in table.items():
-        if name not in free:
-            raise ProfileError(f"{source}: [prior] {name}: not a free parameter (free: {', '.join(free)})")
-        if isinstance(spec, dict):
-            if set(spec) - {"value", "std"} or "std" not in spec:
-                raise ProfileError(f"{source}: [prior] {name} = {spec!r}: expected {{ value = ..., std = ... }}")
-            value, std = spec.get("value", free[name]), spec["std"]
-        else:
-            value, std = free[name], spec
-        for what, v in (("value", value), ("std", std)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ProfileError(f"{source}: [prior] {name}: {what} {v!r} is not a finite number")
-        if not std > 0:
-            raise ProfileError(f"{source}: [prior] {name}: std {std!r} must be positive "
-                               f"(a known value belongs in [fixed])")
-        out[name] = {"value": float(value), "std": float(std)}
-    return out
-
-
-def prior_toml_lines(prior: dict[str, dict[str, float]]) -> list[str]:
-    """The ``[prior]`` table as TOML lines (centres written out), empty when there is none."""
-    if not prior:
-        return []
-    return ["", "[prior]"] + [f"{_key(k)} = {{ value = {v['value']!r}, std = {v['std']!r} }}"
-                              for k, v in prior.items()]
-
-
-def _key(k: str) -> str:
-    return k if all(c.isalnum() or c in "_-" for c in k) else json.dumps(k)
+from ..errors import ProfileError, read_text
+from .profile import parse_profile
+from .prior_table import parse_prior
+from .schedule import schedule_of
 
 
 def with_prior(profile, prior: dict[str, dict[str, float]]):
@@ -125,8 +92,6 @@ def prior_from_file(path: str | Path, profile) -> tuple[dict[str, dict[str, floa
 
 
 def _read_estimates(path: Path) -> tuple[dict, dict]:
-    from ..errors import read_text
-
     text = read_text(path, ProfileError, "prior (result.json or profile)")
     if path.suffix.lower() == ".json":
         try:
@@ -135,9 +100,6 @@ def _read_estimates(path: Path) -> tuple[dict, dict]:
                     {n: p["std"] for n, p in params.items() if p.get("std") is not None})
         except (ValueError, KeyError, TypeError) as exc:
             raise ProfileError(f"{path}: not a result.json that identify wrote ({exc})") from None
-    from .profile import parse_profile
-    from .schedule import schedule_of
-
     prof = parse_profile(text, source=str(path))
     if schedule_of(prof) is not None:
         raise ProfileError(f"{path}: a scheduled (stitched) profile: take it at the test point's condition first "

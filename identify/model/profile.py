@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..errors import ProfileError, read_text
-from .prior import parse_prior, prior_toml_lines
+from .prior_table import parse_prior, prior_toml_lines
 
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
