@@ -38,6 +38,7 @@ def to_dict(r: Refine) -> dict:
         "noise_model_orders": r.noise_orders_,
         "noise_model_white": r.noise_white_,
         "tries": r.tries_,
+        "pruned": [vars(d) for d in getattr(r, "pruned_", [])],
         "evaluations": r.evaluations_,
         "catalogue": list(r.kinds_),
         "unconverged_fits": r.unconverged_,
