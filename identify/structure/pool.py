@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 from itertools import combinations
 
 from ..errors import ProfileError
+from ..model import coefficients as cf
 from ..model import pseudo_inputs as pi
 from ..model.profile import Profile
 
@@ -57,35 +58,59 @@ def occupied(p: Profile) -> set[tuple[str, int, int]]:
 
 
 def derivative_terms(p: Profile, measured: set[str]) -> list[Term]:
-    """Every undeclared A/B entry of a dynamic equation whose column is measured."""
+    """Every undeclared A/B entry of a dynamic equation whose column is measured (in a
+    coefficient equation: the coefficient derivative of every aerodynamic variable, ``C_m_u``)."""
     taken, out = occupied(p), []
     ctrl = controls(p)
     for i in dynamic_rows(p):
         eq = p.equation(p.state_names[i])
         for j, s in enumerate(p.state_names):
             if s in measured and ("A", i, j) not in taken:
-                out.append(Term(p.entry_name("A", i, j), "derivative", eq))
+                out.append(Term(_name(p, eq, "A", i, j), "derivative", eq))
         for j, u in enumerate(p.input_names):
             if u in ctrl and ("B", i, j) not in taken:
-                out.append(Term(p.entry_name("B", i, j), "derivative", eq))
-    return [t for t in out if _unambiguous(p, t.name)]
+                out.append(Term(_name(p, eq, "B", i, j), "derivative", eq))
+    return [t for t in out if t.name and (_coefficient(p, t.equation) or _unambiguous(p, t.name))]
 
 
-def nonlinear_terms(p: Profile, names: list[str], knots: dict[str, list[float]] | None = None) -> list[Term]:
+def _coefficient(p: Profile, eq: str) -> str | None:
+    """The coefficient an equation is written in (coefficient-form profiles), else None."""
+    table = cf.spec(p.meta, p.source)
+    return None if table is None else dict(table["equations"]).get(eq)
+
+
+# states that are aerodynamic variables of a coefficient (attitudes are gravity's, not the air's)
+_AERO = {"w": "alpha", "v": "beta", "u": "u", "p": "p", "q": "q", "r": "r"}
+
+
+def _name(p: Profile, eq: str, matrix: str, i: int, j: int) -> str:
+    coef = _coefficient(p, eq)
+    if coef is None:
+        return p.entry_name(matrix, i, j)
+    if matrix == "B":
+        return f"{coef}_{p.input_names[j]}"
+    state = p.state_names[j]
+    return f"{coef}_{_AERO[state]}" if state in _AERO else ""
+
+
+def nonlinear_terms(p: Profile, names: list[str], knots: dict[str, list[float]] | None = None,
+                    one_signed=()) -> list[Term]:
     """Squares, x|x|, splines at ``knots`` and pairwise products of the channels ``names`` in every
-    dynamic equation (a term the profile already holds is skipped)."""
+    dynamic equation (a term the profile already holds is skipped; x|x| of a channel in
+    ``one_signed``, which never changes sign in the data, is +-x^2 there and left out)."""
     knots = knots or {}
     pseudo: list[tuple[str, str, dict]] = []
     for x in names:
-        pseudo += [(f"{x}_sq", "square", pi.product([x, x])),
-                   (f"{x}_abs{x}", "absolute", pi.product([x, x], [False, True]))]
+        pseudo.append((f"{x}_sq", "square", pi.product([x, x])))
+        if x not in one_signed:
+            pseudo.append((f"{x}_abs{x}", "absolute", pi.product([x, x], [False, True])))
         pseudo += [(f"{x}_k{i + 1}", "spline", pi.spline(x, k)) for i, k in enumerate(sorted(knots.get(x, ())))]
     pseudo += [(f"{a}_x_{b}", "product", pi.product([a, b])) for a, b in combinations(names, 2)]
     out = []
     for i in dynamic_rows(p):
         eq = p.equation(p.state_names[i])
         for term, kind, spec in pseudo:
-            name = f"{eq}_{term}"
+            name = f"{_coefficient(p, eq) or eq}_{term}"
             if name not in p.parameters:
                 out.append(Term(name, kind, eq, (term, tuple((k, tuple(v) if isinstance(v, list) else v)
                                                              for k, v in sorted(spec.items())))))
@@ -103,7 +128,9 @@ def extended(p: Profile, terms: list[Term]) -> Profile:
                 table[name] = _spec(spec)
     meta = {**p.meta, **({"pseudo_inputs": table} if table else {})}
     q = replace(p, inputs=inputs, meta=meta)
-    return replace(q, free={**p.free, **{t.name: 0.0 for t in terms}})
+    coefficients = cf.spec(p.meta, p.source)
+    ties = {} if coefficients is None else cf.ties([t.name for t in terms], q.states, q.inputs, coefficients, p.ties)
+    return replace(q, free={**p.free, **{t.name: 0.0 for t in terms}}, ties={**p.ties, **ties})
 
 
 def with_terms(p: Profile, added: dict[str, float], pool: list[Term]) -> Profile:

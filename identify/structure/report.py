@@ -33,6 +33,8 @@ def to_dict(s: StructureSearch) -> dict:
         "ranking": {sel.problem.label: sel.ranking for sel in s.selections_},
         "press": {sel.problem.label: sel.fit.press for sel in s.selections_},
         "errors": s.errors_,
+        "equation_error_held_out": getattr(s, "equation_error_held_out_", {}),
+        "output_error_skipped": s.skipped_,
         "unconverged": getattr(s, "unconverged_", []),
         "final_profile": s.profile_.to_toml(),
     })

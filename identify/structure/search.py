@@ -38,6 +38,7 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError
 from ..estimators.base import HeldWarning
+from ..model import coefficients
 from ..model.linear import LinearModel
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
@@ -45,7 +46,7 @@ from ..model.subset import check_some_input_flown, fix, held_line, unflown_param
 from ..refine.evaluation import MIN_SAMPLES, split_validation
 from ..refine.fitting import Fitting
 from . import pool as pl
-from .equation_error import select
+from .equation_error import held_out_error, problems, select
 from .prune import Prune, output_scale, overall_error
 from .regression import Decision, Stepwise
 
@@ -83,9 +84,14 @@ class StructureSearch:
         self.data_ = {"equation error": [r.source for r in runs], "output-error fit": [r.source for r in fit_runs],
                       "held out": [r.source for r in held_out], "final fit": [r.source for r in runs]}
         self.decisions_: list[Decision] = []
-        self._equation_error(runs)
+        self.skipped_ = ""
+        self._equation_error(runs, held_out if validate else [])
         self.errors_ = {}
-        if not self.confirm:
+        if self.confirm and coefficients.spec(self.declared_.meta, self.declared_.source) is not None:
+            self.skipped_ = ("coefficient form: the linear model holds one reference condition, the coefficient "
+                             "model several trims; output-error confirmation skipped, decisions by equation error")
+            self._say(self.skipped_)
+        if not self.confirm or self.skipped_:
             self.profile_, self.result_ = self.chosen_, None
             return self
         self._output_error(fit_runs, held_out)
@@ -96,11 +102,13 @@ class StructureSearch:
         return self
 
     # -- the stages ---------------------------------------------------------------------------------
-    def _equation_error(self, runs: list[Run]) -> None:
+    def _equation_error(self, runs: list[Run], validate: list[Run]) -> None:
         p = self.declared_
         measured = {s for s in p.state_names if all(s in r.channels for r in runs)}
         terms = pl.derivative_terms(p, measured) if self.candidates else []
-        terms += pl.nonlinear_terms(p, list(self.nonlinear), self.knots_)
+        one_signed = {x for x in self.nonlinear if all(np.all(r[x] >= 0) for r in runs)
+                      or all(np.all(r[x] <= 0) for r in runs)}
+        terms += pl.nonlinear_terms(p, list(self.nonlinear), self.knots_, one_signed)
         self.pool_ = terms
         ext = pl.extended(p, terms)
         self._say(f"equation error: {len(p.free)} declared parameters, {len(terms)} candidates")
@@ -108,6 +116,14 @@ class StructureSearch:
         stepwise = Stepwise(alpha=self.alpha, f_in=self.f_in, f_out=self.f_out)
         self.selections_ = select(ext, p, prepare(ext, runs), stepwise, self.diff_cutoff_hz)
         self.equation_error_seconds_ = time.perf_counter() - started
+        self.equation_error_held_out_ = {}
+        if validate:  # each equation's held-out error, the declared terms against the selected ones
+            held = {pr.label: pr for pr in problems(ext, p, prepare(ext, validate), self.diff_cutoff_hz)}
+            for s in self.selections_:
+                declared = [n for n in s.problem.columns if n in p.free]
+                self.equation_error_held_out_[s.problem.label] = {
+                    "declared": held_out_error(s.problem, held[s.problem.label], declared),
+                    "selected": held_out_error(s.problem, held[s.problem.label], s.fit.terms)}
         kept, added = {}, {}
         for s in self.selections_:
             self.decisions_ += s.decisions
@@ -235,6 +251,11 @@ class StructureSearch:
             why = (f"  [{row['stage']}: {row['statistic']:.3g} vs {row['threshold']:.3g}]"
                    if "stage" in row and math.isfinite(row["statistic"]) else "")
             lines.append(f"  {row['fate']:<20} {row['parameter']:<22} {value}{why}")
+        for label, e in getattr(self, "equation_error_held_out_", {}).items():
+            lines.append(f"equation {label}: held-out equation error (relative RMS) declared {e['declared']:.4g}, "
+                         f"selected {e['selected']:.4g}")
+        if self.skipped_:
+            lines.append(f"note: {self.skipped_}")
         if self.errors_:
             lines.append("held-out error (overall): declared {declared:.4g}, after equation error {chosen:.4g}, "
                          "final {final:.4g}".format(**self.errors_))
