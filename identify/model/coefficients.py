@@ -17,7 +17,7 @@ dimensional derivatives; a profile says so in ``[meta.coefficients]``::
 
 A free or fixed parameter ``<coefficient>_<variable>`` (``C_m_alpha``, ``C_L_delta_e``,
 ``C_m_alpha_sq``) is a coefficient derivative. Its variable is ``alpha`` (w / V), ``beta`` (v / V),
-a rate made non-dimensional (``q c / 2V``; ``p b / 2V``, ``r b / 2V``), ``u`` (u / V), an input or a
+a rate made non-dimensional (``q c / 2V``; ``p b / 2V``, ``r b / 2V``), ``u`` (u / V0), an input or a
 pseudo-input (as recorded: ``alpha_sq`` built from an ``alpha`` channel). The linear model sees it
 as a tie onto the dimensional entry, at the reference dynamic pressure ``qbar0 = rho V0^2 / 2``:
 ``C_m_alpha`` acts on ``M_w`` with ``qbar0 S c / (I_M V0)``. Lift and drag act against the body
@@ -136,7 +136,8 @@ def regressor(run, variable: str, table: dict, states) -> np.ndarray:
     if variable in RATE_LENGTH and variable in states:
         return run[variable] * float(table[RATE_LENGTH[variable]]) / (2 * airspeed(run, table))
     if variable in ("u", "v", "w") and variable in states:
-        return run[variable] / airspeed(run, table)
+        # per unit reference airspeed, as the tie's factor: u / V would be cos(alpha), a function of alpha
+        return run[variable] / float(table["V0"])
     return run[variable]
 
 

@@ -76,3 +76,42 @@ def test_nonlinear_names_must_be_channels():
     base = load_profile("navion_cruise_long")
     with pytest.raises(EstimationError, match="not in every run"):
         StructureSearch(base, nonlinear=("alpha",), confirm=False).fit(_runs(LinearModel(base), 1))
+
+
+def _coefficient_runs(rng, n_runs=3, n=1500):
+    """Runs of a coefficient-form aircraft whose C_L bends at alpha = 0.15 and whose C_m has an
+    alpha^2 term, recorded with the pitch acceleration (q_dot) and the accelerometers."""
+    p = load_profile("light_aircraft_coefficients_long")
+    table = p.meta["coefficients"]
+    runs = []
+    for r in range(n_runs):
+        t = np.arange(n) * 0.02
+        alpha = 0.06 + 0.05 * r + 0.03 * np.sin(1.3 * t + r) + 0.01 * rng.standard_normal(n)
+        de = 0.02 * np.sign(np.sin(0.9 * t + 2 * r))
+        q = 0.05 * np.cos(1.7 * t + r)
+        V = 40 + 3 * np.sin(0.2 * t)
+        qS = 0.5 * table["density"] * V ** 2 * table["area"]
+        cl = 0.3 + 4.5 * alpha - 3.0 * np.maximum(alpha - 0.15, 0) + 0.36 * de
+        cm = 0.05 - 0.7 * alpha - 2.0 * alpha ** 2 - 12 * q * table["chord"] / (2 * V) - 1.1 * de
+        cm = cm + 0.002 * rng.standard_normal(n)
+        channels = {"u": V * np.cos(alpha), "w": V * np.sin(alpha), "q": q, "theta": alpha, "V": V, "alpha": alpha,
+                    # no drag and no thrust: C_X = 0, C_L = -C_Z cos(alpha)
+                    "a_x": np.zeros(n), "a_z": -cl * qS / table["mass"] / np.cos(alpha), "delta_e": de,
+                    "q_dot": cm * qS * table["chord"] / table["inertia"]["M"]}
+        runs.append(Run(t, channels, {}, source=f"<run {r}>"))
+    return p, runs
+
+
+def test_coefficient_form_ties_and_finds_the_nonlinear_terms_in_the_coefficients():
+    p, runs = _coefficient_runs(np.random.default_rng(3))
+    qbar0 = 0.5 * 1.225 * 40.0 ** 2
+    assert p.ties["C_m_alpha"] == {"M_w": pytest.approx(qbar0 * 16.7 * 1.74 / (4070.0 * 40.0))}
+    assert p.ties["C_L_delta_e"] == {"Z_delta_e": pytest.approx(-qbar0 * 16.7 / 1270.0)}
+    search = StructureSearch(p, nonlinear=("alpha",), knots={"alpha": [0.15]}).fit(runs)
+    assert search.skipped_  # output error does not judge a model over several trims
+    fits = {s.problem.label: s.fit for s in search.selections_}
+    assert {"C_L_alpha_k1", "C_L_alpha", "C_L_delta_e"} == set(fits["Z"].terms)
+    assert {"C_m_alpha_sq", "C_m_alpha", "C_m_q", "C_m_delta_e"} == set(fits["M"].terms)
+    assert fits["Z"].value("C_L_alpha_k1")[0] == pytest.approx(-3.0, abs=0.05)
+    assert fits["M"].value("C_m_alpha_sq")[0] == pytest.approx(-2.0, abs=0.2)
+    assert "C_L_alpha_k1" in search.profile_.free and "alpha_k1" in search.profile_.meta["pseudo_inputs"]
