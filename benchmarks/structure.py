@@ -104,6 +104,7 @@ def case_hover(n: int) -> None:
 # -- case 2: a fixed-wing aircraft, nonlinear in alpha ------------------------------------------------
 G, RHO, S, CHORD, MASS, IYY = 9.81, 1.225, 16.7, 1.74, 1270.0, 4070.0
 ALPHA_BREAK = np.radians(10.0)
+NONLINEAR = ("alpha", "q", "delta_e")  # squares, x|x|, the spline at ALPHA_BREAK and the products of these
 TRUE_TERMS = {"Z": {"C_L_alpha", "C_L_delta_e", "C_L_alpha_k1"}, "M": {"C_m_alpha", "C_m_q", "C_m_delta_e", "C_m_alpha_sq"}}
 
 
@@ -185,7 +186,7 @@ def case_fixed_wing(n: int) -> None:
         runs = [fly(a, m3211(0.4, amp, "delta_e", delay=1.0), 10 * seed + i) for i, a in enumerate(trims)]
         val = [fly(a, doublet(0.8, -amp, "delta_e", delay=1.0), 10 * seed + 5 + i) for i, a in enumerate(trims)]
         t0 = time.perf_counter()
-        s = StructureSearch(profile, nonlinear=("alpha",), knots={"alpha": [float(ALPHA_BREAK)]}).fit(runs, validate=val)
+        s = StructureSearch(profile, nonlinear=NONLINEAR, knots={"alpha": [float(ALPHA_BREAK)]}).fit(runs, validate=val)
         times.append(time.perf_counter() - t0)
         chosen = {sel.problem.label: set(sel.fit.terms) for sel in s.selections_}
         hit = "C_L_alpha_k1" in chosen["Z"] and "C_m_alpha_sq" in chosen["M"]
