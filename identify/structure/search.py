@@ -91,8 +91,9 @@ class StructureSearch:
             self.skipped_ = ("coefficient form: the linear model holds one reference condition, the coefficient "
                              "model several trims; output-error confirmation skipped, decisions by equation error")
             self._say(self.skipped_)
-        if not self.confirm or self.skipped_:
-            self.profile_, self.result_ = self.chosen_, None
+        if not self.confirm or self.skipped_:  # the equation-error estimates are the result
+            self.profile_ = self.chosen_.with_values({k: v for k, (v, _) in self.ee_estimates_.items()})
+            self.result_ = None
             return self
         self._output_error(fit_runs, held_out)
         if not validate:  # the decisions were taken on half of each run: the final fit uses all of it
@@ -125,10 +126,12 @@ class StructureSearch:
                     "declared": held_out_error(s.problem, held[s.problem.label], declared),
                     "selected": held_out_error(s.problem, held[s.problem.label], s.fit.terms)}
         kept, added = {}, {}
+        self.ee_estimates_ = {}  # {name: (estimate, coloured-residual std)} of the selected terms
         for s in self.selections_:
             self.decisions_ += s.decisions
-            for name, value in zip(s.fit.terms, s.fit.theta):
+            for name, value, std in zip(s.fit.terms, s.fit.theta, s.fit.std):
                 (kept if name in p.free else added)[name] = float(value)
+                self.ee_estimates_[name] = (float(value), float(std))
         in_regression = {n for s in self.selections_ for n in s.problem.columns}
         dropped = [n for n in p.free if n in in_regression and n not in kept]
         chosen = p.with_values({n: 0.0 for n in dropped})
@@ -226,7 +229,8 @@ class StructureSearch:
 
     def table(self) -> list[dict]:
         """One row per declared parameter and candidate that entered: its fate and why."""
-        final = dict(zip(self.result_.names, zip(self.result_.theta, self.result_.std))) if self.result_ else {}
+        final = dict(zip(self.result_.names, zip(self.result_.theta, self.result_.std))) if self.result_ \
+            else self.ee_estimates_
         rows = []
         for name in list(self.declared_.free) + self.added_ee_:
             last = [d for d in self.decisions_ if d.term == name and d.action in ("leave", "enter", "dropped", "kept")]
