@@ -265,7 +265,7 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
     for key in ("name", "states", "inputs", "outputs"):
         if key not in data:
             raise ProfileError(f"{source}: missing '{key}'")
-    data = _with_biases(data, source)
+    data = _with_coefficient_ties(_with_biases(data, source), source)
     free = _numbers(data.get("free", {}), "free", source)
     return Profile(
         name=_require(str, data["name"], "name", source),
@@ -303,6 +303,23 @@ def _with_biases(data: dict, source: str) -> dict:
     data["meta"] = meta
     data["free"] = {**data.get("free", {}), **{f"{eq}_{BIAS_INPUT}": v for eq, v in biases.items()}}
     return data
+
+
+def _with_coefficient_ties(data: dict, source: str) -> dict:
+    """A coefficient-form profile's coefficient derivatives (``C_m_alpha``) as ties onto their
+    dimensional entries at the reference condition (:mod:`identify.model.coefficients`)."""
+    from . import coefficients
+
+    table = coefficients.spec(_require(dict, data.get("meta", {}), "meta", source), source)
+    if table is None:
+        return data
+    names = list(data.get("free", {})) + list(data.get("fixed", {}))
+    existing = _require(dict, data.get("ties", {}), "ties", source)
+    try:
+        made = coefficients.ties(names, data["states"], data["inputs"], table, existing)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProfileError(f"{source}: meta.coefficients: {exc}") from None
+    return {**data, "ties": {**made, **existing}}
 
 
 def _zero_shift(output: str, spec, source: str) -> dict:
