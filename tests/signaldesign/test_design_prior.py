@@ -14,7 +14,7 @@ KW = dict(duration=2.4, record=8.0, grid=0.4, min_pulse=0.4, criterion="nominal"
 
 @pytest.fixture(scope="module")
 def s61():
-    prof = load_profile("s61_hover_8state")
+    prof = load_profile("s61_hover_4dof")
     return prof
 
 
