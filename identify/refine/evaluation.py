@@ -87,6 +87,11 @@ def hold_out(runs: list[Run], inputs: list[str], share: float = HOLD_OUT) -> tup
     return fit, held
 
 
+HELD_OUT_NOTE = {True: "no validation runs: the last third of each run's input excitation is held out to choose and "
+                       "judge effects, the rest fitted", False: f"no validation runs and none long enough to hold a "
+                 f"part out ({3 * MIN_SAMPLES} samples): effects are judged by the tests alone"}  # said by refine
+
+
 def excitation_midpoint(run: Run, inputs: list[str], share: float = 0.5) -> int:
     """The sample that halves the run's input excitation (or leaves ``share`` of it before): each
     input's squared deviation from its median, normalised to a unit sum per input (so that every
@@ -129,4 +134,4 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
 
 
 __all__ = ["errors", "neg_log_likelihood", "unexplained", "split_validation", "hold_out", "excitation_midpoint",
-           "check_identifiable", "MIN_SAMPLES", "HOLD_OUT"]
+           "check_identifiable", "MIN_SAMPLES", "HOLD_OUT", "HELD_OUT_NOTE"]

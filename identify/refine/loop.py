@@ -47,7 +47,7 @@ from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
 from .candidates import KIND_CLASSES, KINDS
-from .evaluation import MIN_SAMPLES, check_identifiable, errors, hold_out, split_validation
+from .evaluation import HELD_OUT_NOTE, MIN_SAMPLES, check_identifiable, errors, hold_out, split_validation
 from .acceptance import error_change, error_refusal, failed_refit, held_out_refusal, second_attempt, undetermined
 from .fitting import Fitting
 from .noise import NoiseModel
@@ -72,7 +72,9 @@ class Refine:
     used by every fit and test (default: the estimator's own choice for the declared model,
     :meth:`~identify.estimators.base.Estimator.prediction_segment`); ``coloured``: the tests in
     the metric of a noise model fitted to the residuals (True) or for white residuals (False, the
-    classical tests); ``progress``: print step, candidate and elapsed time on stderr.
+    classical tests); ``progress``: print step, candidate and elapsed time on stderr; ``prune``: a
+    last step of backward elimination (an object with ``run(fitting, profile, result, say)`` returning
+    the pruned profile, its result and the decisions, :class:`identify.structure.prune.Prune`).
 
     After ``fit``: ``steps_`` (accepted :class:`Step` s), ``rejected_`` (candidates that passed the
     score test but failed a later check), ``tries_``, ``stopped_`` (the reason the loop ended),
@@ -81,14 +83,15 @@ class Refine:
     ``data_`` (which runs fitted, chose and judged), ``runs_``/``validation_runs_`` (the runs),
     ``diagnostics_``, ``last_scores_`` (the last round's :class:`ScoreTest` s), ``fitting_`` (the
     :class:`~identify.refine.fitting.Fitting` of the loop), ``estimator_`` (the instance used),
-    ``notes_`` (what the user was told: data held out, undetermined statistics).
+    ``notes_`` (what the user was told: data held out, undetermined statistics), ``pruned_`` (the
+    backward elimination's decisions).
     """
 
     def __init__(self, profile: Profile | str | Path, estimator=None, alpha: float = 0.01, kinds=KINDS,
                  max_steps: int = 6, zero_shifts: bool = True, frequencies=None, f_min: float = 0.5,
                  tau_max: float = 0.5, nonlinear_products: bool = True, segment=None, coloured: bool = True,
-                 progress: bool = False, verbose: bool = False):
-        self.profile, self.estimator = profile, estimator
+                 progress: bool = False, verbose: bool = False, prune=None):
+        self.profile, self.estimator, self.prune = profile, estimator, prune
         self.alpha, self.kinds, self.max_steps = alpha, kinds, max_steps
         self.zero_shifts, self.frequencies, self.f_min, self.tau_max = zero_shifts, frequencies, f_min, tau_max
         self.nonlinear_products, self.segment, self.coloured = nonlinear_products, segment, coloured
@@ -104,9 +107,7 @@ class Refine:
         self.notes_, self.undetermined_scores_ = [], {}
         if not validate:  # the loop's choices are still checked on data the fit never saw
             runs, validate = hold_out(runs, self.declared_.input_names)
-            self._note("no validation runs: the last third of each run's input excitation is held out to choose "
-                       "and judge effects, the rest fitted" if validate else "no validation runs and none long enough "
-                       f"to hold a part out ({3 * MIN_SAMPLES} samples): effects are judged by the tests alone")
+            self._note(HELD_OUT_NOTE[bool(validate)])
         self._hold(runs)
         choose, judge = split_validation(validate, self.declared_.input_names)
         self.runs_, self.validation_runs_ = runs, validate
@@ -130,18 +131,19 @@ class Refine:
         self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.declared_.outputs])
         self.steps_, self.rejected_ = [], []
         self.error_before_ = self._errors(current)
-        times = [r.time for r in runs]
-        ev0 = self.fitting_.prediction(current)
+        times, ev0 = [r.time for r in runs], self.fitting_.prediction(current)
         diag = {"before": dg.summary(ev0.residuals, times, self.fitting_.dt, self.f_min, current.outputs)}
         current, result = self._loop(current, est)
+        self.pruned_ = []
+        if self.prune is not None:  # backward elimination, any object with run(fitting, profile, result, say)
+            current, result, self.pruned_ = self.prune.run(self.fitting_, current, result, self._say)
         self.profile_, self.result_ = current, result
         if self.undeterminable_:
             result.info["undeterminable"] = dict(self.undeterminable_)
         if self.held_:  # the final model keeps them free, at their a priori values, for runs that move them
             self.profile_ = free(current, [n for names in self.held_.values() for n in names])
             self.result_ = expand_held(result, self.profile_, self.held_, self.held_note_)
-        self.error_after_ = self._errors(current)
-        ev1 = self.fitting_.prediction(current)
+        self.error_after_, ev1 = self._errors(current), self.fitting_.prediction(current)
         diag["after"] = dg.summary(ev1.residuals, times, self.fitting_.dt, self.f_min, current.outputs)
         self.diagnostics_ = diag
         self.final_evaluation_ = {"fit": ev1, "before": ev0, "time": times}
@@ -194,9 +196,7 @@ class Refine:
 
     evaluations_ = property(lambda self: self.fitting_.evaluations)
 
-    @property
-    def unconverged_(self) -> list[str]:
-        return self.fitting_.unconverged
+    unconverged_ = property(lambda self: self.fitting_.unconverged)
 
     def _note(self, msg: str) -> None:
         """A note the user must see whatever the progress option (and ``refine.json`` keeps)."""
