@@ -233,10 +233,10 @@ def error_refusal(changes: dict, labels: dict, judge: str | None = None, held: d
     fall, s2 = held[judge][0] - held[judge][1], max(spread[judge], 0.0)
     if s2 > 0 and fall > z_noise * 2.0 * math.sqrt(s2):
         return ""
-    return (f"lowers the {labels[judge]} data's error ({100 * rel:+.3g} %) but not beyond its noise: {c.z:.3g} standard "
-            f"deviations of a paired test of the plain error (the bar {z_plain:.3g}, overall or any output), "
+    return (f"lowers the {labels[judge]} data's error ({100 * rel:+.3g} %) but not beyond its noise: {c.z:.3g} "
+            f"standard deviations of a paired test of the plain error (the bar {z_plain:.3g}, overall or any output), "
             f"{fall / (2 * math.sqrt(s2)) if s2 > 0 else 0.0:.3g} of the noise-model cost (the bar {z_noise:.3g})")
 
 
-__all__ = ["undetermined", "failed_refit", "second_attempt", "held_out_refusal", "ErrorChange", "error_change", "error_refusal",
-           "HELD_OUT_Z", "IMPROVE_LEVEL", "WORSE_LEVEL"]
+__all__ = ["undetermined", "failed_refit", "second_attempt", "held_out_refusal", "ErrorChange", "error_change",
+           "error_refusal", "HELD_OUT_Z", "IMPROVE_LEVEL", "WORSE_LEVEL"]

@@ -46,9 +46,9 @@ from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
+from .acceptance import error_change, error_refusal, failed_refit, held_out_refusal, second_attempt, undetermined
 from .candidates import KIND_CLASSES, KINDS
 from .evaluation import HELD_OUT_NOTE, MIN_SAMPLES, check_identifiable, errors, hold_out, split_validation
-from .acceptance import error_change, error_refusal, failed_refit, held_out_refusal, second_attempt, undetermined
 from .fitting import Fitting
 from .noise import NoiseModel
 from .scoring import ScoreTest, score_candidates
@@ -163,7 +163,8 @@ class Refine:
                 self.stopped_ = f"{self.max_steps} effects added (max_steps)"
                 break
             if self.tries_ >= 3 * self.max_steps:
-                self.stopped_ = f"try limit: {self.tries_} candidates tried, {len(self.rejected_)} rejected (3 x max_steps)"
+                self.stopped_ = (f"try limit: {self.tries_} candidates tried, {len(self.rejected_)} rejected "
+                                 "(3 x max_steps)")
                 break
             self._say(f"step {len(self.steps_) + 1}: score tests")
             tested = self._score(current, excluded)
