@@ -289,11 +289,17 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
     p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
     p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+    p.add_argument("--prior-relative", type=positive_float, metavar="PCT",
+                   help="a priori weighting: every free parameter's a priori value is a prior with std PCT %% of "
+                        "it (at least PCT %% of a tenth of the largest of its equation's parameters of the same unit)")
+    p.add_argument("--prior", metavar="FILE", help="a priori weighting: a previous result.json (or a profile with "
+                   "meta.std): its estimates and stds become the prior (over the profile's [prior])")
 
 
 def _profile(args):
     """The a priori profile, with ``--free``, ``--fix`` and ``--outputs`` applied (each said)."""
     from .model import subset
+    from .model.prior import prior_options
 
     profile = load_profile(args.profile)
     for option, change in (("free", subset.free), ("fix", subset.fix), ("outputs", subset.with_outputs)):
@@ -301,6 +307,9 @@ def _profile(args):
             profile = change(profile, getattr(args, option))
             print(f"--{option} {getattr(args, option)}: {len(profile.free)} free parameters, "
                   f"outputs {', '.join(profile.outputs)}", file=sys.stderr)
+    profile, lines = prior_options(profile, getattr(args, "prior_relative", None), getattr(args, "prior", None))
+    for line in lines:
+        print(line, file=sys.stderr)
     return profile
 
 
