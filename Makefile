@@ -41,6 +41,7 @@ BENCH_ARGS_frequency := --quick
 BENCH_ARGS_frequency_fit := --realisations 10
 BENCH_ARGS_ml_long_record := 0.25
 BENCH_ARGS_paper_s61 := --seeds 1
+BENCH_ARGS_prior := 20
 BENCH_ARGS_refine_blind := --cases two_effects,small_Xde,null_s61
 BENCH_ARGS_refine_coloured := 10
 BENCH_ARGS_refine_fr := 6
