@@ -288,6 +288,9 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
     p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
     p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+    p.add_argument("--turbulence", metavar="LIST", help="fem: gust states on these velocities (u,v,w; in a "
+                   "flow-angle profile w and v act on alpha and beta), corners and intensities estimated; "
+                   "sets the profile's [turbulence] states")
 
 
 def _profile(args):
@@ -300,6 +303,13 @@ def _profile(args):
             profile = change(profile, getattr(args, option))
             print(f"--{option} {getattr(args, option)}: {len(profile.free)} free parameters, "
                   f"outputs {', '.join(profile.outputs)}", file=sys.stderr)
+    if getattr(args, "turbulence", None):
+        from .model.turbulence import with_turbulence
+
+        if args.method != "fem":
+            raise EstimationError(f"--turbulence is the filter-error method's model: use --method fem "
+                                  f"(--method {args.method} takes every misfit for measurement noise)")
+        profile = with_turbulence(profile, args.turbulence)
     return profile
 
 

@@ -81,9 +81,11 @@ from ..errors import ConvergenceWarning, EstimationError
 from ..model import pseudo_inputs as pi
 from ..model.linear import LinearModel
 from ..model.profile import Profile
+from ..model.turbulence import augment
 from ..model.sensitivity import discretize_with_derivatives
 from ..model.simulate import discretize, held_inputs, propagate
 from .base import Estimator
+from . import filter_error_turbulence
 from .filter_error_nonlinear import StateTerms
 from .ml import (INITIAL_DAMPING, MAX_DAMPING, MAX_REL_STEP, MIN_GAIN_RATIO, STALL_TOL_SE,
                  STEP_TOL_SE, common_dt, finite_channels)
@@ -113,6 +115,7 @@ START_NAMES = {"gain_held": "R = (I - C K) S_hat", "wide_f": f"F x{F_WIDE / F_ST
 # worse optimum (-log L 1987 above), and the process-noise side's start from the better fit's
 # derivatives reached the better one: FEM restarts there once more (docs/filter_error.md)
 RESTART = ("floor", F_WIDE / F_START)  # (R's start, F's factor), as wide_f; None: no restart (benchmarks measure both)
+NOISE_PARTS = ("f", "r", "corner")  # a ModelFit's noise: F, R and the estimated gust corners (turbulence)
 SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likelihood ratio far from significant)
 
 
@@ -188,6 +191,8 @@ class FEM(Estimator):
         return prob, beta, active
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:
+        if self.profile_.turbulence:  # the gust states' model, handed back on the user's profile
+            return filter_error_turbulence.fit(self, runs)
         started = _time.perf_counter()
         prob, beta, active = self._problem(runs)
         solver = self._solve(prob, beta, active)
@@ -273,7 +278,9 @@ class FEM(Estimator):
         pn, mn = result.info.get("process_noise"), result.info.get("measurement_noise")
         if pn is None or mn is None:
             return None
-        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()])}
+        corners = [g["corner"] for g in result.info.get("turbulence", {}).get("gusts", {}).values() if g["corner_estimated"]]
+        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()]),
+                "corner": np.array(corners)}
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
@@ -313,7 +320,7 @@ class FEM(Estimator):
         from .prediction import ModelFit  # the protocol's result type
 
         def values(d):
-            return None if d is None else (tuple(map(float, d["f"])), tuple(map(float, d["r"])))
+            return None if d is None else tuple(tuple(map(float, d.get(part, ()))) for part in NOISE_PARTS)
 
         held, begin = values(noise), None if noise is not None else values(start)
         key = (profile.to_toml(), zero_shifts, jacobian, held, begin,
@@ -326,15 +333,21 @@ class FEM(Estimator):
         est = self.clone(profile, estimate_bias=zero_shifts)
         est._validate()
         runs = est.check_runs(runs)
+        k = len(profile.free)  # the derivatives; the rest of theta (gust corners) is nuisance
+        if profile.turbulence:
+            gm = augment(profile, runs)
+            est = self.clone(gm.augmented, estimate_bias=zero_shifts, process_noise=gm.noise_states())
+            est._validate()
         prob, beta, active = est._problem(runs)
-        active[prob.index["theta"]] = False
+        active[prob.index["theta"][:k]] = False
+        index = {"f": prob.index["f"], "r": prob.index["r"], "corner": prob.index["theta"][k:]}
         for given in (held, begin):  # the fitted model's noise (its filter gain) held, or the start
-            for part, vals in zip(("f", "r"), given or ()):
-                if len(vals) != len(prob.index[part]):
-                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part.upper()}, "
-                                          f"the profile {len(prob.index[part])}")
-                beta[prob.index[part]] = vals
-                active[prob.index[part]] &= given is begin
+            for part, vals in zip(NOISE_PARTS, given or ()):
+                if len(vals) != len(index[part]):
+                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part}, "
+                                          f"the profile {len(index[part])}")
+                beta[index[part]] = vals
+                active[index[part]] &= given is begin
         solver = est._solve(prob, beta, active, nuisance_only=True, hold_noise=held is not None,
                             start_noise=begin is not None)
         try:
@@ -344,14 +357,15 @@ class FEM(Estimator):
         _, f, x0, b, rv = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
-                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start": solver.starts})
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "corner": solver.beta[index["corner"]].copy(),
+                                         "r_start": solver.starts})
         if jacobian:
             G, n, ny = prob.G, prob.n, prob.ny
             L, _, k, R = ev.dnu.shape
-            cols = np.r_[prob.p:G, G:G + n + ny]
+            cols = np.r_[k:G, G:G + n + ny]
             keep = solver.active[prob.local_index[0][cols]]  # held x0, zero shifts, F = 0: no column
-            fit.dy = prob.per_run(-ev.dnu[:, :, :prob.p].reshape(L, ny * prob.p, R))
-            fit.dy = [d.reshape(len(d), ny, prob.p) for d in fit.dy]
+            fit.dy = prob.per_run(-ev.dnu[:, :, :k].reshape(L, ny * k, R))
+            fit.dy = [d.reshape(len(d), ny, k) for d in fit.dy]
             nuis = -ev.dnu[:, :, cols[keep]]
             fit.nuisance = [d.reshape(len(d), ny, -1) for d in prob.per_run(nuis.reshape(L, ny * keep.sum(), R))]
         cache[key] = (fit, prob, ev)
@@ -386,7 +400,7 @@ class FEM(Estimator):
         boundary[ix["r"]] = ~bounded[ix["r"]]
         std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
         std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
-        self.covariance_ = cov[:P, :P].copy()
+        self.covariance_, self.covariance_all_ = cov[:P, :P].copy(), cov
         theta, f, x0, b, r = prob.unpack(beta)
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
         measured = prob.per_run(prob.Z)
@@ -404,6 +418,9 @@ class FEM(Estimator):
             "modelled": "one-step-ahead predictions of the Kalman filter (residuals = innovations)",
             "input_hold": prob.hold,
             "process_noise_convention": PROCESS_NOISE_CONVENTION,
+            "process_noise_model": (f"white process noise on the equations of {', '.join(prob.noise_states)} (F "
+                                    f"estimated; no turbulence declared)" if prob.noise_states else
+                                    "none: no process noise (output error)"),
             "process_noise": {s: {"F": float(v), "std": float(e)} for s, v, e in zip(prob.noise_states, f, f_std)},
             "measurement_noise": {y: {"variance": float(v), "std": float(e)} for y, v, e in zip(p.outputs, r, r_std)},
             "noise_cov": np.diag(r),
