@@ -145,6 +145,7 @@ class FEM(Estimator):
     """
 
     method = "fem"
+    models_turbulence = True
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
