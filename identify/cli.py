@@ -304,9 +304,10 @@ def _profile(args):
             print(f"--{option} {getattr(args, option)}: {len(profile.free)} free parameters, "
                   f"outputs {', '.join(profile.outputs)}", file=sys.stderr)
     if getattr(args, "turbulence", None):
+        from .estimators.registry import estimator_class
         from .model.turbulence import with_turbulence
 
-        if args.method != "fem":
+        if not estimator_class(args.method).models_turbulence:
             raise EstimationError(f"--turbulence is the filter-error method's model: use --method fem "
                                   f"(--method {args.method} takes every misfit for measurement noise)")
         profile = with_turbulence(profile, args.turbulence)

@@ -371,7 +371,7 @@ def _noise_lines(info: dict) -> list[str]:
     def bound(s):
         return f"{s:.3g}" if np.isfinite(s) else "not determined"
 
-    lines = [""] + ([f"process-noise model: {info['process_noise_model']}"] if "process_noise_model" in info else [])
+    lines = [""] + ([info["process_noise_model"]] if "process_noise_model" in info else [])
     lines += _turbulence_lines(info.get("turbulence"))
     lines.append(f"process noise F ({info['process_noise_convention']}):")
     lines += [f"  {k:<16}{v['F']:12.4g}  std {bound(v['std'])}" for k, v in info["process_noise"].items()] or ["  none"]

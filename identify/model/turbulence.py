@@ -90,7 +90,7 @@ class GustModel:
         how = ", ".join(f"{s}: {'estimated' if s in self.corners else f'{self.held[s]:.4g} rad/s held'}"
                         for s in self.gusts)
         own = f"; and white process noise on {', '.join(p.process_noise)}" if p.process_noise else ""
-        return (f"turbulence: first-order gust states {', '.join(self.gusts.values())} (corner {how}), "
+        return (f"process noise: turbulence, first-order gust states {', '.join(self.gusts.values())} (corner {how}), "
                 f"process noise on them, every derivative on {', '.join(self.gusts)} acting on the "
                 f"air-relative velocity{own}")
 

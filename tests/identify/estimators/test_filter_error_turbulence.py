@@ -84,7 +84,7 @@ def test_the_user_sees_the_turbulence_model_and_the_next_fit_starts_there(fitted
     fem, _ = fitted
     res = fem.result_
     text = res.summary()
-    assert "process-noise model: turbulence: first-order gust states w_g" in text
+    assert "process noise: turbulence, first-order gust states w_g" in text
     assert "w      corner" in text and "intensity" in text
     data = json.loads(json.dumps(res.to_dict()))
     assert data["info"]["turbulence"]["gusts"]["w"]["corner"] == pytest.approx(res.info["turbulence"]["gusts"]["w"]["corner"])
@@ -99,7 +99,7 @@ def test_white_process_noise_is_said_too(navion):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = FEM(navion, max_iter=3).fit(runs).result_
-    assert res.info["process_noise_model"].startswith("white process noise on the equations of u, w")
+    assert res.info["process_noise_model"].startswith("process noise: white, on the equations of u (F")
     assert "turbulence" not in res.info
 
 
@@ -110,7 +110,7 @@ def test_cli_turbulence_option_and_profile_table(navion, tmp_path, capsys):
     proc = _in_process(["identify", "estimate", *paths, "--profile", "navion_cruise_long", "--method", "fem",
                         "--turbulence", "w", "--out", out][1:], capsys)
     assert proc.returncode == 0, proc.stderr
-    assert "turbulence: first-order gust states w_g" in proc.stdout
+    assert "process noise: turbulence, first-order gust states w_g" in proc.stdout
     info = json.loads((out / "result.json").read_text())["info"]
     assert set(info["turbulence"]["gusts"]) == {"w"}
     again = parse_profile((out / "identified_profile.toml").read_text())

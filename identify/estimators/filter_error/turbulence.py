@@ -13,8 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..model.turbulence import GustModel, augment
-from .result import IdentificationResult
+from ...model.turbulence import GustModel, augment
+from ..result import IdentificationResult
 
 
 def fit(fem, runs) -> IdentificationResult:
@@ -37,11 +37,18 @@ def fit(fem, runs) -> IdentificationResult:
     return on_profile(gm, res, inner)
 
 
+def augmented_estimator(fem, runs, gm: GustModel | None = None, **changes):
+    """An unfitted FEM with ``fem``'s options (and ``changes``) on the augmented profile (``gm``'s,
+    default built from ``fem.profile_`` and ``runs``), the gust states' process noise with the
+    option's."""
+    gm = gm or augment(fem.profile_, runs)
+    return fem.clone(gm.augmented, process_noise={**gm.noise_states(), **(fem.process_noise or {})}, **changes)
+
+
 def _fit_augmented(fem, gm: GustModel, runs):
     """FEM (with ``fem``'s options) on the augmented profile: its result and the fitted FEM."""
-    inner = fem.clone(gm.augmented, process_noise={**gm.noise_states(), **(fem.process_noise or {})})
-    inner._validate()
-    res = inner._fit(runs)
+    inner = augmented_estimator(fem, runs, gm).fit(runs)
+    res = inner.result_
     fem.problem_, fem.beta_, fem.gusts_ = inner.problem_, inner.beta_, gm
     return res, inner
 
