@@ -16,7 +16,8 @@ entering as a relative wind (``dx/dt = A x + B u - A[:, velocity] x_gust``). Cas
 axis twice (each run one axis), first-order gusts of correlation time 1.5 s on u and v (the issue's
 hover case; the profile has no w), intensities u 0.25, v 0.15 of the input-driven response.
 ``hover12_sas``: the same flown with a digital stability augmentation closing the loop (a discrete
-LQR gain on the measured states added to the cyclic; the recorded cyclic is what the rotor got).
+LQR gain, weights on the rates and attitudes, on the measured states added to the cyclic; the
+recorded cyclic is what the rotor got).
 ``hover30_vk``: the S 61, two 30 s runs (one 3211 per axis), von Karman-like gusts (Hoblit's
 second-order rational approximation, corner 0.5 rad/s) on u and v, intensities 0.2 and 0.3.
 ``navion_ab``: the Navion longitudinal model written in flow angles (u, alpha, q, theta), six 30 s
@@ -62,7 +63,8 @@ from _cli import count, parser as cli_parser  # noqa: E402
 OUTPUT = Path(__file__).resolve().parent / "output"
 DT = 0.02
 NOISE_SHARE = 0.02
-SAS_R = 30.0  # LQR input weight (state weight 1): the stability augmentation's gain
+SAS_R = 30.0  # LQR input weight (weight 1 on the rates and attitudes): the stability augmentation's gain
+SAS_STATES = ("p", "q", "theta", "phi")  # what a helicopter's SAS holds (rate and attitude feedback)
 V_NAVION = 53.645  # m/s
 # gust shaping filters in s / corner (numerator, denominator, highest power first), scaled to unit variance
 SPECTRA = {"first": ([1.0], [1.0, 1.0]),
@@ -147,7 +149,8 @@ class Case:
         if spec.get("sas"):  # a digital stability augmentation on the measured states (C = I here)
             Phi, Gam = discretize(tr.A, tr.B, DT)
             R = SAS_R * np.eye(tr.n_inputs)
-            X = scipy.linalg.solve_discrete_are(Phi, Gam, np.eye(n), R)
+            Q = np.diag([float(s in SAS_STATES) for s in tr.profile.state_names])
+            X = scipy.linalg.solve_discrete_are(Phi, Gam, Q, R)
             self.K = np.linalg.solve(R + Gam.T @ X @ Gam, Gam.T @ X @ Phi)
         clean = [self.fly(r, np.zeros(len(filters)), np.random.default_rng(1000 + j), noise=False)
                  for j, r in enumerate(spec["runs"])]
