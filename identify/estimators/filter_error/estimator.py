@@ -18,6 +18,7 @@ from ...model.simulate import discretize, held_inputs, propagate
 from ..base import Estimator
 from ..ml import common_dt, finite_channels
 from ..output_error import pad
+from ..prior import posterior, prior_term
 from ..result import IdentificationResult, fit_metrics
 from .base import PROCESS_NOISE_CONVENTION, ProcessNoiseModel
 from .bounds import colour_failure, inverse_information
@@ -57,6 +58,7 @@ class FEM(Estimator):
 
     method = "fem"
     models_turbulence = True  # a profile's [turbulence]: the gust states' model (.turbulence)
+    weighs_prior = True  # the prior's residuals in the cost (identify.estimators.prior)
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
@@ -111,6 +113,7 @@ class FEM(Estimator):
         args = (p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
         # state-built terms (q|q|): the extended filter (.nonlinear)
         prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else FilterProblem(*args)
+        prob.prior = prior_term(p)  # None without one: the data alone
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
         return prob, beta, active
 
@@ -285,6 +288,12 @@ class FEM(Estimator):
         std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
         self.covariance_, self.covariance_all_ = cov[:P, :P].copy(), cov  # all: a turbulence model's corners and F
         theta, f, x0, b, r = prob.unpack(beta)
+        prior = None
+        if prob.prior is not None:  # M holds the prior's information: A = (M_d + P^-1)^-1
+            A = inverse_information(M, bounded)[0][:P, :P]
+            D = self.covariance_ if std_col is not None else A - (A * prob.prior.precision) @ A
+            self.covariance_, prior = posterior(prob.prior, theta, A, D, bounded[:P])
+            std[:P] = np.where(bounded[:P], np.sqrt(np.clip(np.diag(self.covariance_), 0, None)), std[:P])
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
         measured = prob.per_run(prob.Z)
         modelled = prob.per_run(prob.Z - ev.nu)
@@ -334,6 +343,8 @@ class FEM(Estimator):
             "colour_passes": passes,
             "wall_time": wall,
         }
+        if prior is not None:
+            info["prior"] = prior
         return IdentificationResult(
             # the profile keeps its a priori derivatives; its [process_noise] holds the fitted F, so
             # that identified_profile() starts the next fit (refine's nested fits) from it
