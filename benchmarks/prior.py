@@ -118,6 +118,18 @@ def report(prof, truth, declared, results, wrong, wall) -> dict:
     p = out["poorly_identified"]
     if p["median_rel_error_without"]:
         p["ratio"] = p["median_rel_error_with"] / p["median_rel_error_without"]
+        # per derivative: the ratio a prior of its std can give is 1 / sqrt(1 + (data std / prior std)^2)
+        p["by_derivative"] = {m: {"ratio": float(np.median(scaled1[poor[:, j], j]) / np.median(scaled0[poor[:, j], j])),
+                                  "median_rel_std_without": float(np.median(rel0[poor[:, j], j])),
+                                  "prior_rel_std": declared[m]["std"] / abs(true[j])}
+                              for j, m in enumerate(names) if poor[:, j].any()}
+    # the well-identified estimates the prior moved by over half a std: toward the truth or away
+    far = good & (moved > 0.5)
+    g = out["well_identified"]
+    g["moved_over_half"] = {m: int(c) for m, c in zip(names, far.sum(0)) if c}
+    if far.any():
+        g["moved_error_without_std"] = float(np.sqrt(np.mean(((th0 - true) / sd0)[far] ** 2)))
+        g["moved_error_with_std"] = float(np.sqrt(np.mean(((th1 - true) / sd0)[far] ** 2)))
     for name in wrong:
         j = names.index(name)
         recs = [r[name][2] for r in results]
@@ -152,6 +164,13 @@ def main(realisations: int, wrong: list[str]) -> dict:
     print(f"well identified (rel. std < {GOOD:.0%}): {g['count']} estimates moved by the prior "
           f"|with - without| / std: median {g['moved_median']:.3f}, 95 % {g['moved_p95']:.3f}, max {g['moved_max']:.3f}, "
           f"share > 0.5: {g['share_over_half']:.3f}")
+    for m, v in p.get("by_derivative", {}).items():
+        print(f"  {m}: error ratio {v['ratio']:.2f} (median rel. std without the prior {v['median_rel_std_without']:.0%}, "
+              f"prior {v['prior_rel_std']:.0%})")
+    if g.get("moved_over_half"):
+        print(f"  moved by over half a std: {', '.join(f'{k} x{v}' for k, v in g['moved_over_half'].items())}; their "
+              f"RMS error in stds without the prior {g['moved_error_without_std']:.2f}, with {g['moved_error_with_std']:.2f} "
+              f"(a correlated poorly identified derivative pinned by its prior pulls them)")
     print(f"RMS of (estimate - truth) / std: {out['rms_z_with']:.3f} with the prior "
           f"({out['rms_z_without']:.3f} without)")
     print(f"conflict said with the honest prior (false alarms): {out['false_alarms_honest_prior']:.1%} of realisations")

@@ -172,9 +172,11 @@ def combine(term: PriorTerm, theta_d: np.ndarray, cov_d: np.ndarray, info_d: np.
     A = np.linalg.pinv(M + np.diag(prec), hermitian=True)
     C = np.where(np.outer(ok, ok), cov_d, 0.0)
     theta = A @ (M @ np.where(ok, theta_d, 0.0) + prec * np.nan_to_num(term.mean))
-    free = ~ok & ~term.has  # neither the data nor the prior: the data-only value stays
+    D = A @ M @ C @ M @ A
+    free = ~ok & ~term.has  # neither the data nor the prior: the data-only value stays, not determined
     theta[free] = theta_d[free]
-    return theta, A, A @ M @ C @ M @ A
+    D[free, :], D[:, free] = np.nan, np.nan
+    return theta, A, D
 
 
 # -- reporting ------------------------------------------------------------------------------------

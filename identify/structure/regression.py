@@ -1,24 +1,23 @@
-"""Stepwise regression of one equation-error problem: multivariate orthogonal functions ranked by
-predicted squared error, then partial-F stepwise regression.
+"""Stepwise regression of one equation-error problem: candidates ranked as multivariate orthogonal
+functions, entered and removed by partial F, with the predicted squared error (PSE) as stopping rule.
 
 The methods are those of NASA SIDPAC as Morelli & Klein describe them (*Aircraft System
 Identification*, ch. 5): the dependent variable ``y`` (a state derivative or a non-dimensional
 coefficient, minus its known part) is regressed on a pool of named columns.
 
-1. **Orthogonal functions.** The pool is made mutually orthogonal one column at a time, each step
-   taking the column whose orthogonal part ``q`` (what the terms already chosen cannot explain)
-   removes most of the squared error, ``(q.y)^2 / (q.q)``. Ranked so, the model of the first ``k``
-   functions has the residual sum of squares ``SSE_k`` at once, and the number kept minimises the
-   predicted squared error ``PSE_k = SSE_k / N + sigma_max^2 k / N`` with ``sigma_max^2`` the
-   variance of ``y`` (the largest model error a model could make: one with no term). A term that
-   lowers the fit error by less than this penalty does not enter.
-2. **Stepwise regression.** From that model: *backward*, the term with the smallest partial F
-   below ``f_out`` leaves; *forward*, the candidate that removes most of the remaining squared
-   error enters if its partial F exceeds ``f_in`` and the PSE falls; repeated until nothing moves.
-   The partial F of a term is ``theta^2 / var(theta)`` with ``var`` corrected for coloured residuals
-   (Morelli & Klein's ``(X^T X)^-1 X^T R X (X^T X)^-1``, R the Toeplitz matrix of each block's
-   residual autocorrelation): the residuals of smoothed derivatives are always coloured, and the
-   white-residual F would let every small term in.
+1. **Orthogonal functions.** The candidates are made mutually orthogonal, and orthogonal to the
+   declared model, one at a time, each step taking the candidate whose orthogonal part ``q`` (what
+   the terms already in cannot explain) removes most of the squared error, ``(q.y)^2 / (q.q)``: the
+   ranking (:func:`orthogonal_ranking`), and the order in which they are offered to step 2.
+2. **Stepwise regression.** From the a priori (declared) model: *backward*, the term with the
+   smallest partial F below ``f_out`` leaves; *forward*, the candidate that removes most of the
+   remaining squared error enters if its partial F exceeds ``f_in`` *and* the predicted squared
+   error ``PSE = SSE / N + sigma_max^2 p / N`` falls (``sigma_max^2`` the variance of ``y``: the
+   error of a model with no term, so a term must remove more than that much squared error to pay
+   for itself); repeated until nothing moves. The partial F of a term is ``theta^2 / var(theta)``
+   with ``var`` corrected for coloured residuals (Morelli & Klein's ``(X^T X)^-1 X^T R X
+   (X^T X)^-1``, R the Toeplitz matrix of each block's residual autocorrelation): the residuals of
+   smoothed derivatives are always coloured, and the white-residual F would let every small term in.
 
 The per-run, per-equation zero shifts (trim, sensor bias) are nuisance: projected out of ``y`` and
 of every column before anything else (the Frisch-Waugh theorem: estimates and residuals are those

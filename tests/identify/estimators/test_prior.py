@@ -100,3 +100,15 @@ def test_ls_mixed_estimation_between_data_and_prior(hover):
     assert wide == pytest.approx(data.theta[j], abs=0.01 * data.std[j])
     assert tight == pytest.approx(centre, abs=0.01 * data.std[j])
     assert data.theta[j] < equal < centre
+
+
+def test_refine_candidates_carry_the_prior_and_added_effects_have_none(hover):
+    from identify.estimators.prior import prior_term
+    from identify.refine.candidates import _add
+
+    prof, _ = hover
+    p = _with_prior(prof, {"M_q": {"value": -0.5, "std": 0.05}})
+    extended = _add(p, free={"M_v": 0.0})
+    term = prior_term(extended)
+    assert extended.prior == p.prior
+    assert term.has[term.names.index("M_q")] and not term.has[term.names.index("M_v")]
