@@ -54,6 +54,24 @@ def test_make_compare_and_plot(tmp_path, capsys):
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_make_orthogonal_multisines_on_two_inputs(tmp_path, capsys):
+    out, csv = tmp_path / "ms.json", tmp_path / "ms.csv"
+    status, stdout, err = cli(capsys, "make", "multisine", "--input", "theta_s,theta_c", "--band", "0.5,5",
+                              "--duration", "10", "--out", out, "--csv", csv)
+    assert status == 0, err
+    rpf = [float(line.rsplit(" ", 1)[1]) for line in stdout.splitlines() if "relative peak factor" in line]
+    assert len(rpf) == 2 and max(rpf) <= 1.15
+    a, b = load_signals(out)
+    assert (a.input, b.input) == ("theta_s", "theta_c") and a.params["phases"] == "optimised"
+    assert set(a.params["harmonics"]).isdisjoint(b.params["harmonics"])
+    assert csv.read_text().splitlines()[2] == "time,theta_s,theta_c"
+    status, stdout, err = cli(capsys, "make", "multisine", "--input", "theta_s,theta_c", "--profile", "bo105_70kt",
+                              "--duration", "20", "--phases", "schroeder", "--out", out)
+    assert status == 0 and "band from the profile" in stdout and "schroeder phases" in stdout, err
+    one_line(capsys, ["make", "3211", "--width", "1", "--input", "theta_s,theta_c", "--out", out],
+             "several inputs")
+
+
 def test_design_command_writes_a_flyable_signal_within_the_limits(tmp_path, capsys):
     out = tmp_path / "opt.json"
     status, stdout, stderr = cli(capsys, "design", "--profile", "s61_hover_8state", "--input", "theta_s",
