@@ -63,7 +63,7 @@ def _designer(inputs, args, progress=None) -> SequenceDesign:
     return SequenceDesign(inputs, args.duration, args.record, args.amplitude, args.dt, args.grid, args.min_pulse,
                           args.max_changes, not args.no_double_jumps, args.criterion,
                           reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress,
-                          jobs=getattr(args, "jobs", None))
+                          jobs=getattr(args, "jobs", None), certify=args.certify)
 
 
 def cmd_design(args) -> int:
@@ -232,6 +232,9 @@ def build_parser() -> Parser:
     p.add_argument("--jobs", type=positive_int, metavar="N",
                    help="worker processes for the search's restarts (default: the available CPUs, at most "
                         "the restarts); the design is the same for any N")
+    p.add_argument("--certify", choices=("full", "quick"), default="full",
+                   help="the certificate's upper bound: full (default; the semidefinite relaxation solved to "
+                        "within a few log det units, about 10-40 s per model) or quick (valid, looser, seconds)")
     p.add_argument("--out", type=output_file, metavar="JSON", help="write the optimised signal here")
     p.add_argument("--plot", type=output_file, metavar="PNG", help="draw it against the best 3211 with spectra and the band")
     _record_options(p)

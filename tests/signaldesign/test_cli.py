@@ -79,7 +79,7 @@ def test_design_command_writes_a_flyable_signal_within_the_limits(tmp_path, caps
                                  "--criterion", "nominal", "--jobs", "2", "--out", out, "--plot", tmp_path / "d.png")
     assert status == 0, stderr
     for label in ("doublet, best width", "3211, best width", "multisine", "PRTS", "optimised",
-                  "equal peak response", "BINDS", "limits: the profile's [limits]"):
+                  "equal peak response", "BINDS", "limits: the profile's [limits]", "certified D-efficiency"):
         assert label in stdout, label
     assert "designing [" in stderr  # the progress bar
     assert json.loads(out.read_text())["format"] == "pseudostep-signal/1"
@@ -96,6 +96,9 @@ def test_two_axis_design_reports_information_per_second(capsys):
                                  "--criterion", "nominal")
     assert status == 0, stderr
     assert "information per second of flight" in stdout and "one run per axis" in stdout
+    (cert,) = [line for line in stdout.splitlines() if line.startswith("certified D-efficiency")]
+    value = float(cert.split()[3 if ">=" in cert else 2])
+    assert 0 < value <= 1, cert
 
 
 def _profile_with_limits(tmp_path, limits: str):
