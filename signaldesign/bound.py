@@ -70,7 +70,7 @@ class Effort:
     row_work: float = 2e7  # all 3200 rows up to K = 80
 
 
-EFFORTS = {"full": Effort(), "quick": Effort((100.0,), 40, (1, 4, 16), 10, 5)}
+EFFORTS = {"full": Effort(), "quick": Effort((100.0,), 30, (1, 4), 8, 3)}
 
 
 @dataclass
