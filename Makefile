@@ -40,6 +40,7 @@ BENCH_ARGS_filter_error_starts := 5
 BENCH_ARGS_frequency := --quick
 BENCH_ARGS_frequency_fit := --realisations 10
 BENCH_ARGS_ml_long_record := 0.25
+BENCH_ARGS_multisine_design := --mc 10 --quick-design --cases s61_hover_8state
 BENCH_ARGS_paper_s61 := --seeds 1
 BENCH_ARGS_prior := 20
 BENCH_ARGS_refine_blind := --cases two_effects,small_Xde,null_s61
