@@ -47,6 +47,7 @@ BENCH_ARGS_refine_coloured := 10
 BENCH_ARGS_refine_fr := 6
 BENCH_ARGS_refine_speed := 1
 BENCH_ARGS_signal_design := --mc 20 --seeds 1 --durations 7
+BENCH_ARGS_structure := 2
 # always: filter_error's resumable store goes to benchmarks/output/, never the working directory
 BENCH_ALWAYS_filter_error := --save benchmarks/output/filter_error/filter_error_mc.jsonl
 bench_args = $(if $(BENCH_FULL),,$(BENCH_ARGS_$(1))) $(BENCH_ALWAYS_$(1))

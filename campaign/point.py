@@ -93,6 +93,10 @@ def _identify(task: dict) -> dict:
            "identified_profile": final.to_toml(), "refine_steps": steps,
            "fit_error": prediction_error(final, prepare(final, runs))}
     out["validation_error"] = prediction_error(final, prepare(final, held)) if held else None
+    prior = result.info.get("prior")
+    if prior:  # a priori weighting: where the prior decided, and any conflict
+        out["prior"] = {"decided_by_prior": prior["decided_by_prior"], "conflict": prior["conflict"],
+                        "data_share": {n: v["data_share"] for n, v in prior["parameters"].items()}}
     return out
 
 

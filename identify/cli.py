@@ -89,6 +89,7 @@ def build_parser() -> Parser:
     p.set_defaults(func=cmd_model)
     _add_estimate_parser(sub)
     _add_refine_parser(sub)
+    _add_structure_parser(sub)
     _add_freq_parser(sub)
     _add_compat_parser(sub)
     _add_hq_parsers(sub)
@@ -292,11 +293,17 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
     p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
     p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+    p.add_argument("--prior-relative", type=positive_float, metavar="PCT",
+                   help="a priori weighting: every free parameter's a priori value is a prior with std PCT %% of "
+                        "it (at least PCT %% of a tenth of the largest of its equation's parameters of the same unit)")
+    p.add_argument("--prior", metavar="FILE", help="a priori weighting: a previous result.json (or a profile with "
+                   "meta.std): its estimates and stds become the prior (over the profile's [prior])")
 
 
 def _profile(args):
     """The a priori profile, with ``--free``, ``--fix`` and ``--outputs`` applied (each said)."""
     from .model import subset
+    from .model.prior import prior_options
 
     profile = load_profile(args.profile)
     for option, change in (("free", subset.free), ("fix", subset.fix), ("outputs", subset.with_outputs)):
@@ -304,6 +311,9 @@ def _profile(args):
             profile = change(profile, getattr(args, option))
             print(f"--{option} {getattr(args, option)}: {len(profile.free)} free parameters, "
                   f"outputs {', '.join(profile.outputs)}", file=sys.stderr)
+    profile, lines = prior_options(profile, getattr(args, "prior_relative", None), getattr(args, "prior", None))
+    for line in lines:
+        print(line, file=sys.stderr)
     return profile
 
 
@@ -333,7 +343,8 @@ def cmd_refine(args) -> int:
     profile = _profile(args)
     refiner = Refine(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
                      kinds=kinds, max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts,
-                     frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True)
+                     frequencies=args.frequency, f_min=args.f_min, tau_max=args.tau_max, progress=True,
+                     prune=_pruner() if args.backward else None)
     fit_runs = [_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)]
     held_out = [_trimmed(r, args.trim, profile) for r in _read_runs(args.validate or [], args.channel_map, profile, args)]
     refiner.fit(fit_runs, validate=held_out)
@@ -344,6 +355,8 @@ def cmd_refine(args) -> int:
         print(f"step {i}: {s.effect} on {s.target}: {params} (score {s.statistic:.4g} > {s.threshold:.4g})")
     for s in refiner.rejected_:
         print(f"rejected: {s.effect} on {s.target}: {s.reason}")
+    for d in refiner.pruned_:
+        print(f"prune: {d.term} {'fixed at 0' if d.action == 'dropped' else 'kept'} (|t| = {d.statistic:.2f}; {d.note})")
     if refiner.unconverged_:
         print(f"warning: {len(refiner.unconverged_)} fit(s) inside refine did not converge "
               f"(listed in report.md): {refiner.unconverged_[0]}")
@@ -388,7 +401,74 @@ def _add_refine_parser(sub) -> None:
                    help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
     p.add_argument("--f-min", type=nonnegative_float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
     p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
+    p.add_argument("--prune", dest="backward", action="store_true",
+                   help="a last step of backward elimination: fix at 0, one at a time, the parameters within 2 "
+                        "std of zero whose removal does not raise the held-out error (identify structure)")
     p.set_defaults(func=cmd_refine)
+
+
+def _pruner():
+    from .structure.prune import Prune
+
+    return Prune()
+
+
+def cmd_structure(args) -> int:
+    """Which parameters the data support and which terms they ask for: stepwise regression in
+    equation error, then backward elimination in output error; the decisions and the final profile."""
+    from .structure.report import write
+    from .structure.search import StructureSearch
+
+    profile = _profile(args)
+    knots = _knots(args.knots)
+    search = StructureSearch(profile, estimator=_estimator(args, profile, show_progress=False), alpha=args.alpha,
+                             candidates=not args.no_candidates, nonlinear=_names(args.nonlinear), knots=knots,
+                             level=args.level, tolerance=args.tolerance, confirm=not args.equation_error_only,
+                             progress=True)
+    fit_runs = [_trimmed(r, args.trim, profile) for r in _read_runs(args.runs, args.channel_map, profile, args)]
+    held_out = [_trimmed(r, args.trim, profile) for r in _read_runs(args.validate or [], args.channel_map, profile, args)]
+    search.fit(fit_runs, validate=held_out)
+    print(search.summary())
+    if getattr(search, "unconverged_", None):
+        print(f"warning: {len(search.unconverged_)} fit(s) did not converge: {search.unconverged_[0]}")
+    out = write(search, args.out)
+    print(f"written to {out}: structure.json, final_profile.toml")
+    return 0
+
+
+def _knots(text: str | None) -> dict[str, list[float]]:
+    """``--knots alpha=0.1,0.2;w=3`` -> {"alpha": [0.1, 0.2], "w": [3.0]}."""
+    out = {}
+    for part in filter(None, (p.strip() for p in (text or "").split(";"))):
+        name, _, values = part.partition("=")
+        try:
+            out[name.strip()] = [float(v) for v in values.split(",") if v.strip()]
+        except ValueError:
+            raise EstimationError(f"--knots: not numbers in {part!r} (write name=k1,k2;other=k)") from None
+        if not name.strip() or not out[name.strip()]:
+            raise EstimationError(f"--knots: {part!r} is not name=k1,k2")
+    return out
+
+
+def _add_structure_parser(sub) -> None:
+    p = sub.add_parser("structure", help="model structure determination: which parameters the data support, "
+                                         "which terms they ask for (stepwise regression, then output error)")
+    _add_common_options(p, "run files to fit", default_method="ml")
+    p.add_argument("--validate", nargs="+", metavar="RUN",
+                   help="held-out runs the output-error removals are judged on (default: half of each run)")
+    p.add_argument("--alpha", type=fraction, default=0.05,
+                   help="stepwise regression's level: partial F to stay per term, to enter for the family of "
+                        "candidates (default 0.05)")
+    p.add_argument("--no-candidates", action="store_true", help="do not try undeclared A/B entries")
+    p.add_argument("--nonlinear", metavar="LIST",
+                   help="channels whose squares, x|x|, splines and pairwise products are candidates")
+    p.add_argument("--knots", metavar="SPEC", help="spline knots of --nonlinear channels: 'alpha=0.1,0.2;w=3'")
+    p.add_argument("--level", type=positive_float, default=2.0,
+                   help="|estimate|/std below which output error calls a parameter unsupported (default 2)")
+    p.add_argument("--tolerance", type=nonnegative_float, default=0.01,
+                   help="relative rise of the held-out error a removal may cause (default 0.01)")
+    p.add_argument("--equation-error-only", action="store_true", help="stop after the equation-error pass")
+    p.set_defaults(func=cmd_structure)
 
 
 def cmd_freq(args) -> int:

@@ -1,6 +1,8 @@
 """``python -m signaldesign``: frequency band, signal design, baselines, comparison, plots."""
 from __future__ import annotations
 
+import sys
+
 from dataclasses import replace
 
 from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_float, output_file, positive_float,
@@ -28,7 +30,14 @@ def _floats(text: str, what: str) -> list[float]:
 def _model(args) -> LinearModel:
     if hasattr(args, "dt"):
         check_record(args.record, args.dt)  # --dt 0 is one line, before any work
-    return LinearModel(load_profile(args.profile))
+    profile = load_profile(args.profile)
+    if getattr(args, "prior_relative", None):  # design: the prior's information with the flight's
+        from identify.model.prior import prior_options
+
+        profile, lines = prior_options(profile, args.prior_relative)
+        for line in lines:
+            print(line, file=sys.stderr)
+    return LinearModel(profile)
 
 
 def cmd_band(args) -> int:
@@ -62,7 +71,8 @@ def _designer(inputs, args, progress=None) -> SequenceDesign:
     return SequenceDesign(inputs, args.duration, args.record, args.amplitude, args.dt, args.grid, args.min_pulse,
                           args.max_changes, not args.no_double_jumps, args.criterion,
                           reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress,
-                          jobs=getattr(args, "jobs", None))
+                          jobs=getattr(args, "jobs", None),
+                          prior=bool(getattr(args, "with_prior", False) or getattr(args, "prior_relative", None)))
 
 
 def cmd_design(args) -> int:
@@ -208,6 +218,12 @@ def build_parser() -> Parser:
                         "(each against the 3211 tuned on it), at least 1.22x the best tuned 3211/doublet on "
                         "the a priori; mean: expected log det only; worst: worst D-efficiency only; "
                         "nominal: the a priori only")
+    p.add_argument("--with-prior", action="store_true",
+                   help="maximise what the flight adds to the profile's [prior]: log det of the prior's "
+                        "information plus the flight's (criterion nominal or mean)")
+    p.add_argument("--prior-relative", type=positive_float, metavar="PCT",
+                   help="--with-prior with every free parameter's a priori value a prior of std PCT %% "
+                        "(identify's --prior-relative)")
     p.add_argument("--jobs", type=positive_int, metavar="N",
                    help="worker processes for the search's restarts (default: the available CPUs, at most "
                         "the restarts); the design is the same for any N")

@@ -94,7 +94,7 @@ class SequenceDesign:
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
                  draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20,
-                 nominal_kicks: int = 20, jobs: int | None = None):
+                 nominal_kicks: int = 20, jobs: int | None = None, prior: bool = False):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -106,6 +106,7 @@ class SequenceDesign:
         self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
         self.kicks, self.nominal_kicks, self.jobs = kicks, nominal_kicks, jobs
+        self.prior = prior
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -152,6 +153,7 @@ class SequenceDesign:
         ev = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, limits=self.limits)
         default_limits(ev, self.duration, self.amplitude if self.amplitude is not None else self.reference_amplitude,
                        self.min_pulse)
+        prior_information = self._prior_information(model, ev)  # checked before any work
         models, labels = self._model_set(model)
         basis = StepBasis(ev, self.grid, K, self.delay, models)
         offsets = None
@@ -175,11 +177,14 @@ class SequenceDesign:
         objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets,
                               weights=prior_weights(len(models), self.apriori_weight),
                               worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
-                              stride=2)
+                              stride=2, prior_information=prior_information)
         result, gap = self._search(objective, fly, starts)
         exact = objective.exact()
-        self.bound_ = objective_bound(exact, result.levels, jobs=self._jobs())
-        self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
+        if objective.prior_information is None:
+            self.bound_ = objective_bound(exact, result.levels, jobs=self._jobs())
+            self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
+        else:  # the relaxation's bound rests on log det's scale invariance, which the prior breaks
+            self.bound_, self.gap_ = None, gap if gap is not None else float("nan")
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
             raise DesignError("the designed sequence moves no output that has a response limit")
@@ -212,6 +217,20 @@ class SequenceDesign:
         self.seconds_ = time.perf_counter() - t0
         self.cpu_seconds_ = _cpu_seconds() - c0  # this process and its workers: the machine may be shared
         return self
+
+    def _prior_information(self, model, ev) -> np.ndarray | None:
+        """With ``prior``: the profile's prior information ``diag(1 / std^2)`` over the scored
+        parameters (0 where a parameter has none); the criterion must be one without per-model
+        yardsticks (nominal or mean: the yardsticks are informations without the prior)."""
+        if not self.prior:
+            return None
+        if self.criterion not in ("nominal", "mean"):
+            raise DesignError(f"a design with the prior's information needs the criterion nominal or mean "
+                              f"(not {self.criterion}: its yardsticks are designs without the prior)")
+        table = model.profile.prior
+        if not table:
+            raise DesignError(f"{model.profile.source}: the profile declares no [prior] to design with")
+        return np.diag([1 / table[n]["std"] ** 2 if n in table else 0.0 for n in ev.names])
 
     def _model_set(self, model):
         if self.criterion == "nominal":
@@ -273,8 +292,13 @@ class SequenceDesign:
         res = self.result_
         how = ("exhaustive: exact optimum among flyable sequences, gap 0" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
-               f"of each other in the criterion; upper bound {self.bound_.value:.2f} (continuous relaxation), "
-               f"gap {self.gap_:.2f}: D-efficiency at least {self.efficiency_bound_:.3f} of the optimum's")
+               f"of each other in the criterion; " + (
+                   "no upper bound with the prior's information (the relaxation's bound needs log det's "
+                   "scale invariance)" if self.bound_ is None else
+                   f"upper bound {self.bound_.value:.2f} (continuous relaxation), gap {self.gap_:.2f}: "
+                   f"D-efficiency at least {self.efficiency_bound_:.3f} of the optimum's"))
+        if self.prior:
+            how += "; the criterion: log det of the prior's information plus the flight's at the amplitude flown"
         floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
                  and self.amplitude is None else "")
         if floor and self.nominal_gain_ < self.nominal_margin * (1 - 1e-6):

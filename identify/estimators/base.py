@@ -66,6 +66,7 @@ from ..errors import EstimationError
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, held_line, unflown_parameters
+from .prior import combined_with_prior
 from .result import IdentificationResult
 
 MIN_SAMPLES = 10
@@ -102,6 +103,9 @@ class Estimator:
     simulates_state_terms = False
     builds_state_terms = False
     progress_quantity = "value"
+    # whether the fit itself weighs the profile's [prior] (its residuals in the cost); else ``fit``
+    # combines the prior with the data's estimate afterwards (identify.estimators.prior.combine)
+    weighs_prior = False
 
     def __init__(self, profile: Profile | str | Path):
         self.profile = profile
@@ -115,6 +119,8 @@ class Estimator:
             self.result_ = self._fit_holding(runs, unflown)
         else:
             self.result_ = self._fit(runs)
+        if not self.weighs_prior:  # the profile's [prior], combined with the data's estimate
+            self.result_ = combined_with_prior(self.result_, self.profile_)
         from ..data.provenance import provenance
 
         self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates

@@ -21,6 +21,7 @@ import numpy as np
 from ..model.linear import LinearModel, format_modes
 from ..model.profile import Profile
 from . import identifiability
+from .prior import summary_lines as prior_summary_lines
 from .whiteness import whiteness_line
 
 
@@ -258,6 +259,8 @@ class IdentificationResult:
         lines += _noise_lines(self.info)
         if self.info.get("estimator_advice"):
             lines.append(f"note: {self.info['estimator_advice']}")
+        if self.info.get("prior"):
+            lines += prior_summary_lines(self.info["prior"])
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
@@ -315,7 +318,7 @@ class IdentificationResult:
             "profile": self.profile.name,
             "runs": self.runs,
             "converged": self.converged,
-            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a)}
+            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a), **_prior_of(self.info, n)}
                            for n, v, s, a in zip(self.names, self.theta, self.std, self.apriori)},
             "correlation": {"names": self.names, "matrix": self.correlation},
             "identifiability": check,
@@ -384,6 +387,14 @@ def _not_determined_lines(reasons: dict) -> list[str]:
     for name, why in reasons.items():
         grouped.setdefault(why, []).append(name)
     return [f"not determined: {', '.join(names)}: {why}" for why, names in grouped.items()]
+
+
+def _prior_of(info: dict, name: str) -> dict:
+    """A parameter's prior and data share for result.json (the estimate is the posterior), or nothing."""
+    entry = (info.get("prior") or {}).get("parameters", {}).get(name)
+    if not entry:
+        return {}
+    return {"prior": entry["prior"], "data_share": entry["data_share"], "decided_by_prior": entry["decided_by_prior"]}
 
 
 def _noise_lines(info: dict) -> list[str]:

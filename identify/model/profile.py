@@ -26,6 +26,8 @@ What flight-test models need besides the matrices (every table optional)::
     [biases]               # constant state-equation biases, free parameters <equation>_one on the
     L = 0.0                # constant pseudo-input ``one`` (as refine writes them)
     input_hold = "linear"  # (top level) inputs between samples: "held" (default) or "linear"
+    [prior]                # a priori weighting: parameter = std around its [free] value, or
+    M_q = 0.4              # { value = ..., std = ... } (see identify.model.prior)
 
 A run's metadata ``input_hold`` overrides the profile's for that run (filter-error method).
 """
@@ -39,12 +41,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..errors import ProfileError, read_text
+from .prior_table import parse_prior, prior_toml_lines
 
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
 _KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_defs", "free",
                "fixed", "ties", "meta", "limits", "process_noise", "initial_state", "zero_shifts", "biases",
-               "input_hold"}
+               "input_hold", "prior"}
 VELOCITY_STATES = ("u", "v", "w")  # the equations turbulence drives: the default process noise
 INPUT_HOLDS = ("held", "linear")
 BIAS_INPUT = "one"  # the constant pseudo-input of state-equation biases (refine's name too)
@@ -84,6 +87,8 @@ class Profile:
     initial_state: dict[str, float] = field(default_factory=dict)
     zero_shifts: dict[str, dict] = field(default_factory=dict)
     input_hold: str = "held"
+    # a priori weighting {free parameter: {"value": centre, "std": std}} (identify.model.prior)
+    prior: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def __post_init__(self):
         _validate(self)
@@ -185,6 +190,7 @@ class Profile:
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_toml_value(v)}" for k, v in rows.items()]
+        lines += prior_toml_lines({k: v for k, v in self.prior.items() if k in self.free})
         return "\n".join(lines) + "\n"
 
     def save(self, path: str | Path) -> Path:
@@ -259,14 +265,15 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
     for key in ("name", "states", "inputs", "outputs"):
         if key not in data:
             raise ProfileError(f"{source}: missing '{key}'")
-    data = _with_biases(data, source)
+    data = _with_coefficient_ties(_with_biases(data, source), source)
+    free = _numbers(data.get("free", {}), "free", source)
     return Profile(
         name=_require(str, data["name"], "name", source),
         description=_require(str, data.get("description", ""), "description", source),
         states=_units(data["states"], "states", source),
         inputs=_units(data["inputs"], "inputs", source),
         outputs=tuple(_require(str, y, "outputs", source) for y in _require(list, data["outputs"], "outputs", source)),
-        free=_numbers(data.get("free", {}), "free", source),
+        free=free,
         fixed=_numbers(data.get("fixed", {}), "fixed", source),
         ties={k: _numbers(v, f"ties.{k}", source) for k, v in _require(dict, data.get("ties", {}), "ties", source).items()},
         output_defs={k: _numbers(v, f"output_defs.{k}", source)
@@ -279,6 +286,7 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
         zero_shifts={k: _zero_shift(k, v, source)
                      for k, v in _require(dict, data.get("zero_shifts", {}), "zero_shifts", source).items()},
         input_hold=_require(str, data.get("input_hold", "held"), "input_hold", source),
+        prior=parse_prior(data.get("prior", {}), free, source),
     )
 
 
@@ -295,6 +303,23 @@ def _with_biases(data: dict, source: str) -> dict:
     data["meta"] = meta
     data["free"] = {**data.get("free", {}), **{f"{eq}_{BIAS_INPUT}": v for eq, v in biases.items()}}
     return data
+
+
+def _with_coefficient_ties(data: dict, source: str) -> dict:
+    """A coefficient-form profile's coefficient derivatives (``C_m_alpha``) as ties onto their
+    dimensional entries at the reference condition (:mod:`identify.model.coefficients`)."""
+    from . import coefficients
+
+    table = coefficients.spec(_require(dict, data.get("meta", {}), "meta", source), source)
+    if table is None:
+        return data
+    names = list(data.get("free", {})) + list(data.get("fixed", {}))
+    existing = _require(dict, data.get("ties", {}), "ties", source)
+    try:
+        made = coefficients.ties(names, data["states"], data["inputs"], table, existing)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProfileError(f"{source}: meta.coefficients: {exc}") from None
+    return {**data, "ties": {**made, **existing}}
 
 
 def _zero_shift(output: str, spec, source: str) -> dict:

@@ -73,7 +73,9 @@ class Refine:
     used by every fit and test (default: the estimator's own choice for the declared model,
     :meth:`~identify.estimators.base.Estimator.prediction_segment`); ``coloured``: the tests in
     the metric of a noise model fitted to the residuals (True) or for white residuals (False, the
-    classical tests); ``progress``: print step, candidate and elapsed time on stderr.
+    classical tests); ``progress``: print step, candidate and elapsed time on stderr; ``prune``: a
+    last step of backward elimination (an object with ``run(fitting, profile, result, say)`` returning
+    the pruned profile, its result and the decisions, :class:`identify.structure.prune.Prune`).
 
     After ``fit``: ``steps_`` (accepted :class:`Step` s), ``rejected_`` (candidates that passed the
     score test but failed a later check), ``tries_``, ``stopped_`` (the reason the loop ended),
@@ -81,14 +83,16 @@ class Refine:
     ``initial_result_``, ``error_before_``/``error_after_`` ({"fit", "choosing", "validation"}),
     ``data_`` (which runs fitted, chose and judged), ``runs_``/``validation_runs_`` (the runs),
     ``diagnostics_``, ``last_scores_`` (the last round's :class:`ScoreTest` s), ``fitting_`` (the
-    :class:`~identify.refine.fitting.Fitting` of the loop), ``estimator_`` (the instance used).
+    :class:`~identify.refine.fitting.Fitting` of the loop), ``estimator_`` (the instance used),
+    ``pruned_`` (the backward elimination's decisions).
     """
 
     def __init__(self, profile: Profile | str | Path, estimator=None, alpha: float = 0.01, kinds=KINDS,
                  max_steps: int = 6, zero_shifts: bool = True, frequencies=None, f_min: float = 0.5,
                  tau_max: float = 0.5, nonlinear_products: bool = True, segment=None, coloured: bool = True,
-                 progress: bool = False, verbose: bool = False):
+                 progress: bool = False, verbose: bool = False, prune=None):
         self.profile = profile
+        self.prune = prune
         self.estimator = estimator
         self.alpha, self.kinds, self.max_steps = alpha, kinds, max_steps
         self.zero_shifts = zero_shifts
@@ -135,6 +139,9 @@ class Refine:
         ev0 = self.fitting_.prediction(current)
         diag = {"before": dg.summary(ev0.residuals, times, self.fitting_.dt, self.f_min, current.outputs)}
         current, result = self._loop(current, est)
+        self.pruned_ = []
+        if self.prune is not None:  # backward elimination, any object with run(fitting, profile, result, say)
+            current, result, self.pruned_ = self.prune.run(self.fitting_, current, result, self._say)
         self.profile_, self.result_ = current, result
         if self.undeterminable_:
             result.info["undeterminable"] = dict(self.undeterminable_)

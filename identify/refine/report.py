@@ -2,7 +2,8 @@
 
 ``refine.json`` holds ``steps`` (each with ``effect``, ``target``, ``parameters`` {name: {value,
 std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``error_before``,
-``error_after``), the ``rejected`` candidates with the reason, top-level ``error_before`` /
+``error_after``), the ``rejected`` candidates with the reason, ``pruned`` (``--prune``: the
+backward elimination's decisions, :class:`identify.structure.prune.Prune`), top-level ``error_before`` /
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
 ``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
 the declared model's fit and of the refined model against the fit runs' frequency responses, per
@@ -38,6 +39,7 @@ def to_dict(r: Refine) -> dict:
         "noise_model_orders": r.noise_orders_,
         "noise_model_white": r.noise_white_,
         "tries": r.tries_,
+        "pruned": [vars(d) for d in getattr(r, "pruned_", [])],
         "evaluations": r.evaluations_,
         "catalogue": list(r.kinds_),
         "unconverged_fits": r.unconverged_,
@@ -163,6 +165,12 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
         lines += ["", "## Rejected candidates", ""]
         for s in r.rejected_:
             lines += [f"### {s.effect} on {s.target}: {s.reason}", ""] + _evidence(s) + [""]
+    if getattr(r, "pruned_", None):
+        lines += ["", "## Backward elimination (--prune)", "",
+                  "| parameter | decision | abs(estimate)/std | held-out error before | after | why |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        lines += [f"| {d.term} | {'fixed at 0' if d.action == 'dropped' else 'kept'} | {d.statistic:.3g} | "
+                  f"{d.before:.4g} | {d.after:.4g} | {d.note} |" for d in r.pruned_]
     lines += ["", "## Residual diagnostics", "",
               "| output | Ljung-Box p before | after | trend t before | after | peak Hz / p before | after |",
               "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]

@@ -92,6 +92,8 @@ class _Innovations:
         G = prob.G
         in_S = 0.5 * prob.N * np.einsum("iab,jba->ij", SdS, SdS)  # the information in S (as M's)
         self.local[0, :G, :G] += in_S
+        if prob.prior is not None:  # M holds the prior's information, B (the sandwich's meat) not
+            self.local[0, np.arange(prob.p), np.arange(prob.p)] += prob.prior.precision
         noise = np.zeros(k, bool)
         noise[prob.p:G] = True
         self.extra = self.local * (noise[:, None] | noise[None, :])
@@ -137,6 +139,7 @@ class FitBounds:
     failed: str | None = None
     description: str = ""
     choice: str = ""
+    cov_white: np.ndarray | None = None  # the Cramér-Rao covariance (all unknowns)
 
 
 CRAMER_RAO = "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"
@@ -162,6 +165,7 @@ def fit_bounds(prob, ev, bounded: np.ndarray, coloured: bool | None, white: dict
             failed = f"no bound: the information matrix cannot be formed ({e})"
         if failed is None and not np.all(np.isfinite(np.diag(cov)[bounded])):
             failed = "no bound: the information matrix is not positive definite (not invertible)"
+    cov_white = cov
     std = std_white = np.sqrt(np.clip(np.diag(cov), 0, None))
     coloured_list = white.get("coloured", [])
     use = bool(coloured_list) if coloured is None else bool(coloured)
@@ -199,7 +203,7 @@ def fit_bounds(prob, ev, bounded: np.ndarray, coloured: bool | None, white: dict
     else:
         choice = "Cramér-Rao bounds: the innovations are white on every output"
     return FitBounds(std, std_white, std_col, cov, ill, acf, passes, colour_failed, failed,
-                     COLOURED if std_col is not None else CRAMER_RAO, choice)
+                     COLOURED if std_col is not None else CRAMER_RAO, choice, cov_white)
 
 
 CK_COPIES = 1 - 1e-3  # diag(C K) above this on an output: the filter copies its measurement

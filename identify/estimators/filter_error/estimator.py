@@ -18,6 +18,7 @@ from ...model.simulate import discretize, held_inputs, propagate
 from ..base import Estimator
 from ..ml import common_dt, finite_channels
 from ..output_error import pad
+from ..prior import posterior, prior_term
 from ..result import IdentificationResult, fit_metrics
 from ..whiteness import whiteness
 from .base import PROCESS_NOISE_CONVENTION, ProcessNoiseModel
@@ -59,6 +60,7 @@ class FEM(Estimator):
     """
 
     method = "fem"
+    weighs_prior = True  # the prior's residuals in the cost (identify.estimators.prior)
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
@@ -127,6 +129,7 @@ class FEM(Estimator):
                                   "terms (use the default formulation)")
         prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else \
             InnovationFilterProblem(*args) if self.formulation == "innovation" else FilterProblem(*args)
+        prob.prior = prior_term(p)  # None without one: the data alone
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
         return prob, beta, active
 
@@ -292,11 +295,17 @@ class FEM(Estimator):
         degenerate = None if innovation else degenerate_fit(p, beta[ix["r"]], sv.r_floor, np.diag(last.model.C @ last.K))
         if bd.failed:  # the information could not be formed or inverted: NaN bounds with the reason
             reasons.update({n: bd.failed for n, a in zip(prob.model0.names, bounded[:P]) if a})
+        self.covariance_ = cov[:P, :P].copy()
+        theta, f, x0, b, r = prob.unpack(beta)
+        prior = None
+        if prob.prior is not None and bd.failed is None:  # M holds the prior's information: A = (M_d + P^-1)^-1
+            A = bd.cov_white[:P, :P]
+            D = self.covariance_ if std_col is not None else A - (A * prob.prior.precision) @ A
+            self.covariance_, prior = posterior(prob.prior, theta, A, D, bounded[:P])
+            std[:P] = np.where(bounded[:P], np.sqrt(np.clip(np.diag(self.covariance_), 0, None)), std[:P])
         if degenerate:  # the derivatives' bounds are no measure of precision: said, not printed
             reasons.update({n: f"not meaningful: {degenerate}" for n, a in zip(prob.model0.names, bounded[:P]) if a})
             std[:P][bounded[:P]] = np.nan
-        self.covariance_ = cov[:P, :P].copy()
-        theta, f, x0, b, r = prob.unpack(beta)
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
         measured = prob.per_run(prob.Z)
         modelled = prob.per_run(prob.Z - last.nu)
@@ -348,6 +357,8 @@ class FEM(Estimator):
             "colour_passes": bd.passes,
             "wall_time": wall,
         }
+        if prior is not None:
+            info["prior"] = prior
         return IdentificationResult(
             # the profile keeps its a priori derivatives; its [process_noise] holds the fitted F, so
             # that identified_profile() starts the next fit (refine's nested fits) from it
