@@ -293,6 +293,9 @@ def _add_common_options(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
     p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
     p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+    p.add_argument("--turbulence", metavar="LIST", help="fem: gust states on these velocities (u,v,w; in a "
+                   "flow-angle profile w and v act on alpha and beta), corners and intensities estimated; "
+                   "sets the profile's [turbulence] states")
     p.add_argument("--prior-relative", type=positive_float, metavar="PCT",
                    help="a priori weighting: every free parameter's a priori value is a prior with std PCT %% of "
                         "it (at least PCT %% of a tenth of the largest of its equation's parameters of the same unit)")
@@ -314,6 +317,14 @@ def _profile(args):
     profile, lines = prior_options(profile, getattr(args, "prior_relative", None), getattr(args, "prior", None))
     for line in lines:
         print(line, file=sys.stderr)
+    if getattr(args, "turbulence", None):
+        from .estimators.registry import estimator_class
+        from .model.turbulence import with_turbulence
+
+        if not estimator_class(args.method).models_turbulence:
+            raise EstimationError(f"--turbulence is the filter-error method's model: use --method fem "
+                                  f"(--method {args.method} takes every misfit for measurement noise)")
+        profile = with_turbulence(profile, args.turbulence)
     return profile
 
 

@@ -100,6 +100,7 @@ class Estimator:
     """Base class: holds the profile (structure + a priori values) and checks the runs."""
 
     method = "base"
+    models_turbulence = False  # whether a profile's [turbulence] is part of the estimator's model (FEM)
     simulates_state_terms = False
     builds_state_terms = False
     progress_quantity = "value"
@@ -124,6 +125,11 @@ class Estimator:
         from ..data.provenance import provenance
 
         self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
+        if self.profile_.turbulence and not self.models_turbulence:
+            line = (f"{self.method.upper()}: the profile's [turbulence] is modelled by the filter-error method only "
+                    f"(--method fem); {self.method.upper()} took the gusts' response for measurement noise")
+            warnings.warn(line, stacklevel=2)
+            self.result_.info["turbulence_not_modelled"] = line
         return self
 
     def _fit_holding(self, runs: list[Run], unflown: dict[str, list[str]]) -> IdentificationResult:

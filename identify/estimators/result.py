@@ -407,6 +407,7 @@ def _noise_lines(info: dict) -> list[str]:
         return f"{s:.3g}" if np.isfinite(s) else "not determined"
 
     lines = [""] + ([info["process_noise_model"]] if info.get("process_noise_model") else [])
+    lines += _turbulence_lines(info.get("turbulence"))
     if info.get("r_start_choice"):
         lines.append(f"R start: {info['r_start_choice']}")
     lines.append(f"process noise F ({info['process_noise_convention']}):")
@@ -416,6 +417,21 @@ def _noise_lines(info: dict) -> list[str]:
     return lines + [f"  note: {n}: {why}" for n, why in info.get("not_determined", {}).items()
                      if n.startswith(("F of ", "R of "))]
 
+
+def _turbulence_lines(turb: dict | None) -> list[str]:
+    """The fitted gusts: corner and intensity per velocity with their bounds."""
+    if not turb:
+        return []
+
+    def pm(v, s, held=False):
+        return f"{v:.4g} (held)" if held else f"{v:.4g} ± {s:.2g}" if s is not None and np.isfinite(s) else f"{v:.4g} (bound not determined)"
+
+    lines = ["turbulence (gust std = F / sqrt(2 corner); bounds: 1 std):"]
+    for s, g in turb["gusts"].items():
+        extra = f" = {g['intensity_m_s']:.3g} m/s" if g.get("intensity_m_s") is not None else ""
+        lines.append(f"  {s:<6} corner {pm(g['corner'], g['corner_std'], not g['corner_estimated'])} rad/s, "
+                     f"intensity {pm(g['intensity'], g['intensity_std'])} {g['unit']}{extra}")
+    return lines
 
 
 HISTORIES = "time_histories.npz"  # the runs' time, measured and modelled outputs beside result.json

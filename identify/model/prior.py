@@ -31,7 +31,8 @@ from .schedule import schedule_of
 def with_prior(profile, prior: dict[str, dict[str, float]]):
     """``profile`` with ``prior`` entries added (replacing those it had for the same parameters);
     entries for parameters that are not free are refused."""
-    table = {**profile.prior, **{k: dict(v) for k, v in prior.items()}}
+    kept = {k: v for k, v in profile.prior.items() if k in profile.free}  # --fix may have held some
+    table = {**kept, **{k: dict(v) for k, v in prior.items()}}
     return replace(profile, prior=parse_prior(table, profile.free, profile.source))
 
 

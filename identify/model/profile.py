@@ -26,6 +26,11 @@ What flight-test models need besides the matrices (every table optional)::
     [biases]               # constant state-equation biases, free parameters <equation>_one on the
     L = 0.0                # constant pseudo-input ``one`` (as refine writes them)
     input_hold = "linear"  # (top level) inputs between samples: "held" (default) or "linear"
+    [turbulence]           # gusts the filter-error method models (identify.model.turbulence):
+    states = ["u", "w"]    # the velocities they act on (alpha/beta form: w -> alpha, v -> beta)
+    corner = 0.7           # optional, rad/s, held (a number or {u = ..}); default: estimated
+    scale_length = 300.0   # optional: corner = airspeed / scale_length (Dryden), with
+    airspeed = 53.6        # m/s (else the runs' "airspeed" metadata)
     [prior]                # a priori weighting: parameter = std around its [free] value, or
     M_q = 0.4              # { value = ..., std = ... } (see identify.model.prior)
 
@@ -47,7 +52,7 @@ EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
 _KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_defs", "free",
                "fixed", "ties", "meta", "limits", "process_noise", "initial_state", "zero_shifts", "biases",
-               "input_hold", "prior"}
+               "input_hold", "turbulence", "prior"}
 VELOCITY_STATES = ("u", "v", "w")  # the equations turbulence drives: the default process noise
 INPUT_HOLDS = ("held", "linear")
 BIAS_INPUT = "one"  # the constant pseudo-input of state-equation biases (refine's name too)
@@ -87,6 +92,9 @@ class Profile:
     initial_state: dict[str, float] = field(default_factory=dict)
     zero_shifts: dict[str, dict] = field(default_factory=dict)
     input_hold: str = "held"
+    # gusts declared for the filter-error method ({} none): states, corner, scale_length, airspeed,
+    # corner_start, intensity, kinematic (:func:`parse_turbulence`; identify.model.turbulence)
+    turbulence: dict = field(default_factory=dict)
     # a priori weighting {free parameter: {"value": centre, "std": std}} (identify.model.prior)
     prior: dict[str, dict[str, float]] = field(default_factory=dict)
 
@@ -186,7 +194,7 @@ class Profile:
             lines += ["", "[zero_shifts]"] + [
                 f"{_key(k)} = {_inline({'value': v['value'], 'fixed': not v['estimate']})}"
                 for k, v in self.zero_shifts.items()]
-        for table in ("free", "fixed", "limits", "process_noise", "initial_state", "meta"):
+        for table in ("free", "fixed", "limits", "process_noise", "initial_state", "turbulence", "meta"):
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_toml_value(v)}" for k, v in rows.items()]
@@ -286,8 +294,70 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
         zero_shifts={k: _zero_shift(k, v, source)
                      for k, v in _require(dict, data.get("zero_shifts", {}), "zero_shifts", source).items()},
         input_hold=_require(str, data.get("input_hold", "held"), "input_hold", source),
+        turbulence=parse_turbulence(data.get("turbulence", {}), data["states"], source),
         prior=parse_prior(data.get("prior", {}), free, source),
     )
+
+
+TURBULENCE_KEYS = ("states", "corner", "scale_length", "airspeed", "corner_start", "intensity", "kinematic")
+FLOW_ANGLES = {"w": "alpha", "v": "beta", "u": "V"}  # a profile in alpha/beta form: the state a gust moves
+
+
+def gust_velocity(name: str, states) -> str:
+    """The state a gust on ``name`` acts on: the state itself, or in a profile written in flow
+    angles (no ``w``/``v``/``u`` state) ``alpha`` for w, ``beta`` for v, ``V`` for u."""
+    if name not in states and FLOW_ANGLES.get(name) in states:
+        return FLOW_ANGLES[name]
+    return name
+
+
+def parse_turbulence(table, states, source: str) -> dict:
+    """The ``[turbulence]`` table, normalised: ``states`` (list, flow-angle form mapped),
+    per-state ``corner`` (held, rad/s), ``corner_start``, ``intensity`` (F starts), a positive
+    ``scale_length`` (m) and ``airspeed`` (m/s), ``kinematic`` entries; {} when not declared."""
+    table = _require(dict, table, "turbulence", source)
+    if not table:
+        return {}
+    unknown = set(table) - set(TURBULENCE_KEYS)
+    if unknown:
+        raise ProfileError(f"{source}: [turbulence] unknown key(s) {', '.join(sorted(unknown))} "
+                           f"(known: {', '.join(TURBULENCE_KEYS)})")
+    listed = table.get("states")
+    if isinstance(listed, str):
+        listed = [s.strip() for s in listed.split(",") if s.strip()]
+    if not isinstance(listed, list) or not listed or not all(isinstance(s, str) for s in listed):
+        raise ProfileError(f"{source}: [turbulence] states must list the velocity states gusts act on "
+                           f"(for example states = [\"u\", \"w\"])")
+    gusts = [gust_velocity(s, states) for s in listed]
+    bad = [s for s, g in zip(listed, gusts) if g not in states]
+    if bad or len(set(gusts)) != len(gusts):
+        raise ProfileError(f"{source}: [turbulence] states: {', '.join(bad) or 'a state listed twice'}: "
+                           f"expected distinct states of the profile ({', '.join(states)})")
+    out = {"states": gusts}
+    for key in ("corner", "corner_start", "intensity"):
+        if key in table:
+            value = table[key]
+            per = dict.fromkeys(gusts, value) if not isinstance(value, dict) else \
+                {gust_velocity(k, states): v for k, v in value.items()}
+            per = _numbers(per, f"turbulence.{key}", source)
+            if set(per) - set(gusts) or any(v <= 0 for v in per.values()):
+                raise ProfileError(f"{source}: [turbulence] {key}: positive values for the listed states "
+                                   f"({', '.join(gusts)}), got {value!r}")
+            out[key] = per
+    for key in ("scale_length", "airspeed"):
+        if key in table:
+            value = _numbers({key: table[key]}, "turbulence", source)[key]
+            if value <= 0:
+                raise ProfileError(f"{source}: [turbulence] {key} = {value:g} must be positive")
+            out[key] = value
+    if "corner" in out and "scale_length" in out:
+        raise ProfileError(f"{source}: [turbulence] corner and scale_length both given: one sets the other")
+    if "kinematic" in table:
+        kin = table["kinematic"]
+        if not isinstance(kin, list) or not all(isinstance(k, str) for k in kin):
+            raise ProfileError(f"{source}: [turbulence] kinematic must list entries (for example [\"h_w\"])")
+        out["kinematic"] = list(kin)
+    return out
 
 
 def _with_biases(data: dict, source: str) -> dict:
@@ -422,6 +492,8 @@ def _validate(p: Profile) -> None:
         for s in getattr(p, table):
             if s not in p.states:
                 raise ProfileError(f"{src}: [{table}] {s}: not a state (states: {', '.join(p.states)})")
+    if p.turbulence:  # a profile built in code: the same checks as the table's
+        parse_turbulence(p.turbulence, p.states, src)
     for y in p.zero_shifts:
         if y not in p.outputs:
             raise ProfileError(f"{src}: [zero_shifts] {y}: not an output (outputs: {', '.join(p.outputs)})")

@@ -26,10 +26,12 @@ from .bounds import degenerate_fit, fit_bounds
 from .filter import FilterProblem, NonlinearFilterProblem
 from .innovation import InnovationFilterProblem, InnovationSolver
 from .solver import FilterSolver
+from . import turbulence
 from .starts import fit_from_starts
 
 INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
 FORMULATIONS = ("measurement", "innovation")  # R the measurement noise (ML), or the innovation covariance (textbook)
+NOISE_PARTS = ("f", "r", "corner")  # a ModelFit's noise: F, R and the estimated gust corners (turbulence)
 
 
 class FEM(Estimator):
@@ -60,6 +62,7 @@ class FEM(Estimator):
     """
 
     method = "fem"
+    models_turbulence = True  # a profile's [turbulence]: the gust states' model (.turbulence)
     weighs_prior = True  # the prior's residuals in the cost (identify.estimators.prior)
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
@@ -104,7 +107,7 @@ class FEM(Estimator):
         else:
             noise, source = p.process_noise_states(), "[process_noise]" if p.process_noise else "default: velocity states"
         noise = {s: p.process_noise.get(s) if v is None else v for s, v in noise.items()}
-        if not noise and self.process_noise is None:  # never output error in silence
+        if not noise and self.process_noise is None and not p.turbulence:  # never output error in silence
             raise EstimationError(
                 f"FEM: no process noise declared and the profile has no velocity state ({', '.join(VELOCITY_STATES)}): "
                 f"declare the equations that take it in the profile's [process_noise] (e.g. p = 0.1 and r = 0.1 "
@@ -134,6 +137,8 @@ class FEM(Estimator):
         return prob, beta, active
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:
+        if self.profile_.turbulence:  # the gust states' model, handed back on the user's profile
+            return turbulence.fit(self, runs)
         started = _time.perf_counter()
         prob, beta, active = self._problem(runs)
         solver = self._solve(prob, beta, active)
@@ -183,7 +188,9 @@ class FEM(Estimator):
         pn, mn = result.info.get("process_noise"), result.info.get("measurement_noise")
         if pn is None or mn is None:
             return None
-        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()])}
+        gusts = result.info.get("turbulence", {}).get("gusts", {}).values()
+        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()]),
+                "corner": np.array([g["corner"] for g in gusts if g["corner_estimated"]])}
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
@@ -223,7 +230,7 @@ class FEM(Estimator):
         from ..prediction import ModelFit  # the protocol's result type
 
         def values(d):
-            return None if d is None else (tuple(map(float, d["f"])), tuple(map(float, d["r"])))
+            return None if d is None else tuple(tuple(map(float, d.get(part, ()))) for part in NOISE_PARTS)
 
         held, begin = values(noise), None if noise is not None else values(start)
         key = (profile.to_toml(), zero_shifts, jacobian, held, begin,
@@ -236,15 +243,20 @@ class FEM(Estimator):
         est = self.clone(profile, estimate_bias=zero_shifts)
         est._validate()
         runs = est.check_runs(runs)
+        if profile.turbulence:  # the gust states' model; its corners are nuisance here
+            est = turbulence.augmented_estimator(est, runs)
+            est._validate()
+        n_der = len(profile.free)  # the derivatives, held; the rest of theta (gust corners) is nuisance
         prob, beta, active = est._problem(runs)
-        active[prob.index["theta"]] = False
+        active[prob.index["theta"][:n_der]] = False
+        index = {"f": prob.index["f"], "r": prob.index["r"], "corner": prob.index["theta"][n_der:]}
         for given in (held, begin):  # the fitted model's noise (its filter gain) held, or the start
-            for part, vals in zip(("f", "r"), given or ()):
-                if len(vals) != len(prob.index[part]):
-                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part.upper()}, "
-                                          f"the profile {len(prob.index[part])}")
-                beta[prob.index[part]] = vals
-                active[prob.index[part]] &= given is begin
+            for part, vals in zip(NOISE_PARTS, given or ()):
+                if len(vals) != len(index[part]):
+                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part}, "
+                                          f"the profile {len(index[part])}")
+                beta[index[part]] = vals
+                active[index[part]] &= given is begin
         solver = est._solve(prob, beta, active, nuisance_only=True, hold_noise=held is not None,
                             start_noise=begin is not None)
         try:
@@ -254,14 +266,15 @@ class FEM(Estimator):
         _, f, x0, b, rv = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
-                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start": solver.starts})
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "corner": solver.beta[index["corner"]].copy(),
+                                         "r_start": solver.starts})
         if jacobian:
             G, n, ny = prob.G, prob.n, prob.ny
             L, _, k, R = ev.dnu.shape
-            cols = np.r_[prob.p:G, G:G + n + ny]
+            cols = np.r_[n_der:G, G:G + n + ny]  # corners, F, R, x0, zero shifts
             keep = solver.active[prob.local_index[0][cols]]  # held x0, zero shifts, F = 0: no column
-            fit.dy = prob.per_run(-ev.dnu[:, :, :prob.p].reshape(L, ny * prob.p, R))
-            fit.dy = [d.reshape(len(d), ny, prob.p) for d in fit.dy]
+            fit.dy = prob.per_run(-ev.dnu[:, :, :n_der].reshape(L, ny * n_der, R))
+            fit.dy = [d.reshape(len(d), ny, n_der) for d in fit.dy]
             nuis = -ev.dnu[:, :, cols[keep]]
             fit.nuisance = [d.reshape(len(d), ny, -1) for d in prob.per_run(nuis.reshape(L, ny * keep.sum(), R))]
         cache[key] = (fit, prob, ev)
@@ -295,7 +308,7 @@ class FEM(Estimator):
         degenerate = None if innovation else degenerate_fit(p, beta[ix["r"]], sv.r_floor, np.diag(last.model.C @ last.K))
         if bd.failed:  # the information could not be formed or inverted: NaN bounds with the reason
             reasons.update({n: bd.failed for n, a in zip(prob.model0.names, bounded[:P]) if a})
-        self.covariance_ = cov[:P, :P].copy()
+        self.covariance_, self.covariance_all_ = cov[:P, :P].copy(), cov  # all: a turbulence model's corners and F
         theta, f, x0, b, r = prob.unpack(beta)
         prior = None
         if prob.prior is not None and bd.failed is None:  # M holds the prior's information: A = (M_d + P^-1)^-1
