@@ -429,7 +429,7 @@ def _turbulence_lines(turb: dict | None) -> list[str]:
     lines = ["turbulence (gust std = F / sqrt(2 corner); bounds: 1 std):"]
     for s, g in turb["gusts"].items():
         extra = f" = {g['intensity_m_s']:.3g} m/s" if g.get("intensity_m_s") is not None else ""
-        lines.append(f"  {s:<6} corner {pm(g['corner'], g['corner_std'], not g['corner_estimated'])} rad/s, "
+        lines.append(f"  {s:<6} corner {pm(g['corner'], g.get('corner_std'), not g['corner_estimated'])} rad/s, "
                      f"intensity {pm(g['intensity'], g['intensity_std'])} {g['unit']}{extra}")
     return lines
 
