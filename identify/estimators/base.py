@@ -117,7 +117,10 @@ class Estimator:
             self.result_ = self._fit(runs)
         from ..data.provenance import provenance
 
-        self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
+        info = self.result_.info
+        info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
+        if "wall_time" in info:  # how long this machine took: a fact of the run, beside its files, not a result
+            info["provenance"]["wall_time_s"] = info.pop("wall_time")
         return self
 
     def _fit_holding(self, runs: list[Run], unflown: dict[str, list[str]]) -> IdentificationResult:
