@@ -29,11 +29,12 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import load_profile  # noqa: E402
 from identify.estimators import filter_error as fe  # noqa: E402
+from identify.estimators.filter_error import starts as fs  # noqa: E402
 from tests.identify.estimators.test_filter_error import gusty_piloted_run  # noqa: E402
 from _cli import count, counted  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent / "output" / "filter_error_starts"
-SINGLE = {"gain_held": ("gain_held", 1.0), "floor": ("floor", 1.0), "wide_f": ("floor", fe.F_WIDE / fe.F_START)}
+SINGLE = {"gain_held": ("gain_held", 1.0), "floor": ("floor", 1.0), "wide_f": ("floor", fs.F_WIDE / fe.F_START)}
 
 
 def single(profile, runs, r_start: str, f_factor: float) -> float:
@@ -42,21 +43,21 @@ def single(profile, runs, r_start: str, f_factor: float) -> float:
     est._validate()
     prob, beta, active = est._problem(est.check_runs(runs))
     beta[prob.index["f"]] *= f_factor
-    solver = fe._Solver(est, prob, beta, active, r_start=r_start)
+    solver = fe.FilterSolver(est, prob, beta, active, r_start=r_start)
     solver.run()
     return float(solver.history[-1])
 
 
 def timed_fit(profile, runs, starts: dict, restart=None) -> tuple[dict, float]:
     """FEM's fit with ``starts`` as its R_STARTS and ``restart`` as its RESTART: (info, wall time)."""
-    saved = fe.R_STARTS, fe.RESTART
-    fe.R_STARTS, fe.RESTART = starts, restart
+    saved = fs.R_STARTS, fs.RESTART
+    fs.R_STARTS, fs.RESTART = starts, restart
     try:
         t0 = time.perf_counter()
         info = fe.FEM(profile).fit(runs).result_.info
         return info, time.perf_counter() - t0
     finally:
-        fe.R_STARTS, fe.RESTART = saved
+        fs.R_STARTS, fs.RESTART = saved
 
 
 def main(seeds: int = 15, first: int = 0) -> None:
@@ -72,12 +73,12 @@ def main(seeds: int = 15, first: int = 0) -> None:
         for seed in range(first, first + seeds):
             runs = [gusty_piloted_run(seed)]
             each = {name: single(profile, runs, *start) for name, start in SINGLE.items()}
-            one, t_one = timed_fit(profile, runs, {"gain_held": fe.R_STARTS["gain_held"]})
-            two, t_two = timed_fit(profile, runs, fe.R_STARTS)  # the two starts without the restart
-            both, t_both = timed_fit(profile, runs, fe.R_STARTS, fe.RESTART)
+            one, t_one = timed_fit(profile, runs, {"gain_held": fs.R_STARTS["gain_held"]})
+            two, t_two = timed_fit(profile, runs, fs.R_STARTS)  # the two starts without the restart
+            both, t_both = timed_fit(profile, runs, fs.R_STARTS, fs.RESTART)
             cost = both["cost"][-1]
             kept = (both["r_start"] or {}).get("kept", "one start")
-            best = bool(cost <= min(each.values()) + fe.SAME_OPTIMUM)
+            best = bool(cost <= min(each.values()) + fs.SAME_OPTIMUM)
             rec = {"seed": seed, "single": each, "fem": float(cost), "kept": kept, "best": best,
                    "single_start_fit": one["cost"][-1], "two_starts_fit": two["cost"][-1],
                    "wall_single": t_one, "wall_two": t_two, "wall_fem": t_both}
@@ -87,13 +88,13 @@ def main(seeds: int = 15, first: int = 0) -> None:
                   f"{t_both / t_two:6.2f}", flush=True)
     ratio = np.array([r["wall_fem"] / r["wall_single"] for r in recs])
     print(f"best of the three starts reached: FEM {sum(r['best'] for r in recs)}/{seeds}; single starts: "
-          + ", ".join(f"{n} {sum(r['single'][n] <= min(r['single'].values()) + fe.SAME_OPTIMUM for r in recs)}/{seeds}"
+          + ", ".join(f"{n} {sum(r['single'][n] <= min(r['single'].values()) + fs.SAME_OPTIMUM for r in recs)}/{seeds}"
                       for n in SINGLE))
     print(f"cost of the second start: FEM / single gain-held start, wall time in the same run: median "
           f"{np.median(ratio):.2f}, range {ratio.min():.2f}..{ratio.max():.2f}, total "
           f"{sum(r['wall_fem'] for r in recs) / sum(r['wall_single'] for r in recs):.2f}")
     restart = np.array([r["wall_fem"] / r["wall_two"] for r in recs])
-    worse = [r["seed"] for r in recs if r["fem"] > r["two_starts_fit"] + fe.SAME_OPTIMUM]
+    worse = [r["seed"] for r in recs if r["fem"] > r["two_starts_fit"] + fs.SAME_OPTIMUM]
     print(f"the restart from the best fit's derivatives: worse than the two starts alone on seeds {worse or 'none'}; "
           f"cost against the two starts alone: median {np.median(restart):.2f}, range "
           f"{restart.min():.2f}..{restart.max():.2f}, total "

@@ -8,7 +8,8 @@ accelerometers' and gyros' noise, integrated, cannot build up into a random walk
 run. The kinematics are nonlinear: the problem supplies the prediction and its sensitivities
 (central finite differences of the integration, all perturbations and segments as one batch; the
 output model's columns exact), the engine does the rest: ML's Levenberg-Marquardt with
-noise-covariance relaxation (:class:`identify.estimators.ml.OutputErrorSolver`), the block information
+noise-covariance relaxation (:class:`identify.estimators.ml.OutputErrorSolver`, on the one solver of
+:mod:`identify.estimators.lm`), the block information
 matrix and the coloured-residual bounds (:class:`~identify.estimators.coloured_bounds.ColouredBounds`).
 
 The bounds add to the engine's sandwich (the outputs' own, possibly coloured, noise) the noise of
@@ -227,6 +228,7 @@ def _solve(prob: KinematicProblem, beta: np.ndarray, max_iter: int) -> _Fit:
 
 
 class _EngineSolver(OutputErrorSolver):
+    name = "compat"
     requires_parameters = False  # the first fit holds no sensor error: initial states alone
 
 

@@ -27,7 +27,7 @@ class ColouredBounds:
     ``prob``: the :class:`~identify.estimators.output_error.OutputError`; ``ev`` its response with
     sensitivities at the estimate; ``Wh`` the whitening (ny, ny); ``info`` the information there.
     The filter-error method passes its innovations through the same interface
-    (:class:`identify.estimators.filter_error._Innovations`), its innovation sensitivities for J.
+    (:class:`identify.estimators.filter_error.bounds._Innovations`), its innovation sensitivities for J.
     :meth:`solve` returns the covariance, the noise autocorrelation and the number of passes.
 
     The fixed point for the noise autocorrelation is linear (but for the clip to a non-negative

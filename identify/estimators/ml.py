@@ -7,7 +7,7 @@ minimising the negative log-likelihood for white Gaussian measurement noise of c
 
 Newton-Raphson with the Gauss-Newton approximation of the Hessian (``M = J^T R^-1 J``, the Fisher
 information) moves the derivatives ``theta``, the initial states ``x0`` and the output zero shifts
-``b`` together under Levenberg-Marquardt trust-region control (:class:`_Solver`). R is
+``b`` together under Levenberg-Marquardt trust-region control (:mod:`.lm`, :class:`OutputErrorSolver`). R is
 estimated by *relaxation*: after each step, R = diag(mean residual^2), the R that minimises J for
 the current residuals. The Cramér-Rao bounds are the square roots of the diagonal of M^-1 (the
 full matrix, initial states and zero shifts included as nuisance parameters). M is never formed
@@ -53,16 +53,11 @@ from ..errors import ConvergenceWarning, EstimationError, SimulationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile
 from .base import Estimator
+from .lm import MAX_REL_STEP, LevenbergMarquardt  # noqa: F401  (MAX_REL_STEP: the step bound ML reports)
 from .output_error import OutputError, auto_segment
 from .result import IdentificationResult, fit_metrics
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
-MAX_DAMPING = 1e10
-INITIAL_DAMPING = 1e-3  # LM's tau: the first damping, relative to the scaled information's diagonal
-MIN_GAIN_RATIO = 1e-3  # a step is taken when it achieves this share of its predicted decrease
-MAX_REL_STEP = 0.5  # no step moves a parameter by more than this share of its scale
-STEP_TOL_SE = 1e-3  # converged: the next Gauss-Newton step moves no unknown by this many std errors
-STALL_TOL_SE = 1e-2  # ... or no step lowers the cost and the next would move them by less than this
 RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
 
 
@@ -164,7 +159,7 @@ class ML(Estimator):
                 else "multiple shooting (ML(segment=<s>))"
             raise EstimationError(f"ML ({form}): the a priori model diverges: {exc}; "
                                   f"use {hint} or better a priori values") from None
-        solver = _Solver(self, prob, ev, z)
+        solver = OutputErrorSolver(self, prob, ev, z)
         solver.active &= ~held
         solver.run()
         if not solver.converged:
@@ -174,7 +169,7 @@ class ML(Estimator):
         self.problem_, self.beta_ = prob, solver.beta
         return self._result(runs, prob, solver, form, segment, _time.perf_counter() - started)
 
-    def _result(self, runs, prob: OutputError, sv: "_Solver", form: str, segment: float,
+    def _result(self, runs, prob: OutputError, sv: "OutputErrorSolver", form: str, segment: float,
                 wall: float) -> IdentificationResult:
         p, P = self.profile_, prob.p
         cov_white, ill = sv.M.covariance()  # blocks: never (n_beta, n_beta) for a long record
@@ -238,39 +233,30 @@ class ML(Estimator):
             time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
 
 
-class _Solver:
-    """Levenberg-Marquardt on the Gauss-Newton normal equations, with noise-covariance relaxation.
-
-    Trust-region control (Madsen, Nielsen & Tingleff's LM, on Marquardt's scaled system):
-    the damping starts at ``INITIAL_DAMPING`` times the largest diagonal of the scaled information
-    matrix; a trial step is taken only when the ratio of the actual to the predicted (quadratic
-    model) decrease of the cost exceeds ``MIN_GAIN_RATIO``, and the damping then falls (good
-    agreement) or rises (poor); no step may move a parameter by more than a trust radius times its
-    scale ``max(|theta|, |theta a priori|, sigma)`` (sigma its white Cramér-Rao bound at the
-    current point), so a far a priori model cannot throw the iteration into another basin. The
-    radius starts at ``MAX_REL_STEP``, halves after a step with a gain ratio below 0.25 and
-    doubles back (never beyond ``MAX_REL_STEP``) after one that reached it with a ratio above 0.75.
-    (Letting it grow further was tried: on a noise-free S 61 case with one derivative 60 x off it
-    took 8-fold steps into a worse basin and did not converge in 200 iterations; capped, 31.)
-    Convergence is judged on the undamped Gauss-Newton step: it must move no unknown by more
-    than ``STEP_TOL_SE`` of its standard error (or no parameter by more than ``tol`` relative),
-    with the relaxed noise covariance settled. Anything else is not convergence: ``max_iter``
-    reached, or no step lowering the cost while the gradient still predicts a decrease.
+class OutputErrorSolver(LevenbergMarquardt):
+    """The output-error problem on the one Levenberg-Marquardt solver (:mod:`.lm`: trust region,
+    convergence test, stop reasons), with noise-covariance relaxation: after each step R =
+    diag(mean residual^2); converged only once R has settled (no variance moving by more than
+    ``R_CHANGE_TOL``, relative) and the undamped step is under ``STEP_TOL_SE`` standard errors.
 
     ``ml`` supplies the settings (``noise_cov_``, ``max_iter``, ``tol``, ``progress``,
-    ``verbose``); ``prob`` any problem on the engine's seam (:mod:`.output_error`).
+    ``verbose``); ``prob`` any problem on the engine's seam (:mod:`.output_error`; compat's
+    kinematics too).
     """
 
+    name = "ML"
     requires_parameters = True  # ML: a fit of initial states alone is an error (compat's first fit is one)
 
     def __init__(self, ml: ML, prob: OutputError, ev, z):
         self.ml, self.prob, self.ev, self.beta = ml, prob, ev, ev.beta.copy()
+        self.max_iter, self.tol, self.progress, self.verbose = ml.max_iter, ml.tol, ml.progress, ml.verbose
+        self.p = prob.p
         self.relax = ml.noise_cov_ is None
         self.ms = np.array([np.mean(zr ** 2, axis=0) for zr in z]).mean(axis=0)
         self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov_)
-        self.history, self.wls_history, self.log_det_history, self.step_history = [], [], [], []
-        self.iterations, self.converged, self.stop, self.lam = 0, False, "max_iter", 0.0
-        self.rejected, self.max_rel_step, self.radius = 0, 0.0, MAX_REL_STEP
+        self._init_iteration()
+        self.wls_history, self.log_det_history = [], []
+        self.r_change = np.inf
         M, _ = prob.information(ev, self.Wh)
         # a parameter no input excites has no influence at all: hold it, report std = inf
         self.active = M.active
@@ -289,28 +275,29 @@ class _Solver:
     def _cost(self, ev) -> float:
         return self.prob.cost(ev, self.Wh)
 
-    @staticmethod
-    def _step(M, g, active, lam) -> np.ndarray:
-        """Solve ``(Ms + lam I) s = g / d`` on the ``active`` unknowns, Ms = M scaled to unit
+    # -- the solver's hooks (identify.estimators.lm) -------------------------------------------
+    def _information(self):
+        return self.prob.information(self.ev, self.Wh, self.active)
+
+    def _solve(self, M, g, lam) -> np.ndarray:
+        """Solve ``(Ms + lam I) s = g / d`` on the active unknowns, Ms = M scaled to unit
         diagonal (Marquardt: damping on the scaled diagonal), by block elimination of the
         segments' initial states (:class:`~identify.estimators.information.BlockInformation`)."""
-        return M.solve(g, lam, active)
+        return M.solve(g, lam, self.active)
+
+    def _predicted(self, M, g, step) -> float:
+        return float(g @ step - 0.5 * step @ M.matvec(step))
 
     def _try(self, beta):
         """Residuals at a trial point (no sensitivities: most trials of a hard start are rejected,
-        and a long record holds one set of sensitivities at a time); the caller takes
-        :meth:`_accept` of the one it keeps."""
+        and a long record holds one set of sensitivities at a time); :meth:`_accept` takes those
+        of the one kept."""
         try:
             ev = self.prob.evaluate(beta, jacobian=False)
         except SimulationError:
             return None, np.inf
         c = self._cost(ev)
         return ev, (c if np.isfinite(c) else np.inf)
-
-    @staticmethod
-    def _predicted(M, g, step) -> float:
-        """Decrease of the cost the Gauss-Newton (quadratic) model predicts for ``step``."""
-        return float(g @ step - 0.5 * step @ M.matvec(step))
 
     def _scale(self, M) -> np.ndarray:
         """Scale of each parameter for the step bound: max(|theta|, |theta a priori|, sigma),
@@ -321,91 +308,38 @@ class _Solver:
         sigma = np.sqrt(np.clip(cov.diag()[:P], 0, None))
         return np.maximum(np.maximum(np.abs(self.beta[:P]), self.theta0), sigma)
 
-    def _converged(self, M, g, r_change) -> str | None:
-        """The reason the undamped Gauss-Newton step says we are at the minimum, or None."""
-        if self.relax and r_change >= R_CHANGE_TOL:
-            return None
-        step = self._step(M, g, self.active, 0.0)
+    def _begin(self) -> None:
+        """Initial states and zero shifts enter linearly: one exact step fits them to the a priori model."""
         P = self.prob.p
-        # the step's length in the information metric bounds every unknown's move in standard
-        # errors (|step_i| / sigma_i <= sqrt(step^T M step), Cauchy-Schwarz); twice the predicted decrease
-        in_se = math.sqrt(max(float(g @ step), 0.0))
-        rel = float(np.max(np.abs(step[:P]) / (np.abs(self.beta[:P]) + 1e-6), initial=np.inf))  # none: in_se decides
-        self.step_history.append(in_se)
-        if in_se < STEP_TOL_SE:
-            return f"gradient: the next step is {in_se:.1e} standard errors"
-        if rel < self.ml.tol:
-            return f"step: the next step is {rel:.1e} of the parameters"
-        return None
-
-    def run(self) -> None:
-        prob, ml = self.prob, self.ml
-        P = prob.p
-        # initial states and zero shifts enter linearly: one exact step fits them to the a priori model
         nuisance = self.active.copy()
         nuisance[:P] = False
         if nuisance.any():
-            M, g = prob.information(self.ev, self.Wh, self.active)
-            ev, c = self._try(self.beta + self._step(M, g, nuisance, 0.0))
+            M, g = self.prob.information(self.ev, self.Wh, self.active)
+            ev, c = self._try(self.beta + M.solve(g, 0.0, nuisance))
             if ev is not None and c < self._cost(self.ev):
-                self._accept(ev)
+                self._move(ev)
             if self.relax:
                 self.Wh = self._relaxed_weighting()
-        cost = self._cost(self.ev)
-        self._record(cost)
-        r_change = np.inf
-        M, g = prob.information(self.ev, self.Wh, self.active)
-        self.lam = INITIAL_DAMPING  # Ms has unit diagonal: tau times its largest diagonal element
-        while True:
-            reason = self._converged(M, g, r_change)
-            if reason:
-                self.converged, self.stop = True, reason
-                break
-            if self.iterations >= ml.max_iter:
-                self.stop = f"max_iter: {ml.max_iter} iterations without convergence"
-                break
-            step, ev, c, pred = self._trial(M, g, cost)
-            self.iterations += 1
-            if ev is None:
-                full = self._predicted(M, g, self._step(M, g, self.active, 0.0))
-                in_se = math.sqrt(max(2 * full, 0.0))
-                # no damped step lowers the cost: at the minimum to the cost's numerical precision,
-                # unless the undamped step would still move the estimates by a noticeable share of
-                # their standard errors (a Jacobian that disagrees with the cost)
-                if in_se < STALL_TOL_SE:
-                    self.converged = True
-                    self.stop = (f"gradient: no step lowers the cost (numerical precision); the next "
-                                 f"would be {in_se:.1e} standard errors")
-                else:
-                    self.stop = ("stalled: no step lowers the cost although the gradient predicts a "
-                                 f"decrease of {full:.3g}")
-                break
-            rho = (cost - c) / pred
-            self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
-            rel_step = float(np.max(np.abs(step[:P]) / self._scale(M), initial=0.0))
-            self.max_rel_step = max(self.max_rel_step, rel_step)
-            if rho > 0.75 and rel_step >= 0.99 * self.radius:
-                self.radius = min(2 * self.radius, MAX_REL_STEP)
-            elif rho < 0.25:
-                self.radius = max(0.5 * self.radius, 1e-6)
-            self._accept(ev)
-            r_change = 0.0
-            if self.relax:
-                r_old = self._r
-                self.Wh = self._relaxed_weighting()
-                r_change = float(np.max(np.abs(self._r / r_old - 1)))
-                c = self._cost(self.ev)
-            cost = c
-            self._record(cost)
-            M, g = prob.information(self.ev, self.Wh, self.active)
-            if ml.progress is not None:
-                ml.progress(self.iterations, self.history[-1], self.beta[:P].copy())
-            if ml.verbose:
-                print(f"ML iteration {self.iterations:3d}: -log likelihood {self.history[-1]:.10g}  "
-                      f"step {rel_step:.2e}  damping {self.lam:.1e}  gain ratio {rho:.2f}")
-        self.M = M
+        self.cost = self._cost(self.ev)
+        self._record(self.cost)
+
+    def _settled(self) -> bool:
+        return not (self.relax and self.r_change >= R_CHANGE_TOL)
+
+    def _accept(self, ev) -> bool:
+        self._move(ev)
+        self.r_change = 0.0
+        if self.relax:
+            r_old = self._r
+            self.Wh = self._relaxed_weighting()
+            self.r_change = float(np.max(np.abs(self._r / r_old - 1)))
+        self.cost = self._cost(self.ev)
+        self._record(self.cost)
+        return True
+
+    def _finish(self) -> None:
         if not self.converged:
-            self.stop += self._drifting(M)
+            self.stop += self._drifting(self.M)
 
     def _drifting(self, M) -> str:
         """When not converged: the parameters the runs cannot determine (white std error over
@@ -418,32 +352,11 @@ class _Solver:
         return (f"; not determined by these runs (std error > 10 x estimate), the likelihood may rise "
                 f"without bound along them: {', '.join(bad)}" if bad else "")
 
-    def _accept(self, ev) -> None:
+    def _move(self, ev) -> None:
         """Move to the trial point ``ev``, with its sensitivities."""
         self.ev = None  # the old sensitivities go before the new ones are computed
         self.ev = self.prob.evaluate(ev.beta)
         self.beta = ev.beta.copy()
-
-    def _trial(self, M, g, cost):
-        """The damped step, shortened to the step bound, that lowers the cost by at least
-        ``MIN_GAIN_RATIO`` of the decrease predicted for it: ``(step, evaluation, cost, predicted
-        decrease)``; evaluation None when the damping limit is reached first (the damping ``lam``
-        rises along the way)."""
-        P, nu = self.prob.p, 2.0
-        scale = self._scale(M)
-        pred = 0.0
-        while self.lam <= MAX_DAMPING:
-            step = self._step(M, g, self.active, self.lam)
-            # bounded relative step: shorten along the same (descent) direction, keep the damping
-            step *= min(1.0, self.radius / max(float(np.max(np.abs(step[:P]) / scale, initial=0.0)), 1e-300))
-            pred = self._predicted(M, g, step)
-            if pred > 0:
-                ev, c = self._try(self.beta + step)
-                if ev is not None and (cost - c) > MIN_GAIN_RATIO * pred:
-                    return step, ev, c, pred
-                self.rejected += 1
-            self.lam, nu = max(self.lam, INITIAL_DAMPING) * nu, 2 * nu
-        return None, None, np.inf, pred
 
     def _record(self, cost: float) -> None:
         """Log the weighted cost, log det R and the negative log-likelihood they make."""
@@ -452,8 +365,6 @@ class _Solver:
         self.log_det_history.append(log_det)
         self.history.append(float(cost) + 0.5 * float(self.prob.mask.sum()) * log_det)
 
-
-OutputErrorSolver = _Solver  # the public name for problems on the engine's seam (identify.compat)
 
 
 # -- helpers ---------------------------------------------------------------------------------------

@@ -3,8 +3,8 @@
 A refined profile may hold pseudo-inputs that are products with a state factor (``q|q|``,
 ``q eta``; :mod:`identify.model.pseudo_inputs`): ``dx/dt = A x + B_u u + B_f f(x, u) + F w``,
 ``y = C x + D_u u + D_f f(x, u) + b + v``. The linear filter of
-:mod:`identify.estimators.filter_error` cannot carry them; this mixin gives its
-:class:`~identify.estimators.filter_error.FilterProblem` the extended filter of Jategaonkar's
+:mod:`identify.estimators.filter_error.filter` cannot carry them; this mixin gives its
+:class:`~identify.estimators.filter_error.filter.FilterProblem` the extended filter of Jategaonkar's
 filter-error method for nonlinear systems (*Flight Vehicle System Identification*, ch. 5):
 
 * the state is predicted through the nonlinear model, sample by sample, the terms evaluated on
@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.sensitivity import discretize_with_derivatives
-from ..model.simulate import discretize
-from .output_error import pad
-from .prediction import state_terms
+from ...model.sensitivity import discretize_with_derivatives
+from ...model.simulate import discretize
+from ..output_error import pad
+from ..prediction import state_terms
 
 
 class Linearised:
@@ -54,7 +54,7 @@ class Linearised:
 
 
 class StateTerms:
-    """Mixin for :class:`~identify.estimators.filter_error.FilterProblem`: the extended Kalman
+    """Mixin for :class:`~identify.estimators.filter_error.filter.FilterProblem`: the extended Kalman
     filter (module notes). ``runs``: the runs the problem is built from (the terms' channel factors).
     The subclass sets ``Filtered``, the linear method's result type (that module imports this one)."""
 

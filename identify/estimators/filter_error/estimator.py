@@ -1,0 +1,334 @@
+"""The filter-error estimator (:class:`FEM`): validation, the fit, refine's protocol of nested
+fits, the result (the derivation: :mod:`identify.estimators.filter_error`)."""
+from __future__ import annotations
+
+import math
+import time as _time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ...data.runs import Run
+from ...errors import ConvergenceWarning, EstimationError
+from ...model import pseudo_inputs as pi
+from ...model.profile import Profile
+from ...model.simulate import discretize, held_inputs, propagate
+from ..base import Estimator
+from ..ml import common_dt, finite_channels
+from ..output_error import pad
+from ..result import IdentificationResult, fit_metrics
+from .base import PROCESS_NOISE_CONVENTION, ProcessNoiseModel
+from .bounds import colour_failure, inverse_information
+from .filter import FilterProblem, NonlinearFilterProblem
+from .solver import FilterSolver
+from .starts import fit_from_starts
+
+INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
+
+
+class FEM(Estimator):
+    """Filter-error maximum-likelihood estimator (process and measurement noise).
+
+    ``process_noise``: None (the profile's ``[process_noise]``, else its velocity states) or
+    ``{state: F start value or None}`` (``{}``: no process noise; FEM is then output error).
+    ``x0``: ``{state: value}`` initial states held fixed in every run (with the profile's
+    ``[initial_state]``); ``estimate_x0``/``estimate_bias`` as ML (False holds all of them;
+    per-output zero shifts follow the profile's ``[zero_shifts]``). ``max_iter``, ``tol``,
+    ``progress``, ``verbose`` as ML. ``coloured``: standard errors corrected for coloured
+    innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`)
+    or (default) the plain Cramér-Rao bounds; both are then in ``info["std_coloured"]`` and
+    ``info["std_white"]`` (theta only). Opt-in: measured, it helps with coloured measurement noise
+    but over-widens the velocity derivatives' bounds (median 1.6-1.9x) on the piloted S 61 case of
+    benchmarks/filter_error.py, where the plain bounds are calibrated (docs/filter_error.md).
+
+    After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
+    residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
+    ``result_.info``: ``process_noise`` {state: {F, std}}, ``measurement_noise`` {output:
+    {variance, std}}, ``innovation_cov``, ``kalman_gain``, ``diag_CK``, ``r_start`` (the
+    starts' -log L, the restart's among them, and the one kept, where R's start fell below its
+    floor), per-run initial states and zero shifts with their stds, convergence as ML (``converged``, ``stop``; a
+    :class:`ConvergenceWarning` when not converged). ``result_.profile`` is the a priori profile
+    with the fitted F as its ``[process_noise]``: ``identified_profile()`` starts the next fit there.
+    """
+
+    method = "fem"
+
+    def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
+                 max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
+                 progress=None, verbose: bool = False, coloured: bool = False):
+        super().__init__(profile)
+        self.process_noise, self.x0, self.coloured = process_noise, x0, coloured
+        self.max_iter, self.tol = max_iter, tol
+        self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
+        self.progress, self.verbose = progress, verbose
+        self.covariance_ = self.problem_ = self.beta_ = None
+
+    def _validate(self) -> None:
+        super()._validate()
+        p = self.profile_
+        if not (isinstance(self.max_iter, (int, np.integer)) and self.max_iter >= 1):
+            raise EstimationError(f"FEM: max_iter must be a positive integer, got {self.max_iter!r}")
+        if not (np.isfinite(self.tol) and self.tol > 0):
+            raise EstimationError(f"FEM: tol must be positive, got {self.tol!r}")
+        self.noise_model_ = self.noise_model(p)
+        noise = self.noise_model_.states
+        x0 = {**p.initial_state, **(self.x0 or {})}
+        filtered = self.noise_model_.filter_profile(p)
+        for what, names, q in (("process_noise", noise, filtered), ("x0", x0, p)):
+            bad = [s for s in names if s not in q.states]
+            if bad:
+                raise EstimationError(f"FEM: {what}: {', '.join(bad)} not a state of the profile "
+                                      f"(states: {', '.join(q.states)})")
+        self.process_noise_, self.x0_ = noise, {s: float(v) for s, v in x0.items()}
+
+    def noise_model(self, p: Profile) -> ProcessNoiseModel:
+        """The process-noise model of profile ``p`` (:mod:`.base`: the seam where a turbulence model
+        plugs in): the ``process_noise`` option, else the profile's ``[process_noise]``, else its
+        velocity states; a state named without a start value starts from the profile's (a fitted
+        profile's F)."""
+        if self.process_noise is not None:
+            noise, source = dict(self.process_noise), "the process_noise option"
+        else:
+            noise, source = p.process_noise_states(), "[process_noise]" if p.process_noise else "default: velocity states"
+        noise = {s: p.process_noise.get(s) if v is None else v for s, v in noise.items()}
+        return ProcessNoiseModel(noise, source)
+
+    # -- fitting ---------------------------------------------------------------------------------
+    def _problem(self, runs: list[Run]):
+        """The filter-error problem of the validated profile on ``runs``, its start and its unknowns."""
+        p = self.noise_model_.filter_profile(self.profile_)
+        holds = {r.meta.get("input_hold", p.input_hold) for r in runs}
+        if len(holds) > 1 or not holds <= {"held", "linear"}:
+            raise EstimationError(f"FEM: the runs' input_hold differ or are unknown ({', '.join(sorted(holds))}); "
+                                  f"use one of held, linear for all runs")
+        u = [finite_channels(r, p.input_names) for r in runs]
+        z = [finite_channels(r, list(p.outputs)) for r in runs]
+        args = (p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
+        # state-built terms (q|q|): the extended filter (.nonlinear)
+        prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else FilterProblem(*args)
+        beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
+        return prob, beta, active
+
+    def _fit(self, runs: list[Run]) -> IdentificationResult:
+        started = _time.perf_counter()
+        prob, beta, active = self._problem(runs)
+        solver = self._solve(prob, beta, active)
+        if not solver.converged:
+            warnings.warn(f"FEM did not converge: {solver.stop}; the estimates are not final "
+                          f"(raise max_iter, or start from better a priori values)", ConvergenceWarning, stacklevel=3)
+        self.problem_, self.beta_ = prob, solver.beta
+        return self._result(runs, prob, solver, _time.perf_counter() - started)
+
+    def _solve(self, prob: FilterProblem, beta, active, **options) -> FilterSolver:
+        """The fit from the start, and from the noise's other starts where the likelihood can have
+        two optima (:func:`.starts.fit_from_starts`)."""
+        return fit_from_starts(self, prob, beta, active, **options)
+
+    # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
+    simulates_state_terms = False  # state-built terms come from the filter's own states ...
+    builds_state_terms = True  # ... inside each fit (the extended filter): one fit, no settling loop
+    progress_quantity = "cost"
+
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
+        """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
+        return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured and bounds)
+
+    def prediction_segment(self, model, duration: float) -> float:
+        """Whole runs: the filter stabilises the prediction of an unstable model."""
+        return math.inf
+
+    def prediction(self, profile, runs: list[Run], *, zero_shifts: bool = True, segment: float = math.inf,
+                   start=None, noise: dict | None = None, noise_start: dict | None = None):
+        """The profile's one-step-ahead prediction of ``runs``: residuals are the innovations, with
+        the nuisance (F, R, each run's initial state and zero shifts) fitted, the derivatives held.
+        ``noise``: the ``ModelFit.noise`` (F and R) of the same profile's prediction of the fitting
+        runs, held: the prediction of held-out data by the fitted model, its filter gain included
+        (only each run's initial state and zero shifts are fitted there). ``noise_start``: F and R
+        of the fit that gave the profile (:meth:`fitted_noise`), the start of their fit on the same
+        runs: the fit's own optimum, where a start from scratch can end in another local optimum of
+        the noise's likelihood (seen: 6000 below the fit's at the same derivatives)."""
+        return self._innovations(profile, runs, zero_shifts, jacobian=False, noise=noise, start=noise_start)[0]
+
+    @staticmethod
+    def fitted_noise(result: IdentificationResult) -> dict | None:
+        """The fitted F and R of a FEM ``result`` as ``ModelFit.noise`` holds them."""
+        pn, mn = result.info.get("process_noise"), result.info.get("measurement_noise")
+        if pn is None or mn is None:
+            return None
+        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()])}
+
+    def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
+        """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
+        (N_r, ny, k) = -d(innovations)/d(F, R, the run's initial state and zero shifts) per run
+        (F and R are shared by the runs; as per-run columns the score test is a little conservative).
+        A candidate term built from states (q|q|) gets its column from the extended filter at the
+        term's null value: the term on the filter's own states, never on the measured ones.
+        F and R start from the ``null`` prediction's (its residuals are the score test's): the
+        columns of the same filter, not of another local optimum of the noise's likelihood."""
+        start = getattr(null, "noise", None)
+        return self._innovations(profile, runs, zero_shifts, jacobian=True, start=start)[0]
+
+    def input_response(self, profile, runs: list[Run], *, segment: float, input_name: str, transform,
+                       noise_start: dict | None = None):
+        """Per run (N_r, ny): the filter's one-step prediction's response to ``transform(u, dt)`` of
+        one input (the others zero, from rest), with the gain of the profile's fitted noise: how
+        the innovations would change (with the opposite sign) were that input added.
+        ``noise_start`` as :meth:`prediction`'s."""
+        fit, prob, ev = self._innovations(profile, runs, True, jacobian=False, start=noise_start)
+        j = prob.profile.input_names.index(input_name)
+        u = [np.zeros((len(r), prob.m)) for r in runs]
+        for ur, run in zip(u, runs):
+            ur[:, j] = transform(run[input_name], run.dt)
+        U = pad(prob.layout, [held_inputs(ur, prob.hold) for ur in u])
+        model, Kp = ev.model, ev.Kp
+        Dh = np.hstack([model.D, np.zeros_like(model.D)]) if prob.hold == "linear" else model.D
+        Phi, Gamma = discretize(model.A, model.B, prob.dt, prob.hold)
+        x = propagate(Phi - Kp @ model.C, (Gamma - Kp @ Dh) @ U, np.zeros((prob.n, prob.n_runs)))
+        return prob.per_run(model.C @ x + Dh @ U)
+
+    def _innovations(self, profile, runs: list[Run], zero_shifts: bool, jacobian: bool, noise: dict | None = None,
+                     start: dict | None = None):
+        """``(ModelFit, problem, filtered)`` of the profile's derivatives on ``runs``, the nuisance
+        fitted, F and R too unless ``noise`` holds them; ``start``: F and R to start their fit
+        from, not relaxed (cached per profile and runs: refine asks for the same prediction
+        several ways)."""
+        from ..prediction import ModelFit  # the protocol's result type
+
+        def values(d):
+            return None if d is None else (tuple(map(float, d["f"])), tuple(map(float, d["r"])))
+
+        held, begin = values(noise), None if noise is not None else values(start)
+        key = (profile.to_toml(), zero_shifts, jacobian, held, begin,
+               tuple((r.source, len(r), hash(r.matrix(profile.channels).tobytes())) for r in runs))
+        cache = self.__dict__.setdefault("_innovation_cache", {})
+        if key in cache:
+            return cache[key]
+        while len(cache) >= INNOVATION_CACHE:
+            cache.pop(next(iter(cache)))
+        est = self.clone(profile, estimate_bias=zero_shifts)
+        est._validate()
+        runs = est.check_runs(runs)
+        prob, beta, active = est._problem(runs)
+        active[prob.index["theta"]] = False
+        for given in (held, begin):  # the fitted model's noise (its filter gain) held, or the start
+            for part, vals in zip(("f", "r"), given or ()):
+                if len(vals) != len(prob.index[part]):
+                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part.upper()}, "
+                                          f"the profile {len(prob.index[part])}")
+                beta[prob.index[part]] = vals
+                active[prob.index[part]] &= given is begin
+        solver = est._solve(prob, beta, active, nuisance_only=True, hold_noise=held is not None,
+                            start_noise=begin is not None)
+        try:
+            ev = prob.evaluate(solver.beta, jacobian=jacobian, noise=jacobian)
+        except (np.linalg.LinAlgError, ValueError):
+            raise EstimationError(f"FEM: the prediction's noise fit failed ({solver.stop})") from None
+        _, f, x0, b, rv = prob.unpack(solver.beta)
+        fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
+                       x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start": solver.starts})
+        if jacobian:
+            G, n, ny = prob.G, prob.n, prob.ny
+            L, _, k, R = ev.dnu.shape
+            cols = np.r_[prob.p:G, G:G + n + ny]
+            keep = solver.active[prob.local_index[0][cols]]  # held x0, zero shifts, F = 0: no column
+            fit.dy = prob.per_run(-ev.dnu[:, :, :prob.p].reshape(L, ny * prob.p, R))
+            fit.dy = [d.reshape(len(d), ny, prob.p) for d in fit.dy]
+            nuis = -ev.dnu[:, :, cols[keep]]
+            fit.nuisance = [d.reshape(len(d), ny, -1) for d in prob.per_run(nuis.reshape(L, ny * keep.sum(), R))]
+        cache[key] = (fit, prob, ev)
+        return cache[key]
+
+    def _result(self, runs, prob: FilterProblem, sv: FilterSolver, wall: float) -> IdentificationResult:
+        p, P = self.profile_, prob.p
+        beta = sv.beta.copy()
+        ix = prob.index
+        beta[ix["f"]] = np.abs(beta[ix["f"]])  # F enters as F F^T: its sign is not determined
+        try:
+            ev = prob.evaluate(beta, jacobian=True, noise=True)
+        except (np.linalg.LinAlgError, ValueError):
+            raise EstimationError(f"FEM: the fit failed ({sv.stop}): no bounds at its last point") from None
+        bounded = sv.active.copy()
+        bounded[ix["r"]] &= beta[ix["r"]] > sv.r_floor  # a variance on its floor has no bound
+        M, _ = prob.information(ev)
+        cov, ill = inverse_information(M, bounded)
+        std = std_white = np.sqrt(np.clip(np.diag(cov), 0, None))
+        std_col, acf, passes, colour_failed = None, None, 0, None
+        if self.coloured:  # once, at the estimate
+            cov_c, acf, passes = prob.coloured(ev, bounded)
+            colour_failed = colour_failure(cov_c, cov, bounded)
+            if colour_failed is None:
+                cov = cov_c
+                std = std_col = np.sqrt(np.clip(np.diag(cov), 0, None))
+            else:
+                warnings.warn(f"FEM: {colour_failed}; the Cramér-Rao bounds are reported", stacklevel=3)
+        std[~bounded] = np.inf  # a derivative no input excites, a held x0 or zero shift
+        boundary = np.zeros_like(bounded)
+        boundary[ix["f"]] = ~bounded[ix["f"]]
+        boundary[ix["r"]] = ~bounded[ix["r"]]
+        std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
+        std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
+        self.covariance_ = cov[:P, :P].copy()
+        theta, f, x0, b, r = prob.unpack(beta)
+        _, f_std, x0_std, b_std, r_std = prob.unpack(std)
+        measured = prob.per_run(prob.Z)
+        modelled = prob.per_run(prob.Z - ev.nu)
+        C, K = ev.model.C, ev.K
+        info = {
+            "form": "filter error (steady-state Kalman filter)",
+            "iterations": sv.iterations,
+            "converged": sv.converged,
+            "stop": sv.stop,
+            "cost": sv.history,  # negative log-likelihood of the innovations per iteration
+            "damping": sv.lam,
+            "rejected_steps": sv.rejected,
+            "gauss_newton_step_se": sv.step_history,
+            "modelled": "one-step-ahead predictions of the Kalman filter (residuals = innovations)",
+            "input_hold": prob.hold,
+            "process_noise_convention": PROCESS_NOISE_CONVENTION,
+            "process_noise": {s: {"F": float(v), "std": float(e)} for s, v, e in zip(prob.noise_states, f, f_std)},
+            "measurement_noise": {y: {"variance": float(v), "std": float(e)} for y, v, e in zip(p.outputs, r, r_std)},
+            "noise_cov": np.diag(r),
+            "noise_std": dict(zip(p.outputs, map(float, np.sqrt(r)))),
+            "noise_cov_estimated": True,
+            "innovation_cov": ev.S,
+            "kalman_gain": K,  # x_corrected = x_predicted + K nu
+            "diag_CK": np.diag(C @ K),  # <= 1: physically admissible
+            "initial_states": [dict(zip(p.state_names, map(float, x0[:, k]))) for k in range(prob.n_runs)],
+            "initial_state_std": [dict(zip(p.state_names, map(float, x0_std[:, k]))) for k in range(prob.n_runs)],
+            "initial_states_fixed": sorted(self.x0_),
+            "zero_shifts": [dict(zip(p.outputs, map(float, b[:, k]))) for k in range(prob.n_runs)],
+            "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, k]))) for k in range(prob.n_runs)],
+            "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
+            # where F compensation put a start of R below its floor: the starts' -log L, the one kept
+            # (FEM._solve); None where it did not (one start)
+            "r_start": sv.starts,
+            "not_determined": {**{f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not "
+                                                 "determined" for s in sv.at_zero},
+                               **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
+                                  for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_}},
+            "ill_conditioned": ill,
+            "standard_errors": ("coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds"
+                                if std_col is not None else
+                                "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"),
+            "coloured_failed": colour_failed,  # why the coloured correction was not used (None: it was, or not asked)
+            "std_white": std_white[:P],
+            "std_coloured": None if std_col is None else std_col[:P],
+            "noise_autocorrelation": acf,  # of the whitened innovations (L, ny), lag 0 first
+            "colour_passes": passes,
+            "wall_time": wall,
+        }
+        return IdentificationResult(
+            # the profile keeps its a priori derivatives; its [process_noise] holds the fitted F, so
+            # that identified_profile() starts the next fit (refine's nested fits) from it
+            method=self.method, profile=replace(p, process_noise={s: float(v) for s, v in zip(prob.noise_states, f)}),
+            theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
+            covariance=self.covariance_.copy(), fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
+            time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
+
+
+def _state_terms(p: Profile) -> list[str]:
+    """A profile's pseudo-inputs built from its states (products with a state factor)."""
+    return [n for n, s in pi.specs(p).items() if set(s.get("product", ())) & set(p.states)]
