@@ -2,6 +2,8 @@
 transfer function with an equivalent delay fitted to one response."""
 from __future__ import annotations
 
+import sys
+
 from ..cliutil import nonnegative_int, output_dir, positive_float, positive_int
 from ..errors import EstimationError
 from . import options
@@ -20,9 +22,12 @@ def cmd_hq(args) -> int:
         from ..estimators.frequency.handling import load_boundaries
 
         try:
-            grading["boundaries"] = load_boundaries(args.boundaries)
+            grading["boundaries"] = load_boundaries(args.boundaries)  # checked even where not used
         except ValueError as exc:
             raise EstimationError(str(exc)) from None
+        if not aircraft.ads33:
+            print(f"note: --boundaries not used: ADS-33's charts grade a rotorcraft in hover and low speed, not "
+                  f"this aircraft ({aircraft.line()})", file=sys.stderr)
     if args.runs:
         from ..estimators.frequency.response import frequency_response
 
