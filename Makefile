@@ -34,20 +34,23 @@ BENCHES ?= $(sort $(filter-out benchmarks/_%,$(wildcard benchmarks/*.py)))
 BENCH_ARGS_campaign := 100
 BENCH_ARGS_compat := 4
 BENCH_ARGS_demo_under_load := --estimate
-BENCH_ARGS_filter_error := --n 12 --calm 2
+BENCH_ARGS_filter_error := --n 3 --baselines 2
 BENCH_ARGS_filter_error_nonlinear := 10
 BENCH_ARGS_filter_error_starts := 5
 BENCH_ARGS_frequency := --quick
 BENCH_ARGS_frequency_fit := --realisations 10
 BENCH_ARGS_ml_long_record := 0.25
+BENCH_ARGS_multisine_design := --mc 10 --quick-design --cases s61_hover_8state
 BENCH_ARGS_paper_s61 := --seeds 1
+BENCH_ARGS_prior := 20
 BENCH_ARGS_refine_blind := --cases two_effects,small_Xde,null_s61
 BENCH_ARGS_refine_coloured := 10
 BENCH_ARGS_refine_fr := 6
 BENCH_ARGS_refine_speed := 1
 BENCH_ARGS_signal_design := --mc 20 --seeds 1 --durations 7
+BENCH_ARGS_structure := 2
 # always: filter_error's resumable store goes to benchmarks/output/, never the working directory
-BENCH_ALWAYS_filter_error := --save benchmarks/output/filter_error/filter_error_mc.jsonl
+BENCH_ALWAYS_filter_error := --save benchmarks/output/filter_error/filter_error_turbulence.jsonl
 bench_args = $(if $(BENCH_FULL),,$(BENCH_ARGS_$(1))) $(BENCH_ALWAYS_$(1))
 
 benchmarks: $(STAMP)

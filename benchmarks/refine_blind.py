@@ -229,7 +229,8 @@ def verdict(case: Case, data: dict) -> list[str]:
 
 
 # what refused a candidate that passed the score test, from its recorded reason
-GATES = [("estimate", ("could not be estimated", "re-fit failed", "not determined")),
+GATES = [("estimate", ("could not be estimated", "re-fit failed", "not determined", "not determinable")),
+         ("validity", ("outside their validity",)),
          ("disagree", ("metric disagree",)), ("LR", ("likelihood ratio",)),
          ("Wald", ("Wald",)), ("choosing", ("choosing data",)), ("judging", ("judging data",))]
 

@@ -3,6 +3,8 @@ outputs, 37 free derivatives, unstable: multiple shooting), 4 fit runs of 12 s a
 four controls excited and a 7 Hz vibration on q, plus one validation run, the full catalogue
 (issue 10's target: under 2 minutes on one core). A second case adds turbulence, a third has the
 turbulence without the vibration (the truth is then the declared model: anything added is false).
+A fourth has no vibration and a delay on every input (0.06, 0.08, 0.05 and 0.07 s: four delays to
+find, each by a profile-likelihood search; issue 29's target: under 2 minutes on one core).
 
 Prints each case's steps, the wall time of each, and the progress lines refine writes to stderr.
 
@@ -24,9 +26,10 @@ from identify.refine import Refine  # noqa: E402
 from _cli import add_parts, parser as cli_parser  # noqa: E402
 
 DT, LENGTH, TARGET = 0.01, 12.0, 120.0
+DELAYS = {"theta_s": 0.06, "theta_c": 0.08, "theta_0": 0.05, "theta_TR": 0.07}  # case 4
 
 
-def runs(turbulence: bool, vibration: bool = True) -> list:
+def runs(turbulence: bool, vibration: bool = True, delays: dict | None = None) -> list:
     profile = load_profile("bo105_70kt")
     model = LinearModel(profile)
     t = np.arange(int(LENGTH / DT) + 1) * DT
@@ -39,23 +42,25 @@ def runs(turbulence: bool, vibration: bool = True) -> list:
         w = np.zeros(model.n_states)
         if turbulence:  # gusts on the six force and moment equations
             w[:6] = [0.05, 0.05, 0.05, 0.02, 0.02, 0.02]
-        r = simulate_run(model, t, u, noise_fraction=0.02, process_noise=w, seed=s)
+        r = simulate_run(model, t, u, noise_fraction=0.02, process_noise=w, seed=s, input_delay=delays or 0.0)
         if vibration:
             r = r.with_channels({"q": r["q"] + 0.3 * np.std(r["q"]) * np.cos(2 * np.pi * 7.0 * t + s)})
         out.append(r)
     return out
 
 
-def main(cases: str = "123") -> None:
-    for case, turbulence, vibration in (("1", False, True), ("2", True, True), ("3", True, False)):
+def main(cases: str = "1234") -> None:
+    for case, turbulence, vibration, delays in (("1", False, True, None), ("2", True, True, None),
+                                                ("3", True, False, None), ("4", False, False, DELAYS)):
         if case not in cases:
             continue
-        data = runs(turbulence, vibration)
+        data = runs(turbulence, vibration, delays)
         started = time.perf_counter()
         r = Refine(load_profile("bo105_70kt"), progress=True).fit(data[:4], validate=data[4:])
         wall = time.perf_counter() - started
         print(f"case {case}: BO 105, 8 states, 4 inputs, 4 fit runs + 1 validation run of {LENGTH:g} s at "
-              f"{1 / DT:g} Hz{', 7 Hz vibration on q' if vibration else ''}{', turbulence' if turbulence else ''}; "
+              f"{1 / DT:g} Hz{', 7 Hz vibration on q' if vibration else ''}{', turbulence' if turbulence else ''}"
+              f"{', delays ' + str(delays) if delays else ''}; "
               f"full catalogue")
         print(f"  added {[f'{s.effect}:{s.target}' for s in r.steps_]}; rejected "
               f"{[f'{s.effect}:{s.target}' for s in r.rejected_]}; {r.tries_} tried; stopped: {r.stopped_}")
@@ -64,7 +69,8 @@ def main(cases: str = "123") -> None:
 
 def parser():
     ap = cli_parser(__doc__)
-    add_parts(ap, "cases", "123", "the cases to run (1: vibration, 2: with turbulence, 3: turbulence alone)")
+    add_parts(ap, "cases", "1234", "the cases to run (1: vibration, 2: with turbulence, 3: turbulence alone, "
+              "4: a delay on every input)")
     return ap
 
 

@@ -57,6 +57,14 @@ def cmd_identify(args) -> int:
     try:
         stats = run_campaign(campaign, args.out, executor, retry_failed=args.retry_failed,
                              progress=not args.no_progress)
+        if campaign.prior == "stitch":  # a second pass: each point with the others' stitch as its prior
+            from .prior import run_with_stitch_prior, screen_lines as prior_screen_lines
+
+            second = run_with_stitch_prior(campaign, args.out, executor, retry_failed=args.retry_failed,
+                                           progress=not args.no_progress)
+            stats["failed"] += second["failed"]
+            for line in prior_screen_lines(args.out):
+                print(line)
     finally:
         executor.close()
     print(f"{stats['points']} points: {stats['computed']} identified now, {stats['already_done']} already "

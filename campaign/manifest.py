@@ -2,7 +2,8 @@
 
 Two forms, read into the same :class:`Campaign`:
 
-* TOML: a ``[campaign]`` table (``name``, ``method``, ``refine``, ``condition``, and defaults
+* TOML: a ``[campaign]`` table (``name``, ``method``, ``refine``, ``condition``, ``prior``
+  (``"stitch"``: :mod:`campaign.prior`), and defaults
   every point inherits: ``profile``, ``channel_map``), an optional ``[options]`` table of
   estimator options (plain numbers, strings, booleans) and one ``[[point]]`` table per test point;
   ``matrix = "points.csv"`` in ``[campaign]`` reads the points from a CSV test matrix instead.
@@ -32,7 +33,8 @@ from identify.estimators.registry import METHOD_NAMES
 from identify.errors import CampaignError
 
 POINT_KEYS = {"name", "runs", "validate", "profile", "channel_map"}
-CAMPAIGN_KEYS = {"name", "method", "refine", "condition", "profile", "channel_map", "matrix"}
+CAMPAIGN_KEYS = {"name", "method", "refine", "condition", "profile", "channel_map", "matrix", "prior"}
+PRIORS = ("stitch",)  # [campaign] prior: each point's prior the stitched model of the others (campaign.prior)
 TRIM = "trim_"
 FILE_SUFFIXES = (".csv", ".mat", ".toml", ".json", ".txt")
 
@@ -86,6 +88,7 @@ class Campaign:
     condition: str | None = None
     options: dict = field(default_factory=dict)
     source: str = "<manifest>"
+    prior: str | None = None  # "stitch": a second pass, each point with the others' stitched model as prior
 
     @property
     def condition_columns(self) -> list[str]:
@@ -150,8 +153,11 @@ def load_manifest(path: str | Path, *, method: str | None = None, refine: bool |
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise CampaignError(f"{path}: duplicate point name(s) {', '.join(dup)}")
+    prior = head.get("prior")
+    if prior is not None and prior not in PRIORS:
+        raise CampaignError(f"{path}: [campaign] prior = {prior!r}: expected one of {', '.join(map(repr, PRIORS))}")
     camp = Campaign(str(head.get("name", path.stem)), points, method, refine,
-                    condition or head.get("condition"), head.get("options", {}), str(path))
+                    condition or head.get("condition"), head.get("options", {}), str(path), prior)
     if camp.condition and camp.condition not in camp.condition_columns:
         raise CampaignError(f"{path}: condition '{camp.condition}' is no column of the points "
                             f"({', '.join(camp.condition_columns) or 'none'})")

@@ -92,6 +92,10 @@ def _identify(task: dict) -> dict:
            "fit_error": prediction_error(final, prepare(final, runs)),
            "result": _result_json(result)}
     out["validation_error"] = prediction_error(final, prepare(final, held)) if held else None
+    prior = result.info.get("prior")
+    if prior:  # a priori weighting: where the prior decided, and any conflict
+        out["prior"] = {"decided_by_prior": prior["decided_by_prior"], "conflict": prior["conflict"],
+                        "data_share": {n: v["data_share"] for n, v in prior["parameters"].items()}}
     return out
 
 

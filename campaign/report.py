@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .prior import report_lines as prior_lines
 from .table import rows, write_table
 from .trends import BREAK_SIGMA, POOR_REL_STD, campaign_trends, plot_trends
 
@@ -42,6 +43,7 @@ def write_report(campaign, out) -> Path:
     if campaign.refine:
         lines += _refined(out, campaign)
     lines += _stitch(out / "stitch" / "stitch.json", cond)
+    lines += prior_lines(out)
     lines += _runs(out / "runs.jsonl")
     lines += ["## Tables", "", f"- `{tables['csv'].name}`: one row per (point, parameter)"]
     lines.append(f"- `{tables['parquet'].name}`: the same, typed" if tables["parquet"] else f"- {tables['note']}")

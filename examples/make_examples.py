@@ -19,6 +19,9 @@ not declare. Measurement noise: 3 % of each measured channel's standard deviatio
   display's run file: ``theta_s_cmd`` designed, ``theta_s`` flown, 60 Hz, time from the display's
   start) and the aircraft's recording of the same flight (50 Hz, stick in degrees, started
   ``DAQ_LEAD`` s before the display: the two clocks differ by that much);
+* ``gusty_lon.csv``, ``gusty_lat.csv``: the two 3211s flown again in turbulence: first-order gusts
+  (correlation time ``1 / GUST_CORNER`` s) of ``GUST_SIGMA`` m/s on u and v entering as a relative
+  wind (every derivative on u, v acting on u - u_g, v - v_g), for ``--method fem --turbulence u,v``;
 * ``sig.json`` (``theta_s``) and ``both.json`` (both cyclics, one run): sequences designed on the a
   priori as ``signaldesign design --criterion nominal --grid 0.5 --min-pulse 0.5`` would (the default
   robust design takes minutes; these take seconds and serve the documents' quick commands).
@@ -47,6 +50,7 @@ HERE = ROOT / "examples"
 DT, RECORD, AMP, DELAY, SPREAD, NOISE = 0.02, 15.0, 0.01, 0.08, 0.15, 0.03
 DAQ_LEAD = 3.74  # s: the recording starts this long before the display's clock
 SEED = 23
+GUST_CORNER, GUST_SIGMA = 0.7, {"u": 0.8, "v": 0.5}  # rad/s, m/s
 
 
 def inputs(model: LinearModel, signals, t: np.ndarray) -> np.ndarray:
@@ -74,6 +78,25 @@ def write_mat(run: Run, path: Path) -> None:
     cols = [run.time, deg(run["theta_s"]), deg(run["theta_c"]) + 1.5, -deg(run["theta_c"]) + 1.5,
             run["u"], run["v"], deg(run["p"]), deg(run["q"]), deg(run["theta"]), deg(run["phi"])]
     scipy.io.savemat(path, {"Z": np.column_stack(cols)}, do_compression=True)
+
+
+def gusty_runs(truth: LinearModel, t: np.ndarray) -> None:
+    """``gusty_lon.csv``, ``gusty_lat.csv``: the truth with gust states (corner held at GUST_CORNER),
+    white noise driving them; only the inputs and the measured outputs are written."""
+    from identify.model.turbulence import augment, with_turbulence
+
+    p = with_turbulence(truth.profile, "u,v")
+    gm = augment(replace(p, turbulence={**p.turbulence, "corner": dict.fromkeys(("u", "v"), GUST_CORNER)}))
+    model = LinearModel(gm.augmented)
+    # F = sigma sqrt(2 corner); simulate_run's per-sample white noise of std F / sqrt(dt)
+    sigma = [GUST_SIGMA[s[:-2]] * np.sqrt(2 * GUST_CORNER / DT) if s in gm.gusts.values() else 0.0
+             for s in model.profile.state_names]
+    for k, (name, signal, label) in enumerate((("gusty_lon.csv", m3211(0.8, AMP, "theta_s", 1.0), "theta_s"),
+                                                ("gusty_lat.csv", m3211(0.6, AMP, "theta_c", 1.0), "theta_c"))):
+        run = simulate_run(model, t, inputs(model, [signal], t), noise_fraction=NOISE, seed=SEED + 40 + k,
+                           derivatives=False, input_delay=DELAY, process_noise=sigma)
+        kept = Run(run.time, {c: run[c] for c in truth.profile.channels})
+        rounded(kept, {"signal": f"3211 on {label} in turbulence"}).to_csv(HERE / name)
 
 
 def cockpit_and_daq(truth: LinearModel) -> tuple[Run, Run]:
@@ -124,6 +147,7 @@ def main() -> None:
     for name, axes in (("sig.json", ["theta_s"]), ("both.json", ["theta_s", "theta_c"])):
         d = SequenceDesign(axes, criterion="nominal", grid=0.5, min_pulse=0.5, jobs=1).fit(apriori)
         save_signals(d.signals_, HERE / name)
+    gusty_runs(truth, t)
     cockpit, daq = cockpit_and_daq(truth)
     cockpit.to_csv(HERE / "cockpit_lon.csv")
     daq.to_csv(HERE / "daq_lon.csv")

@@ -7,10 +7,10 @@ A new command is a new module there and one entry in :data:`COMMANDS`.
 from __future__ import annotations
 
 from .cliutil import Parser, add_threads_option, run
-from .commands import compat, estimate, freq, hq, model, refine, show
+from .commands import compat, estimate, freq, hq, model, refine, show, structure
 
 # the command modules (identify.commands), in the order ``--help`` lists them
-COMMANDS = (show, model, estimate, refine, freq, compat, hq)
+COMMANDS = (show, model, estimate, refine, structure, freq, compat, hq)
 
 
 def build_parser() -> Parser:

@@ -142,7 +142,7 @@ class Objective:
 
     def __init__(self, basis: StepBasis, criterion: str = "mean", inv_limits=None, amplitude: float | None = None,
                  offsets=None, weights=None, worst_weight: float = 1.0, softness: float = 0.0,
-                 nominal_floor: float | None = None, stride: int = 1):
+                 nominal_floor: float | None = None, stride: int = 1, prior_information=None):
         if criterion not in ("nominal", "worst", "mean", "robust"):
             raise DesignError(f"unknown criterion '{criterion}' (robust, mean, worst, nominal)")
         self.worst_weight, self.softness = float(worst_weight), float(softness)
@@ -158,6 +158,9 @@ class Objective:
         w = np.ones(self.n_models) if weights is None else np.asarray(weights, float)[:self.n_models]
         self.weights = w / w.sum()
         self.p = basis.evaluator.p
+        # a priori weighting: the prior's information (p, p) added to the flight's at the amplitude
+        # flown, so the design maximises what the flight adds to what is known (identify.model.prior)
+        self.prior_information = None if prior_information is None else np.asarray(prior_information, float)
         self.evaluations = 0
         self._base = self._last = None
 
@@ -248,6 +251,8 @@ class Objective:
     def per_model(self, M, r) -> np.ndarray:
         """Each model's term (m,) from its information M (m, p, p) and peak ratio r (m,), offsets
         subtracted; -inf for a singular information."""
+        if self.prior_information is not None:
+            return self._with_prior(M, r)
         sign, ld = np.linalg.slogdet(M)
         ld = np.where(sign > 0, ld, -np.inf)
         if self.amplitude is None:
@@ -259,6 +264,20 @@ class Objective:
             if over > 0:  # below every flyable sequence within the limits, graded toward them
                 per_model = per_model - self.INFEASIBLE
         return np.where(np.isfinite(per_model), per_model, -np.inf) - self.offsets
+
+    def _with_prior(self, M, r) -> np.ndarray:
+        """Each model's ``log det(M a^2 + P^-1)`` at the amplitude ``a`` flown (free: 1 / r, the
+        largest peak at its limit; fixed: beyond the limits, as :meth:`per_model` penalises)."""
+        r = np.asarray(r, float)
+        with np.errstate(divide="ignore"):
+            a2 = 1 / r ** 2 if self.amplitude is None else np.full(r.shape, float(self.amplitude) ** 2)
+        a2 = np.where(np.isfinite(a2), a2, 0.0)
+        sign, ld = np.linalg.slogdet(M * a2[:, None, None] + self.prior_information[None])
+        ld = np.where((sign > 0) & (r > 0), ld, -np.inf)
+        if self.amplitude is not None and r[0] > 0:
+            over = max(0.0, float(np.log(self.amplitude * r[0])))
+            ld = ld - 2 * self.p * self.PENALTY * over - (self.INFEASIBLE if over > 0 else 0.0)
+        return ld - self.offsets
 
     def combine(self, per_model, floor: bool = True) -> float:
         """The criterion from the models' terms (every combination is non-decreasing in each term;

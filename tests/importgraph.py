@@ -14,7 +14,7 @@ PACKAGES = ("identify", "signaldesign", "cueing", "campaign")  # bottom to top: 
 # errors and command-line plumbing sit under everything; the pipeline of one identification (read, fit,
 # check, write) above the rooms it runs; the command line and the lazy facade on top.
 WINGS = {"errors": 0, "_version": 0, "cliutil": 0, "data": 1, "model": 2, "estimators": 3, "refine": 4, "compat": 5,
-         "pipeline": 6, "commands": 7, "cli": 7, "__main__": 7}
+         "structure": 5, "pipeline": 6, "commands": 7, "cli": 7, "__main__": 7}
 FACADE = 7  # identify/__init__.py: names imported on first use from every wing
 
 

@@ -43,6 +43,14 @@ def add_fit(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--fix", metavar="LIST", help="free parameters to hold at their a priori values (comma-separated)")
     p.add_argument("--free", metavar="LIST", help="fixed parameters to estimate (comma-separated)")
     p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
+    p.add_argument("--turbulence", metavar="LIST", help="fem: gust states on these velocities (u,v,w; in a "
+                   "flow-angle profile w and v act on alpha and beta), corners and intensities estimated; "
+                   "sets the profile's [turbulence] states")
+    p.add_argument("--prior-relative", type=positive_float, metavar="PCT",
+                   help="a priori weighting: every free parameter's a priori value is a prior with std PCT %% of "
+                        "it (at least PCT %% of a tenth of the largest of its equation's parameters of the same unit)")
+    p.add_argument("--prior", metavar="FILE", help="a priori weighting: a previous result.json (or a profile with "
+                   "meta.std): its estimates and stds become the prior (over the profile's [prior])")
 
 
 def reading(args):
@@ -54,8 +62,11 @@ def reading(args):
 
 
 def profile(args):
-    """The a priori profile, with ``--free``, ``--fix`` and ``--outputs`` applied (each said)."""
+    """The a priori profile, with ``--free``, ``--fix``, ``--outputs``, the priors (``--prior``,
+    ``--prior-relative``) and ``--turbulence`` applied (each said)."""
+    from ..errors import EstimationError
     from ..model import subset
+    from ..model.prior import prior_options
     from ..model.profile import load_profile
 
     prof = load_profile(args.profile)
@@ -64,6 +75,17 @@ def profile(args):
             prof = change(prof, getattr(args, option))
             print(f"--{option} {getattr(args, option)}: {len(prof.free)} free parameters, "
                   f"outputs {', '.join(prof.outputs)}", file=sys.stderr)
+    prof, lines = prior_options(prof, getattr(args, "prior_relative", None), getattr(args, "prior", None))
+    for line in lines:
+        print(line, file=sys.stderr)
+    if getattr(args, "turbulence", None):
+        from ..estimators.registry import estimator_class
+        from ..model.turbulence import with_turbulence
+
+        if not estimator_class(args.method).models_turbulence:
+            raise EstimationError(f"--turbulence is the filter-error method's model: use --method fem "
+                                  f"(--method {args.method} takes every misfit for measurement noise)")
+        prof = with_turbulence(prof, args.turbulence)
     return prof
 
 

@@ -21,6 +21,9 @@ def add_parser(sub) -> None:
                    help="known disturbance frequency (e.g. a rotor harmonic); default: residual spectrum peak")
     p.add_argument("--f-min", type=nonnegative_float, default=0.5, metavar="HZ", help="lowest periodic frequency searched")
     p.add_argument("--tau-max", type=positive_float, default=0.5, metavar="S", help="largest delay searched (default 0.5)")
+    p.add_argument("--prune", dest="backward", action="store_true",
+                   help="a last step of backward elimination: fix at 0, one at a time, the parameters within 2 "
+                        "std of zero whose removal does not raise the held-out error (identify structure)")
     p.set_defaults(func=cmd_refine)
 
 
@@ -35,7 +38,8 @@ def cmd_refine(args) -> int:
     job = options.job(args, estimator_options(args))
     refinement = job.refine(args.validate or [], names=options.FLAGS, alpha=args.alpha, kinds=kinds,
                             max_steps=args.max_steps, zero_shifts=not args.no_zero_shifts, frequencies=args.frequency,
-                            f_min=args.f_min, tau_max=args.tau_max, progress=True)
+                            f_min=args.f_min, tau_max=args.tau_max, progress=True,
+                            prune=_pruner() if args.backward else None)
     refiner = refinement.refiner
     if refiner.nothing_found:
         print("nothing found: no candidate effect is significant")
@@ -44,6 +48,8 @@ def cmd_refine(args) -> int:
         print(f"step {i}: {s.effect} on {s.target}: {params} (score {s.statistic:.4g} > {s.threshold:.4g})")
     for s in refiner.rejected_:
         print(f"rejected: {s.effect} on {s.target}: {s.reason}")
+    for d in refiner.pruned_:
+        print(f"prune: {d.term} {'fixed at 0' if d.action == 'dropped' else 'kept'} (|t| = {d.statistic:.2f}; {d.note})")
     if refiner.unconverged_:
         print(f"warning: {len(refiner.unconverged_)} fit(s) inside refine did not converge "
               f"(listed in report.md): {refiner.unconverged_[0]}")
@@ -53,3 +59,9 @@ def cmd_refine(args) -> int:
     out = refinement.save(args.out)  # after the screen output: a failing write loses nothing shown
     print(f"written to {out}: refine.json, report.md, final_profile.toml")
     return 0
+
+
+def _pruner():
+    from ..structure.prune import Prune
+
+    return Prune()

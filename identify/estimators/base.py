@@ -66,6 +66,7 @@ from ..errors import EstimationError
 from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, held_line, unflown_parameters
+from .prior import combined_with_prior
 from .result import IdentificationResult
 
 MIN_SAMPLES = 10
@@ -99,9 +100,13 @@ class Estimator:
     """Base class: holds the profile (structure + a priori values) and checks the runs."""
 
     method = "base"
+    models_turbulence = False  # whether a profile's [turbulence] is part of the estimator's model (FEM)
     simulates_state_terms = False
     builds_state_terms = False
     progress_quantity = "value"
+    # whether the fit itself weighs the profile's [prior] (its residuals in the cost); else ``fit``
+    # combines the prior with the data's estimate afterwards (identify.estimators.prior.combine)
+    weighs_prior = False
 
     def __init__(self, profile: Profile | str | Path):
         self.profile = profile
@@ -115,12 +120,19 @@ class Estimator:
             self.result_ = self._fit_holding(runs, unflown)
         else:
             self.result_ = self._fit(runs)
+        if not self.weighs_prior:  # the profile's [prior], combined with the data's estimate
+            self.result_ = combined_with_prior(self.result_, self.profile_)
         from ..data.provenance import provenance
 
         info = self.result_.info
         info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
         if "wall_time" in info:  # how long this machine took: a fact of the run, beside its files, not a result
             info["provenance"]["wall_time_s"] = info.pop("wall_time")
+        if self.profile_.turbulence and not self.models_turbulence:
+            line = (f"{self.method.upper()}: the profile's [turbulence] is modelled by the filter-error method only "
+                    f"(--method fem); {self.method.upper()} took the gusts' response for measurement noise")
+            warnings.warn(line, stacklevel=2)
+            info["turbulence_not_modelled"] = line
         return self
 
     def _fit_holding(self, runs: list[Run], unflown: dict[str, list[str]]) -> IdentificationResult:

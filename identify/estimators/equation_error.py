@@ -49,6 +49,7 @@ from ..model.simulate import discretize
 from .base import Estimator
 from .colour import autocorr_apply as _autocorr_apply
 from .output_error import MIN_SEGMENT, auto_segment, restarts, simulate_segments
+from .prior import posterior, prior_term
 from .result import IdentificationResult, fit_metrics
 
 DEFAULT_DIFF_CUTOFF_HZ = 6.25
@@ -197,8 +198,11 @@ def check_rank(X: np.ndarray, names: list[str]) -> np.ndarray:
     return scale
 
 
-def _solve(X_blocks, y_blocks, Z_blocks, names):
-    """Estimate, residual blocks, coloured-residual and white covariances of one group."""
+def _solve(X_blocks, y_blocks, Z_blocks, names, prior=None):
+    """Estimate, residual blocks, coloured-residual and white covariances of one group (and, with
+    a ``prior``, the mixed estimate's parts, see :func:`_mixed`)."""
+    if prior is not None:
+        return _mixed(X_blocks, y_blocks, Z_blocks, names, *prior)
     X, y = np.vstack(X_blocks), np.concatenate(y_blocks)
     Z = X if Z_blocks is None else np.vstack(Z_blocks)
     scale = check_rank(X, names)
@@ -220,7 +224,50 @@ def _solve(X_blocks, y_blocks, Z_blocks, names):
                 for v, Zb in zip(residuals, Z_blocks or X_blocks))
     cov_white = Hinv @ M_white @ Hinv.T / np.outer(scale, scale)
     cov_col = Hinv @ M_col @ Hinv.T / np.outer(scale, scale)
-    return theta, residuals, cov_col, cov_white
+    return theta, residuals, cov_col, cov_white, None
+
+
+MIXED_PASSES = 3  # residual variance and mixed estimate solved in turn (the variance settles at once)
+
+
+def _mixed(X_blocks, y_blocks, Z_blocks, names, mean, prec):
+    """Theil and Goldberger's mixed estimation (Morelli & Klein): the prior ``theta_j ~ N(mean_j,
+    1 / prec_j)`` (prec 0: none; the zero-shift columns have none) as extra regression rows
+    weighted against the equation's residual variance s^2 (re-estimated from the mixed fit's
+    residuals): ``(Z^T X / s^2 + P^-1) theta = Z^T y / s^2 + P^-1 mean`` (Z = X for LS). A
+    regressor the data cannot separate is accepted when the prior holds it. Returns as
+    :func:`_solve` with, last, ``(A, D_coloured, D_white)``: ``A`` the inverse of the left side,
+    ``D`` the data's part of the covariance (:mod:`identify.estimators.prior`)."""
+    X, y = np.vstack(X_blocks), np.concatenate(y_blocks)
+    Z = X if Z_blocks is None else np.vstack(Z_blocks)
+    has = prec > 0
+    resid = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+    q, ntot = X.shape[1], X.shape[0]
+    s2 = max(float(resid @ resid) / max(ntot - q, 1), 1e-300)
+    check_rank(np.vstack([X, np.diag(np.sqrt(prec * s2))[has]]), names)
+    scale = np.linalg.norm(X, axis=0)
+    scale[scale == 0] = 1.0
+    Xs, Zs = X / scale, Z / scale
+    prec_s, mean_s = prec / scale ** 2, np.nan_to_num(mean) * scale
+    H = Zs.T @ Xs
+    for _ in range(MIXED_PASSES):
+        Hp = H / s2 + np.diag(prec_s)
+        theta_s = np.linalg.solve(Hp, Zs.T @ y / s2 + prec_s * mean_s)
+        v = y - Xs @ theta_s
+        s2 = max(float(v @ v) / max(ntot - q, 1), 1e-300)
+    Hp = H / s2 + np.diag(prec_s)
+    theta = theta_s / scale
+    residuals = [yb - Xb @ theta for Xb, yb in zip(X_blocks, y_blocks)]
+    A = np.linalg.inv(Hp)
+    dof = max(ntot - q, 1) / ntot
+    Zb_s = [Zb / scale for Zb in (Z_blocks or X_blocks)]
+    B_white = sum((v @ v / len(v) / dof) * Zb.T @ Zb for v, Zb in zip(residuals, Zb_s)) / s2 ** 2
+    B_col = sum(Zb.T @ _autocorr_apply(v / np.sqrt(dof), Zb) for v, Zb in zip(residuals, Zb_s)) / s2 ** 2
+    unscale = 1 / np.outer(scale, scale)
+    D_white, D_col = A @ B_white @ A.T * unscale, A @ B_col @ A.T * unscale
+    prior_part = (A * prec_s) @ A.T * unscale
+    # A in the parameters' units: theta = A_u (Z^T y / s^2 + P^-1 mean) with A_u = A / outer(scale)
+    return theta, residuals, D_col + prior_part, D_white + prior_part, (A * unscale, D_col, D_white)
 
 
 # -- simulation for instruments and modelled outputs ------------------------------------------
@@ -252,6 +299,8 @@ def _segment(model: LinearModel, reinit, duration: float) -> float | None:
 # -- estimators -------------------------------------------------------------------------------
 class EquationError(Estimator):
     """Shared machinery of LS and IV."""
+
+    weighs_prior = True  # mixed estimation (the profile's [prior] in the regressions)
 
     def __init__(self, profile, *, bias: bool = True, diff_cutoff_hz: float | None = None,
                  coloured: bool = True, reinit="auto"):
@@ -316,6 +365,8 @@ class EquationError(Estimator):
         theta, cov_col, cov_white = np.zeros(p), np.zeros((p, p)), np.zeros((p, p))
         biases = np.zeros((len(data), n))
         residual_std = {}
+        term = prior_term(self.profile_, m.names)
+        mixed = None if term is None else (np.zeros((p, p)), np.zeros((p, p)), np.zeros((p, p)))
         regs_x = [regressors(m, d.x, d.u) for d in data]
         regs_z = None if instruments is None else [regressors(m, x, d.u) for x, d in zip(instruments, data)]
         for g in self._groups():
@@ -328,18 +379,28 @@ class EquationError(Estimator):
                 X = [b[:, :npar] for b in X]
                 Z = None if Z is None else [b[:, :npar] for b in Z]
                 names = names[:npar]
-            est, res, cc, cw = _solve(X, y, Z, names)
             k = len(g.params)
             idx = np.array(g.params)
+            group_prior = None
+            if term is not None and term.has[idx].any():  # zero-shift columns: no prior
+                extra = len(names) - k
+                group_prior = (np.concatenate([term.mean[idx], np.zeros(extra)]),
+                               np.concatenate([term.precision[idx], np.zeros(extra)]))
+            est, res, cc, cw, parts = _solve(X, y, Z, names, group_prior)
             theta[idx] = est[:k]
             cov_col[np.ix_(idx, idx)] = cc[:k, :k]
             cov_white[np.ix_(idx, idx)] = cw[:k, :k]
+            if mixed is not None:  # the group's A and D (no prior in it: the data alone, W = I)
+                block = parts or (cw, cc, cw)
+                for full, part in zip(mixed, block):
+                    full[np.ix_(idx, idx)] = part[:k, :k]
             if self.bias:
                 biases[:, g.equations] = est[k:].reshape(len(data), len(g.equations))
             ne = len(g.equations)
             for i, e in enumerate(g.equations):
                 v = np.concatenate([res[r * ne + i] for r in range(len(data))])
                 residual_std[self.profile_.state_names[e]] = float(np.std(v))
+        self.mixed_ = None if term is None else (term, *mixed)
         return theta, cov_col, cov_white, biases, residual_std
 
     # simulation ---------------------------------------------------------------------------------
@@ -388,6 +449,9 @@ class EquationError(Estimator):
             "modelled": how,
             "processing": [processing_steps(d.run) for d in data],
         })
+        if getattr(self, "mixed_", None) is not None:  # mixed estimation: the prior's record
+            term, A, D_col, D_white = self.mixed_
+            info["prior"] = posterior(term, theta, A, D_col if self.coloured else D_white)[1]
         return IdentificationResult(
             method=self.method, profile=p, theta=theta, std=np.sqrt(np.diag(cov)), covariance=cov,
             fit=fit_metrics(list(p.outputs), measured, modelled), info=info,

@@ -55,6 +55,7 @@ from ..model.profile import Profile
 from .base import Estimator
 from .lm import MAX_REL_STEP, LevenbergMarquardt  # noqa: F401  (MAX_REL_STEP: the step bound ML reports)
 from .output_error import OutputError, auto_segment
+from .prior import posterior, prior_term
 from .result import IdentificationResult, fit_metrics
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
@@ -96,6 +97,7 @@ class ML(Estimator):
     """
 
     method = "ml"
+    weighs_prior = True  # the prior's residuals in the cost (identify.estimators.prior)
     simulates_state_terms = True  # output error: a term built from states comes from the simulated ones
     progress_quantity = "cost"
 
@@ -149,6 +151,7 @@ class ML(Estimator):
             raise EstimationError("ML: inputs interpolated linearly between samples (input_hold = 'linear') "
                                   "are supported by --method fem only; ML holds them")
         prob = OutputError(p, u, z, dt, segment, bool(self.estimate_x0), bool(self.estimate_bias))
+        prob.prior = prior_term(p)  # None without one: the data alone
         beta = prob.initial_beta(model0.theta)
         held = _held(prob, beta, {**p.initial_state, **(self.x0 or {})})
         form = "plain" if prob.layout.n_segments == len(runs) else "multiple shooting"
@@ -180,6 +183,13 @@ class ML(Estimator):
             std = std_col = _std(cov, sv.active)
         self.covariance_ = cov.gg[:P, :P].copy()
         theta, x0, b = prob.unpack(sv.beta)
+        prior = None
+        if prob.prior is not None:  # the information holds the prior's: A = (M_d + P^-1)^-1
+            A = cov_white.gg[:P, :P]
+            D = self.covariance_ if self.coloured else A - (A * prob.prior.precision) @ A
+            self.covariance_, prior = posterior(prob.prior, theta, A, D, sv.active[:P])
+            std = std.copy()
+            std[:P] = np.sqrt(np.clip(np.diag(self.covariance_), 0, None))
         _, x0_std, b_std = prob.unpack(std)
         lay = prob.layout
         measured = [zr.copy() for zr in prob.per_run(prob.Z)]
@@ -226,6 +236,8 @@ class ML(Estimator):
             "estimator_advice": _advice(std_white[:P], None if std_col is None else std_col[:P]),
             "wall_time": wall,
         }
+        if prior is not None:
+            info["prior"] = prior
         return IdentificationResult(
             method=self.method, profile=p, theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
             covariance=self.covariance_.copy(),

@@ -179,6 +179,7 @@ class OutputError:
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.x0_held = np.zeros((n, S))  # used when x0 is not estimated
         self.b_held = np.zeros((ny, self.n_runs))
+        self.prior = None  # a PriorTerm (identify.estimators.prior): its residuals join the cost
 
     # -- the unknown vector ----------------------------------------------------------------------
     def unpack(self, beta: np.ndarray):
@@ -319,8 +320,9 @@ class OutputError:
         return (Wh @ ev.e).transpose(2, 0, 1)[self.mask.T > 0].ravel()
 
     def cost(self, ev: Response, Wh: np.ndarray) -> float:
-        """0.5 sum e^T R^-1 e (R^-1 = Wh^T Wh)."""
-        return 0.5 * float(np.sum((Wh @ ev.e) ** 2))
+        """0.5 sum e^T R^-1 e (R^-1 = Wh^T Wh), plus the prior's 0.5 sum ((theta - mu) / s)^2."""
+        prior = 0.0 if self.prior is None else self.prior.cost(ev.beta[:self.p])
+        return 0.5 * float(np.sum((Wh @ ev.e) ** 2)) + prior
 
     def residual_vector(self, beta: np.ndarray, Wh: np.ndarray) -> np.ndarray:
         """Whitened residuals at ``beta`` (what a general least-squares solver minimises)."""
@@ -390,6 +392,10 @@ class OutputError:
                 Jt = Jloc.transpose(0, 2, 1)
                 Ml[segs] += Jt @ Jloc
                 gl[segs] += (Jt @ ew)[..., 0]
+        if self.prior is not None:  # the prior's residuals: theta's rows, in the first segment's block
+            p = self.p
+            Ml[0, np.arange(p), np.arange(p)] += self.prior.precision
+            gl[0, :p] += self.prior.gradient(ev.beta[:p])
         return Ml, gl
 
     def coloured_information(self, ev: Response, Wh: np.ndarray, info: BlockInformation,

@@ -21,6 +21,7 @@ import numpy as np
 from ..model.linear import LinearModel, format_modes
 from ..model.profile import Profile
 from . import identifiability
+from .prior import summary_lines as prior_summary_lines
 
 
 def insensitivity(cov: np.ndarray) -> np.ndarray:
@@ -245,6 +246,8 @@ class IdentificationResult:
         lines += _noise_lines(self.info)
         if self.info.get("estimator_advice"):
             lines.append(f"note: {self.info['estimator_advice']}")
+        if self.info.get("prior"):
+            lines += prior_summary_lines(self.info["prior"])
         if self.fit:
             lines += ["", f"{'output':<18}{'RMS error':>12}{'Theil U':>10}"]
             lines += [f"{k:<18}{v['rms']:12.4g}{v['theil']:10.4f}" for k, v in self.fit.items()]
@@ -302,7 +305,7 @@ class IdentificationResult:
             "profile": self.profile.name,
             "runs": self.runs,
             "converged": self.converged,
-            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a)}
+            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a), **_prior_of(self.info, n)}
                            for n, v, s, a in zip(self.names, self.theta, self.std, self.apriori)},
             "correlation": {"names": self.names, "matrix": self.correlation},
             "identifiability": check,
@@ -362,6 +365,14 @@ class IdentificationResult:
                     result.modelled.append(z[f"modelled_{r}"])
         return result
 
+def _prior_of(info: dict, name: str) -> dict:
+    """A parameter's prior and data share for result.json (the estimate is the posterior), or nothing."""
+    entry = (info.get("prior") or {}).get("parameters", {}).get(name)
+    if not entry:
+        return {}
+    return {"prior": entry["prior"], "data_share": entry["data_share"], "decided_by_prior": entry["decided_by_prior"]}
+
+
 def _noise_lines(info: dict) -> list[str]:
     """The filter-error method's noise estimates: F and R with their bounds ("not determined" on
     a boundary, never 0)."""
@@ -371,13 +382,30 @@ def _noise_lines(info: dict) -> list[str]:
     def bound(s):
         return f"{s:.3g}" if np.isfinite(s) else "not determined"
 
-    lines = ["", f"process noise F ({info['process_noise_convention']}):"]
+    lines = [""] + ([info["process_noise_model"]] if "process_noise_model" in info else [])
+    lines += _turbulence_lines(info.get("turbulence"))
+    lines.append(f"process noise F ({info['process_noise_convention']}):")
     lines += [f"  {k:<16}{v['F']:12.4g}  std {bound(v['std'])}" for k, v in info["process_noise"].items()] or ["  none"]
     lines.append("measurement noise R (variances, output units squared):")
     lines += [f"  {k:<16}{v['variance']:12.4g}  std {bound(v['std'])}" for k, v in info["measurement_noise"].items()]
     return lines + [f"  note: {n}: {why}" for n, why in info.get("not_determined", {}).items()
                      if n.startswith(("F of ", "R of "))]
 
+
+def _turbulence_lines(turb: dict | None) -> list[str]:
+    """The fitted gusts: corner and intensity per velocity with their bounds."""
+    if not turb:
+        return []
+
+    def pm(v, s, held=False):
+        return f"{v:.4g} (held)" if held else f"{v:.4g} ± {s:.2g}" if s is not None and np.isfinite(s) else f"{v:.4g} (bound not determined)"
+
+    lines = ["turbulence (gust std = F / sqrt(2 corner); bounds: 1 std):"]
+    for s, g in turb["gusts"].items():
+        extra = f" = {g['intensity_m_s']:.3g} m/s" if g.get("intensity_m_s") is not None else ""
+        lines.append(f"  {s:<6} corner {pm(g['corner'], g['corner_std'], not g['corner_estimated'])} rad/s, "
+                     f"intensity {pm(g['intensity'], g['intensity_std'])} {g['unit']}{extra}")
+    return lines
 
 
 HISTORIES = "time_histories.npz"  # the runs' time, measured and modelled outputs beside result.json

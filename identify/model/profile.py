@@ -26,6 +26,13 @@ What flight-test models need besides the matrices (every table optional)::
     [biases]               # constant state-equation biases, free parameters <equation>_one on the
     L = 0.0                # constant pseudo-input ``one`` (as refine writes them)
     input_hold = "linear"  # (top level) inputs between samples: "held" (default) or "linear"
+    [turbulence]           # gusts the filter-error method models (identify.model.turbulence):
+    states = ["u", "w"]    # the velocities they act on (alpha/beta form: w -> alpha, v -> beta)
+    corner = 0.7           # optional, rad/s, held (a number or {u = ..}); default: estimated
+    scale_length = 300.0   # optional: corner = airspeed / scale_length (Dryden), with
+    airspeed = 53.6        # m/s (else the runs' "airspeed" metadata)
+    [prior]                # a priori weighting: parameter = std around its [free] value, or
+    M_q = 0.4              # { value = ..., std = ... } (see identify.model.prior)
 
 A run's metadata ``input_hold`` overrides the profile's for that run (filter-error method).
 """
@@ -39,12 +46,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..errors import ProfileError, read_text
+from .prior_table import parse_prior, prior_toml_lines
 
 EQUATION_OF_STATE = {"u": "X", "v": "Y", "w": "Z", "p": "L", "q": "M", "r": "N"}
 DOT = "_dot"
 _KNOWN_KEYS = {"name", "description", "states", "inputs", "outputs", "output_defs", "free",
                "fixed", "ties", "meta", "limits", "process_noise", "initial_state", "zero_shifts", "biases",
-               "input_hold"}
+               "input_hold", "turbulence", "prior"}
 VELOCITY_STATES = ("u", "v", "w")  # the equations turbulence drives: the default process noise
 INPUT_HOLDS = ("held", "linear")
 BIAS_INPUT = "one"  # the constant pseudo-input of state-equation biases (refine's name too)
@@ -84,6 +92,11 @@ class Profile:
     initial_state: dict[str, float] = field(default_factory=dict)
     zero_shifts: dict[str, dict] = field(default_factory=dict)
     input_hold: str = "held"
+    # gusts declared for the filter-error method ({} none): states, corner, scale_length, airspeed,
+    # corner_start, intensity, kinematic (:func:`parse_turbulence`; identify.model.turbulence)
+    turbulence: dict = field(default_factory=dict)
+    # a priori weighting {free parameter: {"value": centre, "std": std}} (identify.model.prior)
+    prior: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def __post_init__(self):
         _validate(self)
@@ -181,10 +194,11 @@ class Profile:
             lines += ["", "[zero_shifts]"] + [
                 f"{_key(k)} = {_inline({'value': v['value'], 'fixed': not v['estimate']})}"
                 for k, v in self.zero_shifts.items()]
-        for table in ("free", "fixed", "limits", "process_noise", "initial_state", "meta"):
+        for table in ("free", "fixed", "limits", "process_noise", "initial_state", "turbulence", "meta"):
             rows = getattr(self, table)
             if rows:
                 lines += ["", f"[{table}]"] + [f"{_key(k)} = {_toml_value(v)}" for k, v in rows.items()]
+        lines += prior_toml_lines({k: v for k, v in self.prior.items() if k in self.free})
         return "\n".join(lines) + "\n"
 
     def save(self, path: str | Path) -> Path:
@@ -259,14 +273,15 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
     for key in ("name", "states", "inputs", "outputs"):
         if key not in data:
             raise ProfileError(f"{source}: missing '{key}'")
-    data = _with_biases(data, source)
+    data = _with_coefficient_ties(_with_biases(data, source), source)
+    free = _numbers(data.get("free", {}), "free", source)
     return Profile(
         name=_require(str, data["name"], "name", source),
         description=_require(str, data.get("description", ""), "description", source),
         states=_units(data["states"], "states", source),
         inputs=_units(data["inputs"], "inputs", source),
         outputs=tuple(_require(str, y, "outputs", source) for y in _require(list, data["outputs"], "outputs", source)),
-        free=_numbers(data.get("free", {}), "free", source),
+        free=free,
         fixed=_numbers(data.get("fixed", {}), "fixed", source),
         ties={k: _numbers(v, f"ties.{k}", source) for k, v in _require(dict, data.get("ties", {}), "ties", source).items()},
         output_defs={k: _numbers(v, f"output_defs.{k}", source)
@@ -279,7 +294,70 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
         zero_shifts={k: _zero_shift(k, v, source)
                      for k, v in _require(dict, data.get("zero_shifts", {}), "zero_shifts", source).items()},
         input_hold=_require(str, data.get("input_hold", "held"), "input_hold", source),
+        turbulence=parse_turbulence(data.get("turbulence", {}), data["states"], source),
+        prior=parse_prior(data.get("prior", {}), free, source),
     )
+
+
+TURBULENCE_KEYS = ("states", "corner", "scale_length", "airspeed", "corner_start", "intensity", "kinematic")
+FLOW_ANGLES = {"w": "alpha", "v": "beta", "u": "V"}  # a profile in alpha/beta form: the state a gust moves
+
+
+def gust_velocity(name: str, states) -> str:
+    """The state a gust on ``name`` acts on: the state itself, or in a profile written in flow
+    angles (no ``w``/``v``/``u`` state) ``alpha`` for w, ``beta`` for v, ``V`` for u."""
+    if name not in states and FLOW_ANGLES.get(name) in states:
+        return FLOW_ANGLES[name]
+    return name
+
+
+def parse_turbulence(table, states, source: str) -> dict:
+    """The ``[turbulence]`` table, normalised: ``states`` (list, flow-angle form mapped),
+    per-state ``corner`` (held, rad/s), ``corner_start``, ``intensity`` (F starts), a positive
+    ``scale_length`` (m) and ``airspeed`` (m/s), ``kinematic`` entries; {} when not declared."""
+    table = _require(dict, table, "turbulence", source)
+    if not table:
+        return {}
+    unknown = set(table) - set(TURBULENCE_KEYS)
+    if unknown:
+        raise ProfileError(f"{source}: [turbulence] unknown key(s) {', '.join(sorted(unknown))} "
+                           f"(known: {', '.join(TURBULENCE_KEYS)})")
+    listed = table.get("states")
+    if isinstance(listed, str):
+        listed = [s.strip() for s in listed.split(",") if s.strip()]
+    if not isinstance(listed, list) or not listed or not all(isinstance(s, str) for s in listed):
+        raise ProfileError(f"{source}: [turbulence] states must list the velocity states gusts act on "
+                           f"(for example states = [\"u\", \"w\"])")
+    gusts = [gust_velocity(s, states) for s in listed]
+    bad = [s for s, g in zip(listed, gusts) if g not in states]
+    if bad or len(set(gusts)) != len(gusts):
+        raise ProfileError(f"{source}: [turbulence] states: {', '.join(bad) or 'a state listed twice'}: "
+                           f"expected distinct states of the profile ({', '.join(states)})")
+    out = {"states": gusts}
+    for key in ("corner", "corner_start", "intensity"):
+        if key in table:
+            value = table[key]
+            per = dict.fromkeys(gusts, value) if not isinstance(value, dict) else \
+                {gust_velocity(k, states): v for k, v in value.items()}
+            per = _numbers(per, f"turbulence.{key}", source)
+            if set(per) - set(gusts) or any(v <= 0 for v in per.values()):
+                raise ProfileError(f"{source}: [turbulence] {key}: positive values for the listed states "
+                                   f"({', '.join(gusts)}), got {value!r}")
+            out[key] = per
+    for key in ("scale_length", "airspeed"):
+        if key in table:
+            value = _numbers({key: table[key]}, "turbulence", source)[key]
+            if value <= 0:
+                raise ProfileError(f"{source}: [turbulence] {key} = {value:g} must be positive")
+            out[key] = value
+    if "corner" in out and "scale_length" in out:
+        raise ProfileError(f"{source}: [turbulence] corner and scale_length both given: one sets the other")
+    if "kinematic" in table:
+        kin = table["kinematic"]
+        if not isinstance(kin, list) or not all(isinstance(k, str) for k in kin):
+            raise ProfileError(f"{source}: [turbulence] kinematic must list entries (for example [\"h_w\"])")
+        out["kinematic"] = list(kin)
+    return out
 
 
 def _with_biases(data: dict, source: str) -> dict:
@@ -295,6 +373,23 @@ def _with_biases(data: dict, source: str) -> dict:
     data["meta"] = meta
     data["free"] = {**data.get("free", {}), **{f"{eq}_{BIAS_INPUT}": v for eq, v in biases.items()}}
     return data
+
+
+def _with_coefficient_ties(data: dict, source: str) -> dict:
+    """A coefficient-form profile's coefficient derivatives (``C_m_alpha``) as ties onto their
+    dimensional entries at the reference condition (:mod:`identify.model.coefficients`)."""
+    from . import coefficients
+
+    table = coefficients.spec(_require(dict, data.get("meta", {}), "meta", source), source)
+    if table is None:
+        return data
+    names = list(data.get("free", {})) + list(data.get("fixed", {}))
+    existing = _require(dict, data.get("ties", {}), "ties", source)
+    try:
+        made = coefficients.ties(names, data["states"], data["inputs"], table, existing)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProfileError(f"{source}: meta.coefficients: {exc}") from None
+    return {**data, "ties": {**made, **existing}}
 
 
 def _zero_shift(output: str, spec, source: str) -> dict:
@@ -397,6 +492,8 @@ def _validate(p: Profile) -> None:
         for s in getattr(p, table):
             if s not in p.states:
                 raise ProfileError(f"{src}: [{table}] {s}: not a state (states: {', '.join(p.states)})")
+    if p.turbulence:  # a profile built in code: the same checks as the table's
+        parse_turbulence(p.turbulence, p.states, src)
     for y in p.zero_shifts:
         if y not in p.outputs:
             raise ProfileError(f"{src}: [zero_shifts] {y}: not an output (outputs: {', '.join(p.outputs)})")

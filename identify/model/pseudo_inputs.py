@@ -11,6 +11,7 @@ one in its ``meta`` table, so the model can be used on plain measured runs by ev
     one = { constant = 1.0 }
     t = { time = 1 }                                    # s from the run's start
     q_absq = { product = ["q", "q"], abs = [false, true] }   # q |q|
+    alpha_k1 = { spline = "alpha", knot = 0.21 }        # max(alpha - 0.21, 0): a slope change
     cos_q = { sinusoid = "q", frequency = 4.0 }         # cos(2 pi f t + phi_r)
     sin_q = { sinusoid = "q", frequency = 4.0, quadrature = true }
 
@@ -47,6 +48,12 @@ def product(factors, absolute=None) -> dict:
     return {"product": factors, "abs": [bool(a) for a in (absolute or [False] * len(factors))]}
 
 
+def spline(factor: str, knot: float) -> dict:
+    """The linear spline term ``max(x - knot, 0)`` of channel ``factor``: a slope that changes at
+    ``knot`` (a lift curve's break near stall), computed from the measured channel."""
+    return {"spline": factor, "knot": float(knot)}
+
+
 def sinusoid(output: str, frequency: float, quadrature: bool = False) -> dict:
     return {"sinusoid": output, "frequency": float(frequency), "quadrature": bool(quadrature)}
 
@@ -74,11 +81,13 @@ def channel(name: str, spec: dict, run: Run) -> np.ndarray:
         for f, a in zip(spec["product"], spec.get("abs", [False] * len(spec["product"]))):
             out = out * (np.abs(run[f]) if a else run[f])
         return out
+    if "spline" in spec:
+        return np.maximum(run[spec["spline"]] - float(spec["knot"]), 0.0)
     if "sinusoid" in spec:
         w = 2 * np.pi * float(spec["frequency"])
         phase = _phase(run[spec["sinusoid"]], t, w)
         return np.sin(w * t + phase) if spec.get("quadrature") else np.cos(w * t + phase)
-    raise ProfileError(f"pseudo-input '{name}': unknown description {spec} (constant, time, product or sinusoid)")
+    raise ProfileError(f"pseudo-input '{name}': unknown description {spec} (constant, time, product, spline or sinusoid)")
 
 
 def _phase(z: np.ndarray, t: np.ndarray, w: float) -> float:
@@ -114,4 +123,4 @@ def prepare(profile: Profile, runs: list[Run]) -> list[Run]:
     return out
 
 
-__all__ = ["constant", "time", "product", "sinusoid", "specs", "channel", "delay_run", "prepare"]
+__all__ = ["constant", "time", "product", "spline", "sinusoid", "specs", "channel", "delay_run", "prepare"]

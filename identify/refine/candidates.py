@@ -269,7 +269,9 @@ class Delay(Candidate):
             delays = dict(p.meta["delays"])
             tau = delays.pop(step.target)
             without = replace(p, meta={**p.meta, "delays": delays})
-            new_p, new_result, params, _ = cls(step.target, lag=False).estimate(fitting, without, noise, hint=tau)[0]
+            again = cls(step.target, lag=False)
+            again.spec["_local"] = True  # near its first estimate: no grid over [0, tau_max] again
+            new_p, new_result, params, _ = again.estimate(fitting, without, noise, hint=tau)[0]
             if noise.cost(fitting.residuals(new_p)) <= noise.cost(fitting.residuals(p)):
                 p, result, step.parameters = new_p, new_result, params
             fitting.say(f"delay on {step.target} searched again in the final model: {tau:.4g} -> "
@@ -297,7 +299,7 @@ class Delay(Candidate):
 
             # the profile likelihood in the metric of the test's noise model (under turbulence the
             # white one is biased: 0.088 s for a 0.1 s delay, 10 standard errors off)
-            tau = _search_delay(lambda t: at(t)[0], hint or 0.0, dt, fitting.tau_max)
+            tau = _search_delay(lambda t: at(t)[0], hint or 0.0, dt, fitting.tau_max, self.spec.get("_local", False))
             if not math.isfinite(at(tau)[0]):
                 raise EstimationError(f"delay on '{self.target}': the fit diverged at every delay tried")
             prof, res = fitting.refit(at(tau)[1], p)  # the same fit, with its bounds
@@ -356,13 +358,15 @@ def _with_estimate_error(fitting, noise, prof, res, plus, minus, step: float, cu
     return math.sqrt(1 / curv + extra) if math.isfinite(extra) else math.inf
 
 
-def _search_delay(cost, tau0: float, dt: float, tau_max: float) -> float:
+def _search_delay(cost, tau0: float, dt: float, tau_max: float, local: bool = False) -> float:
     """Minimise ``cost(tau)`` over [0, tau_max]: a coarse grid first (the score test's linearised
     estimate ``tau0`` is only good for small delays, and the profile likelihood of a large one is
-    not quadratic from 0), then successive parabolas through three re-fits around the best point."""
-    grid = np.unique(np.clip(np.r_[np.linspace(0.0, tau_max, 6), tau0], 0.0, tau_max))
+    not quadratic from 0), then successive parabolas through three re-fits around the best point.
+    ``local``: ``tau0`` is an estimate already (a delay searched again in the final model): the
+    parabolas start there, with a step of a few samples."""
+    grid = [tau0] if local else np.unique(np.clip(np.r_[np.linspace(0.0, tau_max, 6), tau0], 0.0, tau_max))
     tau = float(min(grid, key=cost))
-    h = max(dt, 0.5 * tau_max / 10)
+    h = max(dt, 0.5 * tau_max / 10) if not local else 2 * dt
     for _ in range(6):
         pts = np.clip([tau - h, tau, tau + h], 0.0, tau_max)
         vals = [cost(t) for t in pts]

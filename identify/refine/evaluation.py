@@ -16,6 +16,7 @@ from ..estimators.prediction import ModelFit, block_design, evaluate
 from ..model.profile import Profile
 
 MIN_SAMPLES = 50  # per run: fewer leave the residual tests without power
+HOLD_OUT = 1 / 3  # of each run's excitation held out (to choose and judge) when no validation runs are given
 
 
 def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance: list[np.ndarray],
@@ -70,10 +71,32 @@ def split_validation(runs: list[Run], inputs: list[str] | None = None) -> tuple[
     return choose, judge
 
 
-def excitation_midpoint(run: Run, inputs: list[str]) -> int:
-    """The sample that halves the run's input excitation: each input's squared deviation from its
-    median, normalised to a unit sum per input (so that every flown input counts alike), summed
-    and accumulated; the middle sample when no input varies. Kept ``MIN_SAMPLES`` from either end."""
+def hold_out(runs: list[Run], inputs: list[str], share: float = HOLD_OUT) -> tuple[list[Run], list[Run]]:
+    """Without validation runs: each run cut in time where ``1 - share`` of its input excitation
+    has passed (:func:`excitation_midpoint`), the first part fitted and the rest held out, so that
+    the held-out data carry every input that was flown (one run per control axis: every run gives
+    its part). A run shorter than ``3 MIN_SAMPLES`` is only fitted. ``(fit, held)``."""
+    fit, held = [], []
+    for r in runs:
+        if len(r) < 3 * MIN_SAMPLES:
+            fit.append(r)
+            continue
+        k = min(excitation_midpoint(r, inputs, 1.0 - share), len(r) - 2 * MIN_SAMPLES)
+        fit.append(replace(r.slice(None, r.time[k] - 0.5 * r.dt), source=f"{r.source} [to {r.time[k]:.3g} s]"))
+        held.append(replace(r.slice(r.time[k], None), source=f"{r.source} [from {r.time[k]:.3g} s]"))
+    return fit, held
+
+
+HELD_OUT_NOTE = {True: "no validation runs: the last third of each run's input excitation is held out to choose and "
+                       "judge effects, the rest fitted", False: f"no validation runs and none long enough to hold a "
+                 f"part out ({3 * MIN_SAMPLES} samples): effects are judged by the tests alone"}  # said by refine
+
+
+def excitation_midpoint(run: Run, inputs: list[str], share: float = 0.5) -> int:
+    """The sample that halves the run's input excitation (or leaves ``share`` of it before): each
+    input's squared deviation from its median, normalised to a unit sum per input (so that every
+    flown input counts alike), summed and accumulated; that share of the samples when no input
+    varies. Kept ``MIN_SAMPLES`` from either end."""
     N = len(run)
     energy = np.zeros(N)
     for name in inputs:
@@ -82,7 +105,7 @@ def excitation_midpoint(run: Run, inputs: list[str]) -> int:
         e = (run[name] - np.median(run[name])) ** 2
         if e.sum() > 0:
             energy += e / e.sum()
-    k = int(np.searchsorted(np.cumsum(energy), 0.5 * energy.sum())) if energy.sum() > 0 else N // 2
+    k = int(np.searchsorted(np.cumsum(energy), share * energy.sum())) if energy.sum() > 0 else int(share * N)
     return int(np.clip(k, MIN_SAMPLES, N - MIN_SAMPLES))
 
 
@@ -110,5 +133,5 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["errors", "neg_log_likelihood", "unexplained", "split_validation", "excitation_midpoint",
-           "check_identifiable", "MIN_SAMPLES"]
+__all__ = ["errors", "neg_log_likelihood", "unexplained", "split_validation", "hold_out", "excitation_midpoint",
+           "check_identifiable", "MIN_SAMPLES", "HOLD_OUT", "HELD_OUT_NOTE"]

@@ -4,23 +4,19 @@
 the estimator *instance* it is given (ML by default; it is cloned for every fit and never asked
 which it is, see :mod:`identify.estimators.base`), then repeats:
 
-1. residuals of every output on every run, the estimator's prediction (for output error, a true
-   prediction: the model simulated from the inputs, each segment's initial state and each run's
-   zero shifts fitted, terms built from states computed from the model's simulated states, never
-   the measured ones; :mod:`identify.estimators.prediction`), asked through a
-   :class:`~identify.refine.fitting.Fitting` that caches every (model, data set) pair;
-2. a vector autoregressive noise model of those residuals (:mod:`identify.refine.noise`), and a score
-   test of every candidate (:mod:`identify.refine.candidates`) at its null value in that noise model's
-   metric (a GLS score test, valid for coloured residuals; :mod:`identify.refine.scoring`), against
-   the threshold at a Šidák-corrected family level ``alpha`` over all candidates tested (chi-square;
-   F where the noise model was fitted without the candidate's own fit, :mod:`identify.refine.scoring`);
+1. residuals of every output on every run, the estimator's prediction (output error: the model
+   simulated, state-built terms from its simulated states; :mod:`identify.estimators.prediction`),
+   asked through a :class:`~identify.refine.fitting.Fitting` that caches every (model, data set) pair;
+2. a vector autoregressive noise model of those residuals (:mod:`identify.refine.noise`) and a score
+   test of every candidate (:mod:`identify.refine.candidates`) in its metric, at a Šidák-corrected
+   family level ``alpha`` (:mod:`identify.refine.scoring`);
 3. the most significant candidate (nonlinear terms ranked below simpler explanations) is
-   estimated (a re-fit; a delay by a profile-likelihood search over tau, and a lag fitted too),
-   and kept only if (a) the likelihood ratio of the re-fit in the same metric, (b) the Wald
-   statistic of its estimate with ML's coloured-residual (Morelli-Klein) bounds both exceed the
-   threshold, (c) it lowers the prediction error on the *choosing* part of the validation data and
-   (d) on the *judging* part (no other part in the loop), each by more than a null effect would
-   in 5 % of cases (a one-sided test along the fitted change, :func:`_held_out_refusal`);
+   estimated (a delay by a profile-likelihood search, and a lag fitted too) and kept only if
+   (:mod:`identify.refine.acceptance`) every number is determined, the likelihood ratio and Wald
+   statistic pass the threshold, it predicts the *choosing* data better in the test's metric, no
+   held-out error the report shows rises beyond its noise, and the *judging* data's plain error
+   (the report's validation error) falls beyond its noise (a paired test); without validation
+   runs a third of each run is held out for this (:func:`~identify.refine.evaluation.hold_out`);
 
 until no candidate is significant, ``max_steps`` effects were added or ``3 max_steps`` candidates
 were tried. Every try keeps its evidence (:class:`Step`). Each accepted kind then has a last look at
@@ -50,13 +46,16 @@ from ..model.profile import Profile, load_profile
 from ..model.pseudo_inputs import prepare
 from ..model.subset import check_some_input_flown, fix, free, held_line, unflown_parameters
 from . import diagnostics as dg
-from .candidates import KIND_CLASSES, KINDS, parameters_of
-from .evaluation import MIN_SAMPLES, check_identifiable, errors, split_validation
+from .acceptance import error_change, error_refusal, failed_refit, held_out_refusal, second_attempt, undetermined
+from .candidates import KIND_CLASSES, KINDS
+from .evaluation import HELD_OUT_NOTE, MIN_SAMPLES, check_identifiable, errors, hold_out, split_validation
 from .fitting import Fitting
+from .noise import NoiseModel
 from .scoring import ScoreTest, score_candidates
 from .steps import Step
 
-HELD_OUT_Z = float(stats.norm.isf(0.05))  # the held-out checks' one-sided 5 % level (_held_out_refusal)
+LABELS = {"choosing": "choosing", "validation": "judging"}
+ERROR_REFUSALS = ("makes the", "does not lower", "lowers the")  # error_refusal's: other missing effects may cause them
 
 
 class Refine:
@@ -73,7 +72,9 @@ class Refine:
     used by every fit and test (default: the estimator's own choice for the declared model,
     :meth:`~identify.estimators.base.Estimator.prediction_segment`); ``coloured``: the tests in
     the metric of a noise model fitted to the residuals (True) or for white residuals (False, the
-    classical tests); ``progress``: print step, candidate and elapsed time on stderr.
+    classical tests); ``progress``: print step, candidate and elapsed time on stderr; ``prune``: a
+    last step of backward elimination (an object with ``run(fitting, profile, result, say)`` returning
+    the pruned profile, its result and the decisions, :class:`identify.structure.prune.Prune`).
 
     After ``fit``: ``steps_`` (accepted :class:`Step` s), ``rejected_`` (candidates that passed the
     score test but failed a later check), ``tries_``, ``stopped_`` (the reason the loop ended),
@@ -81,24 +82,20 @@ class Refine:
     ``initial_result_``, ``error_before_``/``error_after_`` ({"fit", "choosing", "validation"}),
     ``data_`` (which runs fitted, chose and judged), ``runs_``/``validation_runs_`` (the runs),
     ``diagnostics_``, ``last_scores_`` (the last round's :class:`ScoreTest` s), ``fitting_`` (the
-    :class:`~identify.refine.fitting.Fitting` of the loop), ``estimator_`` (the instance used).
+    :class:`~identify.refine.fitting.Fitting` of the loop), ``estimator_`` (the instance used),
+    ``notes_`` (what the user was told: data held out, undetermined statistics), ``pruned_`` (the
+    backward elimination's decisions).
     """
 
     def __init__(self, profile: Profile | str | Path, estimator=None, alpha: float = 0.01, kinds=KINDS,
                  max_steps: int = 6, zero_shifts: bool = True, frequencies=None, f_min: float = 0.5,
                  tau_max: float = 0.5, nonlinear_products: bool = True, segment=None, coloured: bool = True,
-                 progress: bool = False, verbose: bool = False):
-        self.profile = profile
-        self.estimator = estimator
+                 progress: bool = False, verbose: bool = False, prune=None):
+        self.profile, self.estimator, self.prune = profile, estimator, prune
         self.alpha, self.kinds, self.max_steps = alpha, kinds, max_steps
-        self.zero_shifts = zero_shifts
-        self.frequencies = frequencies
-        self.f_min, self.tau_max = f_min, tau_max
-        self.nonlinear_products = nonlinear_products
-        self.segment = segment
-        self.coloured = coloured
-        self.progress = progress
-        self.verbose = verbose
+        self.zero_shifts, self.frequencies, self.f_min, self.tau_max = zero_shifts, frequencies, f_min, tau_max
+        self.nonlinear_products, self.segment, self.coloured = nonlinear_products, segment, coloured
+        self.progress, self.verbose = progress, verbose
 
     # -- public -------------------------------------------------------------------------------
     def fit(self, runs, validate=None) -> "Refine":
@@ -107,8 +104,11 @@ class Refine:
         self._started = time.perf_counter()
         self._validate_options()
         self._check(runs, validate)
-        self._hold_unflown(runs)
-        self._hold_undeterminable(runs)
+        self.notes_, self.undetermined_scores_ = [], {}
+        if not validate:  # the loop's choices are still checked on data the fit never saw
+            runs, validate = hold_out(runs, self.declared_.input_names)
+            self._note(HELD_OUT_NOTE[bool(validate)])
+        self._hold(runs)
         choose, judge = split_validation(validate, self.declared_.input_names)
         self.runs_, self.validation_runs_ = runs, validate
         self.data_ = {"fit": [r.source for r in runs], "choosing": [r.source for r in choose],
@@ -131,18 +131,19 @@ class Refine:
         self._scale = np.array([np.std(np.concatenate([r[y] for r in runs])) or 1.0 for y in self.declared_.outputs])
         self.steps_, self.rejected_ = [], []
         self.error_before_ = self._errors(current)
-        times = [r.time for r in runs]
-        ev0 = self.fitting_.prediction(current)
+        times, ev0 = [r.time for r in runs], self.fitting_.prediction(current)
         diag = {"before": dg.summary(ev0.residuals, times, self.fitting_.dt, self.f_min, current.outputs)}
         current, result = self._loop(current, est)
+        self.pruned_ = []
+        if self.prune is not None:  # backward elimination, any object with run(fitting, profile, result, say)
+            current, result, self.pruned_ = self.prune.run(self.fitting_, current, result, self._say)
         self.profile_, self.result_ = current, result
         if self.undeterminable_:
             result.info["undeterminable"] = dict(self.undeterminable_)
         if self.held_:  # the final model keeps them free, at their a priori values, for runs that move them
             self.profile_ = free(current, [n for names in self.held_.values() for n in names])
             self.result_ = expand_held(result, self.profile_, self.held_, self.held_note_)
-        self.error_after_ = self._errors(current)
-        ev1 = self.fitting_.prediction(current)
+        self.error_after_, ev1 = self._errors(current), self.fitting_.prediction(current)
         diag["after"] = dg.summary(ev1.residuals, times, self.fitting_.dt, self.f_min, current.outputs)
         self.diagnostics_ = diag
         self.final_evaluation_ = {"fit": ev1, "before": ev0, "time": times}
@@ -152,7 +153,7 @@ class Refine:
     def _loop(self, current: Profile, result):
         """Score, fit and check candidates until none is significant or a limit is reached; then
         each accepted kind's last look at the final model."""
-        excluded: set[str] = set()
+        excluded, deferred = set(), set()
         self.tries_ = 0
         self.last_scores_: list[ScoreTest] = []
         self.noise_orders_, self.noise_white_ = [], []  # per step: the order, whether its innovations were white
@@ -163,7 +164,7 @@ class Refine:
                 break
             if self.tries_ >= 3 * self.max_steps:
                 self.stopped_ = (f"try limit: {self.tries_} candidates tried, {len(self.rejected_)} rejected "
-                                 f"(3 x max_steps)")
+                                 "(3 x max_steps)")
                 break
             self._say(f"step {len(self.steps_) + 1}: score tests")
             tested = self._score(current, excluded)
@@ -180,27 +181,28 @@ class Refine:
                       f"(score {best.statistic:.3g} > {best.threshold:.3g}, try {self.tries_})")
             step, new_profile, new_result = self._try(current, result, best, tested)
             self._say(f"  {'accepted' if step.accepted else 'rejected: ' + step.reason}")
-            if step.accepted:
+            if step.accepted:  # a candidate the held-out errors refused may be right beside this one
                 self.steps_.append(step)
                 current, result, noise = new_profile, new_result, best.noise
+                excluded -= deferred
             else:
                 self.rejected_.append(step)
                 excluded.add(best.candidate.name)
+                deferred |= {best.candidate.name} if step.reason.startswith(ERROR_REFUSALS) else set()
         for kind in dict.fromkeys(KIND_CLASSES[s.effect] for s in self.steps_):
             current, result = kind.revisit(self.fitting_, current, result, noise, self.steps_)
         return current, result
 
-    @property
-    def nothing_found(self) -> bool:
-        return not self.steps_
+    nothing_found = property(lambda self: not self.steps_)
 
-    @property
-    def evaluations_(self) -> int:
-        return self.fitting_.evaluations
+    evaluations_ = property(lambda self: self.fitting_.evaluations)
 
-    @property
-    def unconverged_(self) -> list[str]:
-        return self.fitting_.unconverged
+    unconverged_ = property(lambda self: self.fitting_.unconverged)
+
+    def _note(self, msg: str) -> None:
+        """A note the user must see whatever the progress option (and ``refine.json`` keeps)."""
+        self.notes_.append(msg)
+        print(f"refine: {msg}", file=sys.stderr, flush=True)
 
     def _say(self, msg: str) -> None:
         if self.progress or self.verbose:
@@ -238,9 +240,11 @@ class Refine:
                 raise EstimationError(f"{run.source}: only {len(run)} samples; refine needs at least "
                                       f"{MIN_SAMPLES} per run to test the residuals")
 
-    def _hold_unflown(self, runs: list[Run]) -> None:
-        """Fix the parameters of inputs no fitting run moves at their a priori values (said once):
-        no fit, test or candidate can learn anything about them from these runs."""
+    def _hold(self, runs: list[Run]) -> None:
+        """Fix at their a priori values (said once) the parameters of inputs no fitting run moves,
+        and what the estimator says it cannot determine from these runs
+        (:meth:`~identify.estimators.base.Estimator.determinable`; kept in ``undeterminable_`` and
+        the result): no fit, test or candidate of the loop moves them."""
         self.held_ = unflown_parameters(self.declared_, prepare(self.declared_, runs))
         check_some_input_flown(self.declared_, self.held_)
         self.held_note_ = held_line("refine", self.held_) if self.held_ else ""
@@ -248,11 +252,6 @@ class Refine:
             self._say(self.held_note_)
             warnings.warn(self.held_note_, HeldWarning, stacklevel=3)
             self.declared_ = fix(self.declared_, [n for names in self.held_.values() for n in names])
-
-    def _hold_undeterminable(self, runs: list[Run]) -> None:
-        """Fix what the estimator says it cannot determine from the fitting runs
-        (:meth:`~identify.estimators.base.Estimator.determinable`; said once, kept in
-        ``undeterminable_`` and the result): no fit, test or candidate of the loop moves them."""
         self.declared_, self.undeterminable_ = self.estimator_.determinable(self.declared_,
                                                                              prepare(self.declared_, runs))
         if self.undeterminable_:
@@ -279,9 +278,14 @@ class Refine:
                                  f_min=self.f_min, frequencies=self.frequencies_, products=self.nonlinear_products)
         self.noise_orders_.append(found.noise.order), self.noise_white_.append(found.noise.white)
         self._say(f"  {found.n_candidates} candidates, residual noise model order {found.noise.order}"
-                  + ("" if found.noise.white else " (its limit: the innovations are still not white)"))
-        self.last_scores_ = found.tests
-        return found.tests
+                  + ("" if found.noise.white else " (its cap: the innovations are still not white, the tests are "
+                     "outside their validity and accept nothing without held-out data)"))
+        for t in found.tests:  # an undetermined statistic is never significance: refused, said once
+            if not math.isfinite(t.statistic) and t.candidate.name not in self.undetermined_scores_:
+                self.undetermined_scores_[t.candidate.name] = f"score statistic {t.statistic}"
+                self._note(f"{t.candidate.name}: score statistic {t.statistic} is not determined; not a candidate")
+        self.last_scores_ = [t for t in found.tests if math.isfinite(t.statistic)]
+        return self.last_scores_
 
     # -- one step ----------------------------------------------------------------------------
     def _try(self, p: Profile, null_result, best: ScoreTest, tested: list[ScoreTest]):
@@ -314,93 +318,61 @@ class Refine:
             return step, p, None
         first = None
         for new_p, result, params, kind in options:
-            # in the metric of the noise model that selected the candidate: likelihood ratio on the
-            # fit runs, prediction errors (twice the negative log-likelihood) on the held-out data
-            null_cost = noise.cost(fitting.residuals(p))
-            own = result.compare_lr_test(null_result) if null_result is not None else None
-            lr = null_cost - noise.cost(fitting.residuals(new_p)) if own is None else own[0]
-            failed = _failed_refit(result, lr, null_cost, best.threshold, own is not None)
-            attempts = []
-            if failed and own is None and lr < 0 and math.isfinite(lr):
-                new_p, result, params, lr, failed, attempts = self._second_attempt(
-                    cand, p, noise, null_cost, best.threshold, (new_p, result, params, lr, failed), held_data)
-            held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
-                    for data in held_data}
-            # the size of the prediction change there: the spread of the held-out cost change
-            spread = {data: noise.cost([a - b for a, b in zip(fitting.residuals(p, data),
-                                                              fitting.residuals(new_p, data))])
-                      for data in held_data}
-            # a delay's own bound in the test's metric (``std_profile``): its ``std`` also carries the
-            # estimator's errors in the other parameters, which do not make the delay less present
-            wald = float(sum((v["value"] / s) ** 2 if (s := v.get("std_profile", v["std"])) > 0 else math.inf
-                             for v in params.values()))
-            step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
-                        error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
-                        held_change=spread, noise_order=noise.order,
-                        lr_criterion=result.info["criterion"]["kind"] if own is not None else "",
-                        attempts=attempts, **common)
-            reason = failed or cand.implausible(params) or self._refusal(step, stats.chi2.isf(best.level, len(params)))
+            step, new_p, result, changes = self._evidence(p, null_result, best, (new_p, result, params, kind),
+                                                          before, held_data, common)
+            reason = step.reason or cand.implausible(step.parameters) or self._refusal(step, best, changes)
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
-                reason = _held_out_refusal(held, spread, "validation", "judging")
+                reason = self._confirmation(step, changes, best.noise)
                 step.accepted, step.reason = not reason, reason
                 return step, new_p, result
             step.accepted, step.reason = False, reason
             first = first or (step, new_p, result)
         return first
 
-    def _second_attempt(self, cand, p: Profile, noise, null_cost: float, threshold: float, first: tuple,
-                        held_data: list[str]):
-        """A re-fit that ended below the nested null in the test's metric (``first`` = its
-        ``(profile, result, parameters, lr, reason)``) gets a second look, said on screen and
-        recorded (``Step.attempts``): a fit in the test's metric itself from the warm start (the
-        current estimates, the new parameters at their null value,
-        :meth:`~identify.refine.fitting.Fitting.refit_in_metric`); where that finds a better
-        likelihood than the null, the estimator is restarted from that point. Its fit is kept if it
-        no longer ends below the null; else the refusal says that the estimator's optimum and the
-        test's metric disagree (seen: output error on strongly coloured residuals, whose white
-        likelihood has its optimum elsewhere), not that the fit lost its way.
-        Returns ``(profile, result, parameters, lr, reason, attempts)``."""
-        fitting, method = self.fitting_, self.estimator_.method.upper()
-        new_p, result, params, lr, failed = first
-        attempts = [{"fit": f"{method}, warm start", "parameters": params, "lr_statistic": float(lr)}]
-        start = cand.profile(p)
-        # a searched structure (a delay: its tau in meta, not free; a lag's other state): no null start to re-fit
-        if set(start.free) != set(new_p.free) or not set(cand.params) <= set(start.free):
-            return new_p, result, params, lr, failed, attempts
-        fitting.say(f"  the {method} re-fit ends below the nested null in the test's metric (ratio {lr:.3g}): "
-                    "re-fitting in that metric, then restarting the estimator from there")
-        check_p, check_cost, check_params = fitting.refit_in_metric(start, noise)
-        check_lr = null_cost - check_cost
-        attempts.append({"fit": "the test's metric, warm start", "parameters": _only(check_params, cand.params),
-                         "lr_statistic": float(check_lr)})
-        if not check_lr > 0:
-            return new_p, result, params, lr, failed, attempts
-        try:
-            again_p, again = fitting.refit(check_p, p)
-            [fitting.prediction(again_p, d) for d in held_data]  # as every option: not divergent there
-        except PseudostepError as exc:
-            attempts.append({"fit": f"{method}, restarted from the test's metric's fit", "error": str(exc)})
-            return new_p, result, params, lr, failed, attempts
-        again_params = parameters_of(again, cand.params)
-        again_lr = null_cost - noise.cost(fitting.residuals(again_p))
-        attempts.append({"fit": f"{method}, restarted from the test's metric's fit", "parameters": again_params,
-                         "lr_statistic": float(again_lr)})
-        again_failed = _failed_refit(again, again_lr, null_cost, threshold)
-        fitting.say(f"  restarted {method} re-fit: ratio {again_lr:.3g}" + (" (kept)" if not again_failed else ""))
-        if not again_failed:
-            return again_p, again, again_params, again_lr, "", attempts
-        shown = ", ".join(f"{k} = {v['value']:.3g}" for k, v in attempts[1]["parameters"].items())
-        mine = ", ".join(f"{k} = {v['value']:.3g}" for k, v in params.items())
-        reason = (f"the {method} re-fit ({mine}) ends below the nested null in the test's noise-model metric "
-                  f"(ratio {lr:.3g}; restarted from the metric's own fit, {again_lr:.3g}), where a fit in that "
-                  f"metric finds {shown} (ratio {check_lr:.3g}): the {method} estimator's likelihood and the "
-                  f"test's metric disagree about this effect; not added")
-        return new_p, result, params, float("nan"), reason, attempts
+    def _evidence(self, p: Profile, null_result, best: ScoreTest, option: tuple, before: dict, held_data: list,
+                  common: dict) -> tuple:
+        """One fitted option's :class:`Step`: the likelihood ratio in the metric of the noise model
+        that selected the candidate (or the estimator's own criterion), the Wald statistic, the
+        held-out prediction costs in that metric and the plain errors' changes
+        (:func:`~identify.refine.acceptance.error_change`); ``reason`` set where the fit failed or a
+        number is not determined. ``(step, profile, result, changes)``: the fit kept (a second attempt
+        may replace it) and the plain errors' changes ({data: ErrorChange})."""
+        cand, noise, fitting = best.candidate, best.noise, self.fitting_
+        new_p, result, params, kind = option
+        null_cost = noise.cost(fitting.residuals(p))
+        own = result.compare_lr_test(null_result) if null_result is not None else None
+        lr = null_cost - noise.cost(fitting.residuals(new_p)) if own is None else own[0]
+        failed = failed_refit(result, lr, null_cost, best.threshold, own is not None)
+        attempts = []
+        if failed and own is None and lr < 0 and math.isfinite(lr):
+            new_p, result, params, lr, failed, attempts = second_attempt(
+                fitting, self.estimator_.method.upper(), cand, p, noise, null_cost, best.threshold,
+                (new_p, result, params, lr, failed), held_data)
+        held = {data: (noise.cost(fitting.residuals(p, data)), noise.cost(fitting.residuals(new_p, data)))
+                for data in held_data}
+        # the size of the prediction change there: the spread of the held-out cost change
+        spread = {data: noise.cost([a - b for a, b in zip(fitting.residuals(p, data), fitting.residuals(new_p, data))])
+                  for data in held_data}
+        # a delay's own bound in the test's metric (``std_profile``): its ``std`` also carries the
+        # estimator's errors in the other parameters, which do not make the delay less present
+        wald = float(sum((v["value"] / s) ** 2 if (s := v.get("std_profile", v["std"])) > 0 else math.nan
+                         for v in params.values()))
+        plain = NoiseModel.fit(fitting.residuals(new_p), fitting.dt, deterministic=False, segment=fitting.segment)
+        changes = {data: error_change(fitting.residuals(p, data), fitting.residuals(new_p, data), p.outputs,
+                                      self._scale, plain) for data in held_data}
+        step = Step(kind, cand.target, params, lr_statistic=float(lr) if not failed else float("nan"),
+                    error_before=before, error_after=self._errors(new_p), wald=wald, held_out=held,
+                    held_change=spread, noise_order=noise.order, noise_white=noise.white,
+                    lr_criterion=result.info["criterion"]["kind"] if own is not None else "", attempts=attempts,
+                    error_change={d: c.to_dict() for d, c in changes.items()}, **common)
+        step.reason = failed or undetermined(params, {"Wald statistic": wald})
+        return step, new_p, result, changes
 
     @staticmethod
-    def _refusal(step: Step, wald_threshold: float) -> str:
+    def _refusal(step: Step, best: ScoreTest, changes: dict) -> str:
         """Why a fitted candidate is refused before the judging data ('' if it is not)."""
+        wald_threshold = stats.chi2.isf(best.level, len(step.parameters))
         if step.lr_statistic < step.threshold:
             metric = step.lr_criterion or "the test's noise-model metric"
             return (f"likelihood ratio {step.lr_statistic:.3g} of the re-fit (in {metric}) below the threshold "
@@ -408,58 +380,20 @@ class Refine:
         if step.wald < wald_threshold:
             return (f"estimate not significant by its coloured-residual bound (Wald {step.wald:.3g} < "
                     f"{wald_threshold:.3g})")
-        return _held_out_refusal(step.held_out, step.held_change, "choosing", "choosing")
+        return held_out_refusal(step.held_out, step.held_change, "choosing", "choosing") or \
+            error_refusal({d: c for d, c in changes.items() if d == "choosing"}, LABELS)
 
-
-def _only(params: dict, names) -> dict:
-    return {k: v for k, v in params.items() if k in names}
-
-
-def _failed_refit(result, lr: float, null_cost: float, threshold: float, own: bool = False) -> str:
-    """Why a re-fit is a failed fit, not a verdict ('' if it is not): it diverged, or its likelihood
-    is below the nested null's by more than the test's threshold (the extended model contains the
-    null, so a re-fit that found its optimum cannot be worse: it went astray; seen once as a
-    likelihood ratio of -5.9e6), or the ratio is not finite."""
-    stop = str(result.info.get("stop", ""))
-    if not result.converged and stop.startswith(("diverged", "stalled")):
-        return f"re-fit failed ({stop}): no likelihood ratio"
-    if not math.isfinite(lr) and own:
-        return (f"the {result.method.upper()} estimator's likelihood ratio is not determined (its criterion's "
-                f"points are correlated and the factor that says how much is unknown, e.g. without its bootstrap)")
-    if not math.isfinite(lr):
-        return "re-fit failed (its likelihood is not finite): no likelihood ratio"
-    if lr < -max(threshold, 1e-9 * abs(null_cost)):
-        return (f"re-fit failed: its likelihood is below the nested null's (ratio {lr:.3g}), so it did not "
-                f"find its optimum; no likelihood ratio")
-    return ""
-
-
-def _held_out_refusal(held: dict, change: dict, data: str, label: str) -> str:
-    """Refusal unless the model with the effect predicts held-out ``data`` better, and better by
-    more than a null effect would in 5 % of cases (cost = twice the negative log-likelihood in
-    the test's noise-model metric; '' if it passes).
-
-    The held-out data fit nothing: the effect's parameters come from the fitting runs, so the
-    prediction change ``d`` there is a fixed direction, whatever the number of parameters. With
-    the whitened null residual ``e`` (unit white noise under the null) the cost change is
-    ``D = 2 <e, d> - |d|^2``: a null effect makes it ``N(-s^2, 4 s^2)``, ``s^2 = |d|^2`` (the
-    cost of the change alone, ``change[data]``). The check asks ``<e, d> / s > z_0.95``, the
-    one-sided 5 % test that the held-out data move the way the effect says, i.e.
-    ``D > 2 z s - s^2``, and ``D > 0`` (the effect must not predict worse: a large change that
-    the data follow only partly is no improvement). Its level is 5 % for any ``s`` and any
-    parameter count. (The former bar, ``D`` above the 95 % chi-square quantile of the parameter
-    count, treated ``D`` as a likelihood ratio of a fit on the held-out data; its level was at most 2.5 %
-    for one parameter and it refused effects the held-out data confirm: M q|q| under turbulence,
-    ``D`` = 3.7 on a quarter of the fitting data's information.)"""
-    if data not in held:
+    @staticmethod
+    def _confirmation(step: Step, changes: dict, noise) -> str:
+        """The judging data's verdict ('' to accept; :func:`~identify.refine.acceptance.error_refusal`).
+        Without judging data the tests decide alone, unless they are outside their validity (the
+        residual noise model at its order cap, innovations still not white)."""
+        if "validation" in changes:
+            return error_refusal(changes, LABELS, "validation", step.held_out, step.held_change)
+        if not noise.white:
+            return ("no held-out data to confirm it, and the tests are outside their validity (the residual noise "
+                    "model reached its order cap with innovations still not white): nothing is accepted on them alone")
         return ""
-    before, after = held[data]
-    s = math.sqrt(max(change.get(data, 0.0), 0.0))
-    need = max(0.0, 2.0 * HELD_OUT_Z * s - s * s)
-    if before - after > need:
-        return ""
-    return (f"did not lower the prediction error on the {label} data by more than {need:.3g} (noise-model cost "
-            f"{before:.6g} -> {after:.6g}; the one-sided 5 % bar 2 z s - s^2 of a change of size s^2 = {s * s:.3g})")
 
 
 __all__ = ["Refine", "Step", "ScoreTest"]

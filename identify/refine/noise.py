@@ -186,6 +186,33 @@ class NoiseModel:
         var += 2.0 / self.n_innov * float(np.sum(B * B))
         return 2.0 * q * q / var if var > 0 else math.inf
 
+    def variance_along(self, weights: list[np.ndarray]):
+        """``Var(sum_r <e_r, g_r>)`` for noise ``e`` of this model and fixed ``weights`` ``g`` (one
+        (N_r, ny) array per run, or (N_r, ny, K) for K weightings at once: then an array of K): the
+        variance of a plain (unwhitened) inner product with the residual, as a change of the plain
+        squared error has (:mod:`identify.refine.acceptance`).
+
+        With ``e = sigma * H L eps`` (``H`` the autoregressive synthesis filter, ``eps`` white unit)
+        the variance is ``|L^T H^T (sigma g)|^2``; ``H^T`` is the synthesis filter run backwards
+        in time with the transposed matrices, ``y_t = sigma g_t + sum_k A_k^T y_{t+k}``. Segment by
+        segment, as :meth:`whiten` (the residual restarts at every multiple-shooting segment)."""
+        L = np.linalg.inv(self.L_inv)
+        p, ny = self.order, len(self.sigma)
+        A_T = self.A.reshape(p * ny, ny).T  # [A_1^T ... A_p^T], (ny, ny p)
+        single = np.ndim(weights[0]) == 2
+        total = 0.0
+        for g in weights:
+            g = np.asarray(g, float).reshape(len(g), ny, -1) * self.sigma[:, None]
+            for piece in (_segments(g, self.dt, self.segment) if math.isfinite(self.segment) else [g]):
+                n = len(piece)
+                y = np.zeros((n + p,) + piece.shape[1:])  # y[n:] = 0: no weight after the segment's end
+                y[:n] = piece
+                if p:
+                    for t in range(n - 1, -1, -1):
+                        y[t] += A_T @ y[t + 1:t + 1 + p].reshape(p * ny, -1)
+                total = total + np.sum(np.einsum("tik,ij->tjk", y[:n], L) ** 2, axis=(0, 1))
+        return float(total[0]) if single else np.asarray(total, float)
+
     def cost(self, residuals: list[np.ndarray]) -> float:
         """Sum of squared whitened residuals over runs: twice the Gaussian negative log-likelihood
         (up to a constant) of the residuals under this noise model."""

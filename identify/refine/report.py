@@ -2,7 +2,8 @@
 
 ``refine.json`` holds ``steps`` (each with ``effect``, ``target``, ``parameters`` {name: {value,
 std}}, ``statistic``, ``threshold``, ``dof``, ``p_value``, ``lr_statistic``, ``error_before``,
-``error_after``), the ``rejected`` candidates with the reason, top-level ``error_before`` /
+``error_after``), the ``rejected`` candidates with the reason, ``pruned`` (``--prune``: the
+backward elimination's decisions, :class:`identify.structure.prune.Prune`), top-level ``error_before`` /
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
 ``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
 the declared model's fit and of the refined model against the fit runs' frequency responses, per
@@ -35,11 +36,14 @@ def to_dict(r: Refine) -> dict:
         "runs": [run.source for run in r.runs_],
         "validation_runs": [run.source for run in r.validation_runs_],
         "data": r.data_,
+        "notes": r.notes_,
+        "undetermined_scores": r.undetermined_scores_,
         "alpha": r.alpha,
         "coloured_tests": r.coloured,
         "noise_model_orders": r.noise_orders_,
         "noise_model_white": r.noise_white_,
         "tries": r.tries_,
+        "pruned": [vars(d) for d in getattr(r, "pruned_", [])],
         "evaluations": r.evaluations_,
         "catalogue": list(r.kinds_),
         "unconverged_fits": r.unconverged_,
@@ -119,7 +123,8 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
     outputs = list(r.declared_.outputs)
     d = data["data"]
     lines = [f"# Model refinement: {r.declared_.name}", ""]
-    orders = ", ".join(f"{o}" + ("" if w else " (its limit: innovations still not white)")
+    orders = ", ".join(f"{o}" + ("" if w else " (its cap: innovations still not white, the tests outside their "
+                                        "validity)")
                        for o, w in zip(r.noise_orders_, r.noise_white_))
     lines += ["## Data and tests", "",
               f"- **fit** (estimation, score and likelihood-ratio tests): {_names(d['fit'])}",
@@ -135,6 +140,7 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
                             "for white residuals (`coloured=False`)"),
               f"- {r.tries_} candidate(s) tried: {len(r.steps_)} accepted, {len(r.rejected_)} rejected; "
               f"stopped: {r.stopped_}"]
+    lines += [f"- **note**: {note}" for note in r.notes_]
     lines += [f"- **warning**: {len(r.unconverged_)} fit(s) did not converge: " + "; ".join(r.unconverged_)
               ] if r.unconverged_ else []
     lines += ["- held at a priori values (the estimator cannot determine them from the fit runs): "
@@ -166,6 +172,12 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
         lines += ["", "## Rejected candidates", ""]
         for s in r.rejected_:
             lines += [f"### {s.effect} on {s.target}: {s.reason}", ""] + _evidence(s) + [""]
+    if getattr(r, "pruned_", None):
+        lines += ["", "## Backward elimination (--prune)", "",
+                  "| parameter | decision | abs(estimate)/std | held-out error before | after | why |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        lines += [f"| {d.term} | {'fixed at 0' if d.action == 'dropped' else 'kept'} | {d.statistic:.3g} | "
+                  f"{d.before:.4g} | {d.after:.4g} | {d.note} |" for d in r.pruned_]
     lines += ["", "## Residual diagnostics", "",
               "| output | Ljung-Box p before | after | trend t before | after | peak Hz / p before | after |",
               "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
@@ -205,6 +217,13 @@ def _evidence(s) -> list[str]:
     for data, (b, a) in s.held_out.items():
         lines.append(f"- prediction error on the {'judging' if data == 'validation' else 'choosing'} data "
                      f"(noise-model cost) {b:.6g} -> {a:.6g}")
+    for data, c in s.error_change.items():
+        lines.append(f"- plain squared error on the {'judging' if data == 'validation' else 'choosing'} data "
+                     f"(the report's error, normalised) lowered by {c['gain']:.4g} ± {c['sd']:.3g} ({c['z']:.3g} "
+                     f"standard deviations of the paired test)")
+    if not s.noise_white:
+        lines.append("- the test's noise model reached its order cap (innovations not white): the tests are outside "
+                     "their validity, the held-out data decided")
     lines.append(f"- error before: fit {_fmt_err(s.error_before['fit'])}")
     lines.append(f"- error after: fit {_fmt_err(s.error_after['fit'])}")
     if "validation" in s.error_before:

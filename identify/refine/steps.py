@@ -32,6 +32,8 @@ class Step:
     attempts: list = field(default_factory=list)  # the re-fits of a fit that ended below the null, in order
     lr_criterion: str = ""  # the estimator's own criterion of the likelihood ratio ('': the noise-model metric)
     nu: float | None = None  # dof of the noise level along it where the test's law is F (None: chi-square)
+    noise_white: bool = True  # the test's noise model whitened the residuals (False: at its order cap)
+    error_change: dict = field(default_factory=dict)  # data -> the plain error's change and its noise
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -2,11 +2,12 @@
 
 :class:`ProcessNoiseModel` says what the filter's process noise is: which states of the profile
 the filter runs on carry white process noise (F), and that profile itself. The white model on the
-listed equations (``[process_noise]``, the ``process_noise`` option) runs on the user's profile; a
-turbulence model (gust states augmenting the profile, the derivatives on the velocities acting on
-the air-relative velocity, process noise on the gust states) is a subclass that returns the
-augmented profile from :meth:`ProcessNoiseModel.filter_profile` and names its gust states in
-``states``: :class:`~.estimator.FEM` fits whatever model :meth:`FEM.noise_model` returns.
+listed equations (``[process_noise]``, the ``process_noise`` option) runs on the user's profile.
+A profile's ``[turbulence]`` (gust states augmenting the profile, the derivatives on the velocities
+acting on the air-relative velocity, process noise on the gust states:
+:mod:`identify.model.turbulence`) is fitted by :mod:`.turbulence`: FEM on the augmented profile,
+whose process noise is this white model on the gust states, the result handed back on the user's
+profile.
 """
 from __future__ import annotations
 

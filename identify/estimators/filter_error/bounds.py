@@ -81,6 +81,8 @@ class _Innovations:
         G = prob.G
         in_S = 0.5 * prob.N * np.einsum("iab,jba->ij", SdS, SdS)  # the information in S (as M's)
         self.local[0, :G, :G] += in_S
+        if prob.prior is not None:  # M holds the prior's information, B (the sandwich's meat) not
+            self.local[0, np.arange(prob.p), np.arange(prob.p)] += prob.prior.precision
         noise = np.zeros(k, bool)
         noise[prob.p:G] = True
         self.extra = self.local * (noise[:, None] | noise[None, :])

@@ -18,14 +18,17 @@ from ...model.simulate import discretize, held_inputs, propagate
 from ..base import Estimator
 from ..ml import common_dt, finite_channels
 from ..output_error import pad
+from ..prior import posterior, prior_term
 from ..result import IdentificationResult, fit_metrics
 from .base import PROCESS_NOISE_CONVENTION, ProcessNoiseModel
 from .bounds import colour_failure, inverse_information
 from .filter import FilterProblem, NonlinearFilterProblem
 from .solver import FilterSolver
+from . import turbulence
 from .starts import fit_from_starts
 
 INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
+NOISE_PARTS = ("f", "r", "corner")  # a ModelFit's noise: F, R and the estimated gust corners (turbulence)
 
 
 class FEM(Estimator):
@@ -54,6 +57,8 @@ class FEM(Estimator):
     """
 
     method = "fem"
+    models_turbulence = True  # a profile's [turbulence]: the gust states' model (.turbulence)
+    weighs_prior = True  # the prior's residuals in the cost (identify.estimators.prior)
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
@@ -108,10 +113,13 @@ class FEM(Estimator):
         args = (p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
         # state-built terms (q|q|): the extended filter (.nonlinear)
         prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else FilterProblem(*args)
+        prob.prior = prior_term(p)  # None without one: the data alone
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
         return prob, beta, active
 
     def _fit(self, runs: list[Run]) -> IdentificationResult:
+        if self.profile_.turbulence:  # the gust states' model, handed back on the user's profile
+            return turbulence.fit(self, runs)
         started = _time.perf_counter()
         prob, beta, active = self._problem(runs)
         solver = self._solve(prob, beta, active)
@@ -157,7 +165,9 @@ class FEM(Estimator):
         pn, mn = result.info.get("process_noise"), result.info.get("measurement_noise")
         if pn is None or mn is None:
             return None
-        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()])}
+        gusts = result.info.get("turbulence", {}).get("gusts", {}).values()
+        return {"f": np.array([v["F"] for v in pn.values()]), "r": np.array([v["variance"] for v in mn.values()]),
+                "corner": np.array([g["corner"] for g in gusts if g["corner_estimated"]])}
 
     def sensitivities(self, profile, runs: list[Run], null, *, zero_shifts: bool = True, segment: float = math.inf):
         """The prediction with ``dy`` (N_r, ny, p) = -d(innovations)/d(derivatives) and ``nuisance``
@@ -197,7 +207,7 @@ class FEM(Estimator):
         from ..prediction import ModelFit  # the protocol's result type
 
         def values(d):
-            return None if d is None else (tuple(map(float, d["f"])), tuple(map(float, d["r"])))
+            return None if d is None else tuple(tuple(map(float, d.get(part, ()))) for part in NOISE_PARTS)
 
         held, begin = values(noise), None if noise is not None else values(start)
         key = (profile.to_toml(), zero_shifts, jacobian, held, begin,
@@ -210,15 +220,20 @@ class FEM(Estimator):
         est = self.clone(profile, estimate_bias=zero_shifts)
         est._validate()
         runs = est.check_runs(runs)
+        if profile.turbulence:  # the gust states' model; its corners are nuisance here
+            est = turbulence.augmented_estimator(est, runs)
+            est._validate()
+        n_der = len(profile.free)  # the derivatives, held; the rest of theta (gust corners) is nuisance
         prob, beta, active = est._problem(runs)
-        active[prob.index["theta"]] = False
+        active[prob.index["theta"][:n_der]] = False
+        index = {"f": prob.index["f"], "r": prob.index["r"], "corner": prob.index["theta"][n_der:]}
         for given in (held, begin):  # the fitted model's noise (its filter gain) held, or the start
-            for part, vals in zip(("f", "r"), given or ()):
-                if len(vals) != len(prob.index[part]):
-                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part.upper()}, "
-                                          f"the profile {len(prob.index[part])}")
-                beta[prob.index[part]] = vals
-                active[prob.index[part]] &= given is begin
+            for part, vals in zip(NOISE_PARTS, given or ()):
+                if len(vals) != len(index[part]):
+                    raise EstimationError(f"FEM: the given noise has {len(vals)} values of {part}, "
+                                          f"the profile {len(index[part])}")
+                beta[index[part]] = vals
+                active[index[part]] &= given is begin
         solver = est._solve(prob, beta, active, nuisance_only=True, hold_noise=held is not None,
                             start_noise=begin is not None)
         try:
@@ -228,14 +243,15 @@ class FEM(Estimator):
         _, f, x0, b, rv = prob.unpack(solver.beta)
         fit = ModelFit(residuals=prob.per_run(ev.nu), modelled=prob.per_run(prob.Z - ev.nu),
                        x0=[x0[:, r][None] for r in range(prob.n_runs)], bias=[b[:, r] for r in range(prob.n_runs)],
-                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "r_start": solver.starts})
+                       runs=runs, noise={"f": f.copy(), "r": rv.copy(), "corner": solver.beta[index["corner"]].copy(),
+                                         "r_start": solver.starts})
         if jacobian:
             G, n, ny = prob.G, prob.n, prob.ny
             L, _, k, R = ev.dnu.shape
-            cols = np.r_[prob.p:G, G:G + n + ny]
+            cols = np.r_[n_der:G, G:G + n + ny]  # corners, F, R, x0, zero shifts
             keep = solver.active[prob.local_index[0][cols]]  # held x0, zero shifts, F = 0: no column
-            fit.dy = prob.per_run(-ev.dnu[:, :, :prob.p].reshape(L, ny * prob.p, R))
-            fit.dy = [d.reshape(len(d), ny, prob.p) for d in fit.dy]
+            fit.dy = prob.per_run(-ev.dnu[:, :, :n_der].reshape(L, ny * n_der, R))
+            fit.dy = [d.reshape(len(d), ny, n_der) for d in fit.dy]
             nuis = -ev.dnu[:, :, cols[keep]]
             fit.nuisance = [d.reshape(len(d), ny, -1) for d in prob.per_run(nuis.reshape(L, ny * keep.sum(), R))]
         cache[key] = (fit, prob, ev)
@@ -270,8 +286,14 @@ class FEM(Estimator):
         boundary[ix["r"]] = ~bounded[ix["r"]]
         std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
         std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
-        self.covariance_ = cov[:P, :P].copy()
+        self.covariance_, self.covariance_all_ = cov[:P, :P].copy(), cov  # all: a turbulence model's corners and F
         theta, f, x0, b, r = prob.unpack(beta)
+        prior = None
+        if prob.prior is not None:  # M holds the prior's information: A = (M_d + P^-1)^-1
+            A = inverse_information(M, bounded)[0][:P, :P]
+            D = self.covariance_ if std_col is not None else A - (A * prob.prior.precision) @ A
+            self.covariance_, prior = posterior(prob.prior, theta, A, D, bounded[:P])
+            std[:P] = np.where(bounded[:P], np.sqrt(np.clip(np.diag(self.covariance_), 0, None)), std[:P])
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
         measured = prob.per_run(prob.Z)
         modelled = prob.per_run(prob.Z - ev.nu)
@@ -288,6 +310,7 @@ class FEM(Estimator):
             "modelled": "one-step-ahead predictions of the Kalman filter (residuals = innovations)",
             "input_hold": prob.hold,
             "process_noise_convention": PROCESS_NOISE_CONVENTION,
+            "process_noise_model": self.noise_model_.describe({s: float(v) for s, v in zip(prob.noise_states, f)}),
             "process_noise": {s: {"F": float(v), "std": float(e)} for s, v, e in zip(prob.noise_states, f, f_std)},
             "measurement_noise": {y: {"variance": float(v), "std": float(e)} for y, v, e in zip(p.outputs, r, r_std)},
             "noise_cov": np.diag(r),
@@ -320,6 +343,8 @@ class FEM(Estimator):
             "colour_passes": passes,
             "wall_time": wall,
         }
+        if prior is not None:
+            info["prior"] = prior
         return IdentificationResult(
             # the profile keeps its a priori derivatives; its [process_noise] holds the fitted F, so
             # that identified_profile() starts the next fit (refine's nested fits) from it

@@ -66,6 +66,7 @@ class FilterProblem:
         self.n_beta = start + R * (n + ny)
         self.k = self.G + n + ny
         self.local_index = np.hstack([np.tile(np.arange(self.G), (R, 1)), self.index["x0"], self.index["b"]])
+        self.prior = None  # a PriorTerm (identify.estimators.prior): its residuals join the cost
 
     def unpack(self, beta):
         """``theta`` (p,), ``F`` (nf,), ``x0`` (n, R), ``b`` (ny, R), ``R`` diag (ny,)."""
@@ -146,6 +147,8 @@ class FilterProblem:
             raise np.linalg.LinAlgError("the filter's prediction is not finite")
         Sinv = np.linalg.inv(S)
         cost = 0.5 * float(np.einsum("kir,ij,kjr->", nu, Sinv, nu)) + 0.5 * self.N * np.linalg.slogdet(S)[1]
+        if self.prior is not None:
+            cost += self.prior.cost(beta[:self.p])
         K = np.linalg.solve(Phi, Kp) if np.linalg.cond(Phi) < 1e12 else P @ np.linalg.solve(S, C).T
         ev = Filtered(beta, model, nu, x, S, P, K, cost)
         ev.Kp = Kp
@@ -235,6 +238,10 @@ class FilterProblem:
         M[:G, :G] += 0.5 * self.N * np.einsum("iab,jba->ij", SdS, SdS)
         outer = np.einsum("kir,kjr->ij", ev.nu, ev.nu)
         g[:G] -= 0.5 * np.einsum("iab,ba->i", SdS, self.N * np.eye(ny) - Sinv @ outer)
+        if self.prior is not None:  # the prior's residuals on theta
+            p = self.p
+            M[np.arange(p), np.arange(p)] += self.prior.precision
+            g[:p] += self.prior.gradient(ev.beta[:p])
         return M, g
 
     def coloured(self, ev: Filtered, active: np.ndarray):

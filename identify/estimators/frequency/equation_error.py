@@ -205,6 +205,7 @@ class FDEE(EquationError):
     """
 
     method = "fdee"
+    weighs_prior = False  # its own regressions: the prior is combined with their estimate (base.fit)
 
     def __init__(self, profile, *, band: tuple[float, float] | None = None, n_freq: int | None = None,
                  held_inputs: bool = True, bias: bool = True, coloured: bool = True, reinit="auto"):

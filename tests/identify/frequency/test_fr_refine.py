@@ -13,7 +13,9 @@ def test_refine_fr_holds_what_the_gates_cannot_determine():
     runs = [sweep_run(truth, np.arange(0, 20, DT), j, seed=j) for j in range(2)]
     # the estimator decides, through its hook: the base (ML) holds nothing
     assert ML(p).determinable(p, runs) == (p, {})
-    r = Refine(p, estimator=FR(p, n_draws=0), max_steps=1, kinds=("scale",)).fit(runs)
+    # validation runs given: held out of the sweeps, refine would fit them without their last (fastest) third
+    val = [sweep_run(truth, np.arange(0, 20, DT), j, seed=10 + j) for j in range(2)]
+    r = Refine(p, estimator=FR(p, n_draws=0), max_steps=1, kinds=("scale",)).fit(runs, validate=val)
     held = r.undeterminable_
     # 20 derivatives, most of them beyond what two 20-s sweeps show: held with CIFER's reason, not fitted
     assert 5 <= len(held) < len(p.free) and all("%" in why for why in held.values())
@@ -100,6 +102,6 @@ def test_compare_lr_test_only_where_the_estimator_states_its_criterion():
     assert np.isnan(lr) and df == 1
     ml = IdentificationResult("ml", full, np.zeros(20), np.ones(20))
     assert ml.compare_lr_test(IdentificationResult("ml", small, np.zeros(19), np.ones(19))) is None
-    from identify.refine.loop import _failed_refit
+    from identify.refine.acceptance import failed_refit as _failed_refit
 
     assert "likelihood ratio is not determined" in _failed_refit(fr(full, 10.0, {}), lr, 1e4, 10.0, own=True)

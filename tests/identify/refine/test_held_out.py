@@ -2,7 +2,7 @@
 number of parameters, that never passes an effect which predicts the held-out data worse."""
 import numpy as np
 
-from identify.refine.loop import _held_out_refusal
+from identify.refine.acceptance import held_out_refusal as _held_out_refusal
 
 
 def _passes(e: np.ndarray, d: np.ndarray) -> bool:

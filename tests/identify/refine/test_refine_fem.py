@@ -87,7 +87,7 @@ def test_refine_with_fem_finds_a_delay_in_turbulence():
 def test_a_failed_refit_is_no_likelihood_ratio():
     from types import SimpleNamespace
 
-    from identify.refine.loop import _failed_refit
+    from identify.refine.acceptance import failed_refit as _failed_refit
 
     ok = SimpleNamespace(converged=True, info={"stop": "gradient"})
     assert _failed_refit(ok, 30.0, 1e4, 10.0) == ""
@@ -131,20 +131,18 @@ def test_a_delay_whose_refit_ends_below_the_null_gets_no_second_attempt():
     # (refine_blind.py lag_de --method fem seed 3: "'tau_delta_e' is not in list")
     from types import SimpleNamespace
 
+    from identify.refine.acceptance import second_attempt
     from identify.refine.candidates import Delay
-    from identify.refine.loop import Refine
 
     profile = parse_profile(FOUR_AXES)
     cand = Delay("d_lon")
-    refine = Refine(profile)
 
     def refit_in_metric(*args):
         raise AssertionError("a delay has no null start to re-fit in the test's metric")
 
-    refine.fitting_ = SimpleNamespace(say=lambda msg: None, refit_in_metric=refit_in_metric)
-    refine.estimator_ = SimpleNamespace(method="fem")
+    fitting = SimpleNamespace(say=lambda msg: None, refit_in_metric=refit_in_metric)
     failed = "re-fit failed: its likelihood is below the nested null's"
     first = (cand.profile(profile, {"tau_d_lon": 0.08}), None, {"tau_d_lon": {"value": 0.08, "std": 0.001}},
              -50.0, failed)
-    new_p, _, params, lr, reason, attempts = refine._second_attempt(cand, profile, None, 1e4, 10.0, first, [])
+    new_p, _, params, lr, reason, attempts = second_attempt(fitting, "FEM", cand, profile, None, 1e4, 10.0, first, [])
     assert reason == failed and lr == -50.0 and len(attempts) == 1

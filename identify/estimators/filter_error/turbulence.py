@@ -1,0 +1,75 @@
+"""The filter-error method on a profile with declared turbulence: the seam to the gust model.
+
+:func:`identify.model.turbulence.augment` builds the model with gust states; the filter-error
+method fits it as any other (its corners are free parameters of A, the gusts' F its process
+noise), and :func:`fit` hands the result back on the user's profile: the profile's derivatives with
+their bounds, the fitted corners and intensities with theirs in ``info["turbulence"]``, the
+process-noise model in one line (``info["process_noise_model"]``), and a profile whose
+``[turbulence]`` starts the next fit (refine's nested fits) at the fitted values.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ...model.turbulence import GustModel, augment
+from ..result import IdentificationResult
+
+
+def fit(fem, runs) -> IdentificationResult:
+    """The FEM fit of ``fem.profile_`` (which declares ``[turbulence]``) on ``runs``. Corners to
+    estimate: first a fit with them held at their starts, then from its derivatives the fit with
+    them free (from the a priori derivatives at once, the gusts took the a
+    priori model's misfit as white noise: corners ran to 165 rad/s and the filter diverged, S 61
+    hover with a stability augmentation, benchmarks/filter_error.py)."""
+    p = fem.profile_
+    gm = augment(p, runs)
+    if gm.corners:
+        t = {k: v for k, v in p.turbulence.items() if k != "corner_start"}
+        held = augment(replace(p, turbulence={**t, "corner": {s: gm.held_start(s) for s in gm.corners}}), runs)
+        first, _ = _fit_augmented(fem, held, runs)
+        # the gusts' F and R start afresh: from the first fit's F the start of R fell below its
+        # floor (FEM's three starts, five times the time, the same optimum)
+        start = replace(p, free=dict(zip(p.free, map(float, first.theta[:gm.n_derivatives]))))
+        gm = replace(augment(start, runs), profile=p)
+    res, inner = _fit_augmented(fem, gm, runs)
+    return on_profile(gm, res, inner)
+
+
+def augmented_estimator(fem, runs, gm: GustModel | None = None, **changes):
+    """An unfitted FEM with ``fem``'s options (and ``changes``) on the augmented profile (``gm``'s,
+    default built from ``fem.profile_`` and ``runs``), the gust states' process noise with the
+    option's."""
+    gm = gm or augment(fem.profile_, runs)
+    return fem.clone(gm.augmented, process_noise={**gm.noise_states(), **(fem.process_noise or {})}, **changes)
+
+
+def _fit_augmented(fem, gm: GustModel, runs):
+    """FEM (with ``fem``'s options) on the augmented profile: its result and the fitted FEM."""
+    inner = augmented_estimator(fem, runs, gm).fit(runs)
+    res = inner.result_
+    fem.problem_, fem.beta_, fem.gusts_ = inner.problem_, inner.beta_, gm
+    return res, inner
+
+
+def on_profile(gm: GustModel, res: IdentificationResult, inner) -> IdentificationResult:
+    """The augmented fit ``res`` (by the FEM ``inner``) on the user's profile."""
+    k = gm.n_derivatives
+    prob = inner.problem_
+    f = {s: v["F"] for s, v in res.info["process_noise"].items()}
+    rows = {name: i for i, name in enumerate(gm.augmented.free_names)}
+    rows.update({s: int(j) for s, j in zip(prob.noise_states, prob.index["f"])})
+    cov = inner.covariance_all_
+    for name, row in list(rows.items()):  # held (not excited) or on the boundary: no bound
+        if not (np.isfinite(cov[row, row]) and cov[row, row] > 0):
+            del rows[name]
+    line = gm.describe()
+    info = {**res.info, "process_noise_model": line,
+            "turbulence": {"model": line, "gusts": gm.report(res.theta, f, cov, rows), "airspeed": gm.airspeed}}
+    own = {s: v for s, v in f.items() if s in gm.profile.process_noise}
+    profile = replace(gm.profile, turbulence=gm.fitted_table(res.theta, f),
+                      process_noise=own or gm.profile.process_noise)
+    return IdentificationResult(res.method, profile, res.theta[:k].copy(), res.std[:k].copy(), res.fit, info,
+                                res.runs, None if res.covariance is None else res.covariance[:k, :k].copy(),
+                                res.time, res.measured, res.modelled)
