@@ -29,8 +29,10 @@ of log det M(V) over a convex set). The bound is found in two steps:
   E-optimal design problem over the rows. Kiefer's phi_q criteria (q = 1, 2, 4 ... 128) approach
   lambda_min; each is raised by the multiplicative algorithm
   ``mu_i <- mu_i (b_i^T S^(-q-1) b_i / tr S^(-q))^(1/(q+1))``, started on the rows the relaxed V
-  presses against. Every mu tried gives a valid bound; the smallest is kept (also at W = the
-  design's own information).
+  presses against (on large problems only the rows it presses hardest: ``Effort.row_work``).
+* Frank-Wolfe steps on W at those weights (toward M(v), v the top generalised eigenvector), and
+  the weights again. Every (W, mu) tried gives a valid bound; the smallest is kept (also at W =
+  the design's own information). ``EFFORTS`` sets how many iterations each step takes.
 
 The relaxation is wider than the design space in two ways that a certificate cannot remove: the
 levels are continuous and free of the flyability rules, and V may have rank above 1 (a mixture of

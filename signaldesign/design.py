@@ -325,11 +325,12 @@ class SequenceDesign:
         relaxed = self.relaxed_value_
         slack = "" if not np.isfinite(relaxed) else (
             f"; the relaxation reaches {relaxed:.2f} (each model's relaxed input), so a bound of this kind "
-            f"certifies at most {np.exp(-max(0.0, relaxed - self.result_.objective) / (self.evaluator_.p * w)):.3f}: "
-            f"the rest of the gap is the relaxation's (continuous levels, mixtures of inputs), not the search's")
-        return (f"certified D-efficiency >= {self.efficiency_bound_:.3f} of the optimum's (criterion "
+            f"certifies at most {np.exp(-max(0.0, relaxed - self.result_.objective) / (self.evaluator_.p * w)):.3g} "
+            f"(the relaxation's own gap: continuous levels, mixtures of inputs) and this one leaves "
+            f"{self.bound_.value - relaxed:.2f} open" + (" (--certify full tightens it)" if self.certify == "quick" else ""))
+        return (f"certified D-efficiency >= {self.efficiency_bound_:.3g} of the optimum's (criterion "
                 f"{self.result_.objective:.2f}, semidefinite-relaxation upper bound {self.bound_.value:.2f}, "
-                f"gap {self.gap_:.2f} = {self.evaluator_.p} parameters x {w:g} x log(1/{self.efficiency_bound_:.3f}))"
+                f"gap {self.gap_:.2f} = {self.evaluator_.p} parameters x {w:g} x log(1/{self.efficiency_bound_:.3g}))"
                 + slack)
 
     @property

@@ -23,6 +23,9 @@ def add_parser(sub) -> None:
                    help="known initial states, held in every run (ml, fem; adds to the profile's [initial_state])")
     p.add_argument("--verify", nargs="+", metavar="RUN", help="held-out runs the identified model must predict "
                    "(VERIFY: initial state and zero shifts fitted; Theil coefficient and J_rms reported)")
+    p.add_argument("--fem-formulation", choices=("measurement", "innovation"),
+                   help="fem: R the measurement noise, fitted with the derivatives (default), or the textbook's "
+                        "innovation covariance, relaxed, with C K <= 1 (where the default fit is degenerate)")
     p.add_argument("--fr-delays", metavar="INPUTS", help="fr: comma-separated inputs given a fitted time delay")
     p.add_argument("--prune", action="store_true", help="fr: fix parameters that fail CIFER's gates "
                    "(insensitivity <= 10 %%, Cramér-Rao <= 20 %%) at their a priori values, one at a time")
@@ -37,7 +40,7 @@ def estimator_options(args) -> dict:
     return dict(max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
                 delays=options.names(getattr(args, "fr_delays", None)) or None,
                 prune=getattr(args, "prune", None) or None, x0=getattr(args, "x0", None),
-                n_draws=getattr(args, "n_draws", None))
+                n_draws=getattr(args, "n_draws", None), formulation=getattr(args, "fem_formulation", None))
 
 
 def progress(method: str):

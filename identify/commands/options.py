@@ -12,7 +12,7 @@ MAP_HELP = ('{"channels": {channel: column, variable, matrix column or expressio
             '(required for .mat data matrices)')
 # estimator parameter -> the flag that sets it, for the one error line of an option a method does not take
 FLAGS = {"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays", "prune": "--prune",
-         "x0": "--x0", "n_draws": "--n-draws"}
+         "x0": "--x0", "n_draws": "--n-draws", "formulation": "--fem-formulation"}
 
 
 def add_reading(p, window: bool = True, trim: bool = True) -> None:
