@@ -1,5 +1,6 @@
 """Baseline input signals: doublets, multisteps (3211 ...), arbitrary step sequences,
-Schroeder-phase / orthogonal multisines and pseudo-random ternary sequences (PRTS).
+multisines (phases optimised for a small relative peak factor, or Schroeder's; orthogonal across
+axes) and pseudo-random ternary sequences (PRTS).
 
 Every function returns a :class:`~signaldesign.signal.Signal` (or a list of them, one per axis):
 levels held for a constant time step ``dt`` times an ``amplitude`` in control units (rad).
@@ -10,6 +11,7 @@ import itertools
 
 import numpy as np
 
+from .phases import PHASES, optimised_phases, relative_peak_factor, schroeder_phases
 from .signal import Signal, SignalError
 
 
@@ -57,21 +59,20 @@ def m3211(width: float, amplitude: float = 1.0, input: str = "theta_s", delay: f
     return s
 
 
-def schroeder_phases(n: int) -> np.ndarray:
-    """Schroeder's low-crest-factor phases for n equal-power harmonics (rad)."""
-    k = np.arange(1, n + 1)
-    return -np.pi * k * (k - 1) / n
-
-
 def multisine(duration: float, band: tuple[float, float], amplitude: float = 1.0, input: str = "theta_s",
-              dt: float = 0.05, harmonics=None, delay: float = 0.0) -> Signal:
-    """Schroeder-phase multisine of harmonics of 2 pi / ``duration`` inside ``band`` (rad/s).
+              dt: float = 0.05, harmonics=None, delay: float = 0.0, phases: str = "optimised") -> Signal:
+    """Multisine of equal-power harmonics of 2 pi / ``duration`` inside ``band`` (rad/s), with
+    ``phases`` ``optimised`` (default: Schroeder's, then optimised for a small relative peak factor,
+    :mod:`signaldesign.phases`) or ``schroeder``.
 
     Levels are sampled every ``dt`` s and scaled so that the peak level is 1 (``amplitude`` is the
     peak control deflection, as for the step signals). ``harmonics`` picks the harmonic numbers
-    explicitly (used by :func:`orthogonal_multisines`).
+    explicitly (used by :func:`orthogonal_multisines`). ``params['relative_peak_factor']`` is the
+    flown samples' (max - min) / (2 sqrt(2) rms).
     """
     duration, dt = _positive("duration", duration), _positive("time step", dt)
+    if phases not in PHASES:
+        raise SignalError(f"multisine phases '{phases}': expected one of {', '.join(PHASES)}")
     w0 = 2 * np.pi / duration
     if harmonics is None:
         lo, hi = band
@@ -81,24 +82,31 @@ def multisine(duration: float, band: tuple[float, float], amplitude: float = 1.0
         raise SignalError(f"multisine: no harmonic of {w0:.3f} rad/s (duration {duration:g} s) lies in "
                           f"the band {band[0]:.3f}..{band[1]:.3f} rad/s; lengthen the signal")
     n_steps = int(round(duration / dt))
+    if 2 * harmonics.max() >= n_steps:
+        raise SignalError(f"multisine: harmonic {harmonics.max() * w0:.3f} rad/s is at or above the "
+                          f"{np.pi / dt:.3f} rad/s Nyquist frequency of the {dt:g} s time step; shorten --dt")
     t = (np.arange(n_steps) + 0.5) * dt
-    phases = schroeder_phases(harmonics.size)
-    levels = np.sin(np.outer(t, harmonics * w0) + phases).sum(axis=1)
+    phi = optimised_phases(harmonics, t, w0) if phases == "optimised" else schroeder_phases(harmonics.size)
+    levels = np.sin(np.outer(t, harmonics * w0) + phi).sum(axis=1)
     levels /= np.abs(levels).max()
     return Signal("multisine", input, dt, levels, amplitude, delay,
-                  {"harmonics": harmonics.tolist(), "base_frequency": w0, "band": list(map(float, band))})
+                  {"harmonics": harmonics.tolist(), "base_frequency": w0, "band": list(map(float, band)),
+                   "phases": phases, "relative_peak_factor": relative_peak_factor(levels)})
 
 
-def orthogonal_multisines(inputs, duration: float, band, amplitude=1.0, dt: float = 0.05) -> list[Signal]:
-    """Multisines on several axes at once with interleaved (disjoint) harmonics: mutually
-    orthogonal over ``duration``, so each axis' response is separable in the data."""
+def orthogonal_multisines(inputs, duration: float, band, amplitude=1.0, dt: float = 0.05,
+                          phases: str = "optimised", delay: float = 0.0) -> list[Signal]:
+    """Multisines on several axes at once with interleaved (disjoint) harmonics: input i of n takes
+    harmonics i, i + n, i + 2n, ... of the band, so the axes are mutually orthogonal over
+    ``duration`` and each axis' response is separable in the data; each axis' phases as
+    :func:`multisine`'s ``phases``."""
     w0 = 2 * np.pi / duration
     all_h = np.arange(max(1, int(np.ceil(band[0] / w0 - 1e-9))), int(np.floor(band[1] / w0 + 1e-9)) + 1)
     if all_h.size < len(inputs):
         raise SignalError(f"orthogonal multisines: only {all_h.size} harmonic(s) in the band for "
                           f"{len(inputs)} axes; lengthen the signal or widen the band")
     amps = np.broadcast_to(np.asarray(amplitude, float), (len(inputs),))
-    return [multisine(duration, band, a, name, dt, all_h[i::len(inputs)])
+    return [multisine(duration, band, a, name, dt, all_h[i::len(inputs)], delay, phases)
             for i, (name, a) in enumerate(zip(inputs, amps))]
 
 
@@ -139,10 +147,18 @@ def prts(duration: float, order: int = 3, amplitude: float = 1.0, input: str = "
 
 def make_signal(kind: str, *, width: float | None = None, amplitude: float = 1.0, input: str = "theta_s",
                 duration: float = 7.0, band=None, pulses=None, levels=None, order: int = 3,
-                dt: float = 0.05, delay: float = 0.0) -> Signal:
+                dt: float = 0.05, delay: float = 0.0, phases: str = "optimised") -> Signal | list[Signal]:
     """Build any baseline by name: ``doublet``, ``3211`` (or any digits such as ``2121``),
-    ``multistep`` (with ``pulses``), ``steps`` (with ``levels``), ``multisine`` (with ``band``), ``prts``."""
+    ``multistep`` (with ``pulses``), ``steps`` (with ``levels``), ``multisine`` (with ``band`` and
+    ``phases``), ``prts``. A multisine on several inputs (a list, or comma-separated names) is a
+    list of orthogonal multisines, one per input (harmonics interleaved)."""
     kind = kind.lower()
+    inputs = [i.strip() for i in input.split(",") if i.strip()] if isinstance(input, str) else list(input)
+    if not inputs:
+        raise SignalError("no input named")
+    if len(inputs) > 1 and kind != "multisine":
+        raise SignalError(f"signal '{kind}' is on one input; several inputs ({', '.join(inputs)}) take a multisine")
+    input = inputs[0]
     needs_width = kind in ("doublet", "multistep", "steps") or kind.isdigit()
     if needs_width and width is None:
         raise SignalError(f"signal '{kind}' needs a pulse width (--width)")
@@ -163,7 +179,9 @@ def make_signal(kind: str, *, width: float | None = None, amplitude: float = 1.0
     if kind == "multisine":
         if band is None:
             raise SignalError("signal 'multisine' needs a band (--band 0.3,3 rad/s)")
-        return multisine(duration, band, amplitude, input, dt, delay=delay)
+        if len(inputs) > 1:
+            return orthogonal_multisines(inputs, duration, band, amplitude, dt, phases, delay)
+        return multisine(duration, band, amplitude, input, dt, delay=delay, phases=phases)
     if kind == "prts":
         return prts(duration, order, amplitude, input, delay)
     raise SignalError(f"unknown signal kind '{kind}' (doublet, 3211, <digits>, multistep, steps, "

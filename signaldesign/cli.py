@@ -10,6 +10,7 @@ from identify.cliutil import (Parser, add_threads_option, fraction, nonnegative_
 from identify import LinearModel, load_profile
 
 from .band import plot_band, required_band
+from .phases import PHASES
 from .baselines import make_signal
 from .compare import MIN_WIDTH, default_limits, information_per_second, reference_of, tuned_baselines, yardsticks
 from .design import CRITERIA, SequenceDesign
@@ -71,7 +72,7 @@ def _designer(inputs, args, progress=None) -> SequenceDesign:
     return SequenceDesign(inputs, args.duration, args.record, args.amplitude, args.dt, args.grid, args.min_pulse,
                           args.max_changes, not args.no_double_jumps, args.criterion,
                           reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress,
-                          jobs=getattr(args, "jobs", None),
+                          jobs=getattr(args, "jobs", None), certify=getattr(args, "certify", "full"),
                           prior=bool(getattr(args, "with_prior", False) or getattr(args, "prior_relative", None)))
 
 
@@ -100,7 +101,7 @@ def cmd_design(args) -> int:
         singles = []
         for i in inputs:  # each axis in its own run, within the same limits
             single = _designer([i], args)
-            single.limits = designer.limits
+            single.limits, single.certify = designer.limits, "quick"  # its certificate is not printed
             singles.append(single.fit(model).signals_)
         joint, separate = information_per_second(ev, designer.signals_, singles, args.record)
         print(f"information per second of flight (det M^(1/p) / s): {joint:.4g} with the axes in one run, "
@@ -123,21 +124,41 @@ def cmd_make(args) -> int:
     band = tuple(_floats(args.band, "--band")) if args.band else None
     if band is not None and len(band) != 2:
         raise SignalError(f"--band needs two frequencies low,high in rad/s, got '{args.band}'")
+    if band is None and args.profile and args.kind.lower() == "multisine":
+        band = _required_union(LinearModel(load_profile(args.profile)), _inputs(args))
     pulses = [int(v) for v in _floats(args.pulses, "--pulses")] if args.pulses else None
     levels = _floats(args.levels, "--levels") if args.levels else None
-    sig = make_signal(args.kind, width=args.width, amplitude=args.amplitude, input=args.input,
-                      duration=args.duration, band=band, pulses=pulses, levels=levels, order=args.order,
-                      dt=args.dt, delay=args.delay)
-    lo, hi, peak = half_power_band(sig)
-    print(f"{sig.kind} on {sig.input}: {sig.levels.size} steps of {sig.dt:g} s ({sig.duration:g} s), "
-          f"amplitude {sig.amplitude:g}; half-power band {lo:.3f}..{hi:.3f} rad/s, peak at {peak:.3f} rad/s")
-    save_signals(sig, args.out)
+    made = make_signal(args.kind, width=args.width, amplitude=args.amplitude, input=args.input,
+                       duration=args.duration, band=band, pulses=pulses, levels=levels, order=args.order,
+                       dt=args.dt, delay=args.delay, phases=args.phases)
+    sigs = made if isinstance(made, list) else [made]
+    for sig in sigs:
+        lo, hi, peak = half_power_band(sig)
+        rpf = sig.params.get("relative_peak_factor")
+        extra = (f"; {len(sig.params['harmonics'])} harmonics, {sig.params['phases']} phases, relative peak "
+                 f"factor {rpf:.3f}" if rpf is not None else "")
+        print(f"{sig.kind} on {sig.input}: {sig.levels.size} steps of {sig.dt:g} s ({sig.duration:g} s), "
+              f"amplitude {sig.amplitude:g}; half-power band {lo:.3f}..{hi:.3f} rad/s, peak at {peak:.3f} rad/s"
+              + extra)
+    save_signals(sigs, args.out)
     print(f"signal written to {args.out}")
     if args.csv:
-        run_ = signals_to_run(sig, args.csv_dt, max(args.record, sig.end_time))
+        run_ = signals_to_run(sigs, args.csv_dt, max(args.record, max(s.end_time for s in sigs)))
         run_.to_csv(args.csv)
-        print(f"run-compatible CSV written to {args.csv}")
+        print(f"run-compatible CSV written to {args.csv} (columns: time, {', '.join(s.input for s in sigs)})")
     return 0
+
+
+def _required_union(model, inputs) -> tuple[float, float]:
+    """The band every input needs (``signaldesign band``): lowest low to highest high."""
+    bands = [required_band(model, i) for i in inputs]
+    unbounded = [b.input for b in bands if not b.bounded]
+    if unbounded:
+        raise SignalError(f"no required band for {', '.join(unbounded)} on {model.profile.name}; give --band")
+    lo, hi = min(b.low for b in bands), max(b.high for b in bands)
+    print(f"band from the profile: {lo:.3f}..{hi:.3f} rad/s ("
+          + "; ".join(f"{b.input} {b.low:.3f}..{b.high:.3f}" for b in bands) + ")")
+    return lo, hi
 
 
 def cmd_compare(args) -> int:
@@ -227,6 +248,9 @@ def build_parser() -> Parser:
     p.add_argument("--jobs", type=positive_int, metavar="N",
                    help="worker processes for the search's restarts (default: the available CPUs, at most "
                         "the restarts); the design is the same for any N")
+    p.add_argument("--certify", choices=("full", "quick"), default="full",
+                   help="the certificate's upper bound: full (default; the semidefinite relaxation solved to "
+                        "within a few log det units, about 10-40 s per model) or quick (valid, looser, seconds)")
     p.add_argument("--out", type=output_file, metavar="JSON", help="write the optimised signal here")
     p.add_argument("--plot", type=output_file, metavar="PNG", help="draw it against the best 3211 with spectra and the band")
     _record_options(p)
@@ -236,9 +260,16 @@ def build_parser() -> Parser:
     p.add_argument("kind", help="doublet, 3211 (or any digits, e.g. 2121), multistep, steps, multisine, prts")
     p.add_argument("--width", type=positive_float, help="pulse / step width in s")
     p.add_argument("--amplitude", type=positive_float, default=0.02, help="amplitude in rad (default 0.02)")
-    p.add_argument("--input", default="theta_s", help="control input (default theta_s)")
+    p.add_argument("--input", default="theta_s",
+                   help="control input (default theta_s); a multisine takes several, comma-separated: orthogonal "
+                        "multisines with interleaved harmonics, one column each in --csv")
     p.add_argument("--duration", type=positive_float, default=7.0, help="multisine / PRTS length in s (default 7)")
-    p.add_argument("--band", help="multisine band low,high in rad/s")
+    p.add_argument("--band", help="multisine band low,high in rad/s (default with --profile: the band the "
+                                  "inputs need, as `signaldesign band` prints it)")
+    p.add_argument("--phases", choices=PHASES, default="optimised",
+                   help="multisine phases: optimised (default; Schroeder's, then optimised for a small relative "
+                        "peak factor) or schroeder")
+    p.add_argument("--profile", help="profile for the multisine's default band")
     p.add_argument("--pulses", help="multistep pulse counts, e.g. 3,2,1,1")
     p.add_argument("--levels", help="step levels, e.g. 1,1,0,-1,0")
     p.add_argument("--order", type=positive_int, default=3, help="PRTS order (period 3^order - 1, default 3)")

@@ -5,7 +5,8 @@ Baselines are tuned on the a priori model the same way the optimised sequence is
 width of each doublet, 3211 and PRTS is the one (on the time-step grid, within the duration, no
 pulse under the pilot's minimum) that maximises log det of the Fisher information at equal peak
 response. The multisine spans the harmonics of
-2 pi / duration up to twice the required band's top (at least three). Several axes get the same
+2 pi / duration up to twice the required band's top (at least three), with Schroeder's phases and
+with phases optimised for a small relative peak factor (RPF, :mod:`signaldesign.phases`). Several axes get the same
 signal type at once (the paper's "combined input"): doublets and 3211s with their widths tuned
 jointly per axis (identical signals on two axes cannot separate the axes' control derivatives),
 orthogonal multisines, and a PRTS rotated by a third of its period on the second axis.
@@ -55,7 +56,8 @@ def tune(factory, widths, ev: Evaluator, inputs, amplitude, max_pairs: int = 400
 
 def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float | None = None,
                     prts_order: int | None = None, min_width: float = MIN_WIDTH) -> list[tuple[str, list]]:
-    """[(label, signals)] for the best doublet, best 3211, the multisine and the best PRTS; no
+    """[(label, signals)] for the best doublet, best 3211, the Schroeder and the optimised multisine
+    (orthogonal across axes) and the best PRTS; no
     pulse shorter than ``min_width`` s (the pilot's shortest pulse, as for the optimised sequence).
     The PRTS has 26 steps (order 3) when they fit in the duration at that width, else 8."""
     dt, inputs = ev.dt, ev.inputs
@@ -70,11 +72,14 @@ def tuned_baselines(ev: Evaluator, duration: float, amplitude, band_high: float 
         out.append((f"3211, best width {w} s", sigs))
     w0 = 2 * np.pi / duration
     top = max(3.05 * w0, 2 * band_high if band_high else 0.0)
-    if len(inputs) == 1:
-        ms = [multisine(duration, (0.0, top), float(np.atleast_1d(amplitude)[0]), inputs[0], dt)]
-    else:
-        ms = orthogonal_multisines(inputs, duration, (0.0, max(top, (len(inputs) * 3 + 0.05) * w0)), amplitude, dt)
-    out.append((f"multisine {len(ms[0].params['harmonics'])} harmonics", ms))
+    for phases in ("schroeder", "optimised"):
+        if len(inputs) == 1:
+            ms = [multisine(duration, (0.0, top), float(np.atleast_1d(amplitude)[0]), inputs[0], dt, phases=phases)]
+        else:
+            ms = orthogonal_multisines(inputs, duration, (0.0, max(top, (len(inputs) * 3 + 0.05) * w0)), amplitude,
+                                       dt, phases)
+        rpf = "/".join(f"{s.params['relative_peak_factor']:.2f}" for s in ms)
+        out.append((f"multisine {len(ms[0].params['harmonics'])} harmonics, {phases} phases (RPF {rpf})", ms))
     if prts_order is None:
         prts_order = 3 if 26 * min_width <= duration + 1e-9 else 2
     period = 3 ** prts_order - 1

@@ -22,7 +22,7 @@ import numpy as np
 from identify import LinearModel
 
 from .baselines import doublet, m3211
-from .bound import objective_bound
+from .bound import EFFORTS, objective_bound
 from .compare import width_grid, tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
@@ -74,7 +74,9 @@ class SequenceDesign:
     iterated local search from the best restarts (:func:`~signaldesign.search.anneal`);
     ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``jobs`` worker processes
     run the restarts (default: the available CPUs, at most ``restarts``); the design is the same
-    for any number.
+    for any number. ``certify``: the upper bound's effort, ``quick`` (default: valid, looser,
+    seconds) or ``full`` (``signaldesign design``'s default: a few log det units from the
+    relaxation's value, 10-40 s per model; :data:`~signaldesign.bound.EFFORTS`).
 
     After ``fit``: ``signals_``, ``amplitude_`` (per axis), ``levels_``, ``peaks_`` and ``limits_``
     (ny,) on the a priori at the flown amplitude, ``binding_`` (output at its limit), ``result_``
@@ -94,7 +96,7 @@ class SequenceDesign:
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
                  draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20,
-                 nominal_kicks: int = 20, jobs: int | None = None, prior: bool = False):
+                 nominal_kicks: int = 20, jobs: int | None = None, prior: bool = False, certify: str = "quick"):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -105,7 +107,7 @@ class SequenceDesign:
         self.noise_std, self.delay, self.progress = noise_std, delay, progress
         self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
-        self.kicks, self.nominal_kicks, self.jobs = kicks, nominal_kicks, jobs
+        self.kicks, self.nominal_kicks, self.jobs, self.certify = kicks, nominal_kicks, jobs, certify
         self.prior = prior
 
     # -- validation ---------------------------------------------------------------------------------
@@ -130,6 +132,8 @@ class SequenceDesign:
         self._jobs()
         if self.criterion not in CRITERIA:
             raise DesignError(f"unknown criterion '{self.criterion}' ({', '.join(CRITERIA)})")
+        if self.certify not in EFFORTS:
+            raise DesignError(f"unknown certificate effort '{self.certify}' ({', '.join(EFFORTS)})")
         if self.amplitude is not None:
             amps = np.atleast_1d(np.asarray(self.amplitude, float))
             if not np.all(np.isfinite(amps) & (amps > 0)):
@@ -179,12 +183,6 @@ class SequenceDesign:
                               worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
                               stride=2, prior_information=prior_information)
         result, gap = self._search(objective, fly, starts)
-        exact = objective.exact()
-        if objective.prior_information is None:
-            self.bound_ = objective_bound(exact, result.levels, jobs=self._jobs())
-            self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
-        else:  # the relaxation's bound rests on log det's scale invariance, which the prior breaks
-            self.bound_, self.gap_ = None, gap if gap is not None else float("nan")
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
             raise DesignError("the designed sequence moves no output that has a response limit")
@@ -197,13 +195,22 @@ class SequenceDesign:
                 f"infeasible: the search found no flyable sequence at amplitude {amplitude:g} that keeps {y} "
                 f"within its limit {ev.limits[i]:g} (smallest peak found {peaks[i]:.3g}); lower the amplitude below "
                 f"{amplitude / ratios.max():.3g} or leave it free")
+        exact = objective.exact()
+        # the certificate (after the feasibility check: no minutes of work before an error); an
+        # exhaustive search needs none (gap 0), its bound is only shown
+        if objective.prior_information is None:
+            self.bound_ = objective_bound(exact, result.levels, jobs=self._jobs(),
+                                          effort="quick" if gap is not None else self.certify)
+            self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
+        else:  # the relaxation's bound rests on log det's scale invariance, which the prior breaks
+            self.bound_, self.gap_ = None, gap if gap is not None else float("nan")
         self.levels_, self.amplitude_ = result.levels, np.full(len(self.inputs), amplitude)
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
         self.implausible_ = implausible_amplitudes(model.profile, self.inputs, self.amplitude_)
         for line in self.implausible_:
             warnings.warn(line, stacklevel=2)
-        self.result_, self.basis_, self.evaluator_ = result, basis, ev
+        self.result_, self.basis_, self.evaluator_, self._objective_ = result, basis, ev, objective
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
         self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
                                            - max(classic)) / ev.p)) if classic else float("nan")
@@ -290,13 +297,9 @@ class SequenceDesign:
         lines.append("peak response / limit on the a priori: " + ", ".join(cells))
         lines += [f"WARNING: {line}" for line in self.implausible_]
         res = self.result_
-        how = ("exhaustive: exact optimum among flyable sequences, gap 0" if res.method == "exhaustive" else
+        how = ("exhaustive: exact optimum among flyable sequences" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
-               f"of each other in the criterion; " + (
-                   "no upper bound with the prior's information (the relaxation's bound needs log det's "
-                   "scale invariance)" if self.bound_ is None else
-                   f"upper bound {self.bound_.value:.2f} (continuous relaxation), gap {self.gap_:.2f}: "
-                   f"D-efficiency at least {self.efficiency_bound_:.3f} of the optimum's"))
+               f"of each other in the criterion")
         if self.prior:
             how += "; the criterion: log det of the prior's information plus the flight's at the amplitude flown"
         floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
@@ -306,14 +309,47 @@ class SequenceDesign:
         lines.append(f"on the a priori: D-efficiency {self.nominal_gain_:.3f}x the best tuned 3211/doublet{floor}")
         lines.append(f"criterion {self.criterion} over {len(self.models_)} model(s); {how}; "
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
+        lines.append(self.certificate())
         return "\n".join(lines)
+
+    def certificate(self) -> str:
+        """One line: the D-efficiency the design is certified to reach relative to the optimum, from
+        the upper bound, and how much of the gap the relaxation itself holds."""
+        if self.result_.method == "exhaustive":
+            shown = "" if self.bound_ is None else f"; the continuous relaxation's bound is {self.bound_.value:.2f}"
+            return f"certified D-efficiency 1.000 of the optimum among flyable sequences (exhaustive search{shown})"
+        if self.bound_ is None:
+            return ("certified D-efficiency: none (no upper bound with the prior's information: the relaxation's "
+                    "bound needs log det's scale invariance, which the prior breaks)")
+        w = self._weight()
+        relaxed = self.relaxed_value_
+        slack = "" if not np.isfinite(relaxed) else (
+            f"; the relaxation reaches {relaxed:.2f} (each model's relaxed input), so a bound of this kind "
+            f"certifies at most {np.exp(-max(0.0, relaxed - self.result_.objective) / (self.evaluator_.p * w)):.3g} "
+            f"(the relaxation's own gap: continuous levels, mixtures of inputs) and this one leaves "
+            f"{self.bound_.value - relaxed:.2f} open" + (" (--certify full tightens it)" if self.certify == "quick" else ""))
+        return (f"certified D-efficiency >= {self.efficiency_bound_:.3g} of the optimum's (criterion "
+                f"{self.result_.objective:.2f}, semidefinite-relaxation upper bound {self.bound_.value:.2f}, "
+                f"gap {self.gap_:.2f} = {self.evaluator_.p} parameters x {w:g} x log(1/{self.efficiency_bound_:.3g}))"
+                + slack)
+
+    @property
+    def relaxed_value_(self) -> float:
+        """The criterion combined from each model's relaxed value reached (the bound cannot fall
+        below it; inf where a model is unbounded)."""
+        if self.bound_.relaxed is None:
+            return float("nan")
+        exact = self._objective_.exact()
+        return float(exact.combine(self.bound_.relaxed - exact.offsets, floor=False))
+
+    def _weight(self) -> float:
+        return 1.0 + (self.worst_weight if self.criterion == "robust" else 0.0)
 
     @property
     def efficiency_bound_(self) -> float:
         """Lower bound on the design's D-efficiency relative to the optimum: exp(-gap / (p w)), w the
         total weight of the criterion's log dets (1; 1 + worst weight for robust)."""
-        w = 1.0 + (self.worst_weight if self.criterion == "robust" else 0.0)
-        return float(np.exp(-self.gap_ / (self.evaluator_.p * w)))
+        return float(np.exp(-self.gap_ / (self.evaluator_.p * self._weight())))
 
 
 def prior_weights(n_models: int, apriori_weight: float) -> np.ndarray:

@@ -52,11 +52,13 @@ from ..data.runs import Run
 from ..errors import ConvergenceWarning, EstimationError, SimulationError
 from ..model.linear import LinearModel
 from ..model.profile import Profile
+from .advice import colour_advice, follows_inputs
 from .base import Estimator
 from .lm import MAX_REL_STEP, LevenbergMarquardt  # noqa: F401  (MAX_REL_STEP: the step bound ML reports)
 from .output_error import OutputError, auto_segment
 from .prior import posterior, prior_term
 from .result import IdentificationResult, fit_metrics
+from .whiteness import whiteness
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
 RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
@@ -170,10 +172,10 @@ class ML(Estimator):
                           f"(raise max_iter, or start from better a priori values)", ConvergenceWarning,
                           stacklevel=3)
         self.problem_, self.beta_ = prob, solver.beta
-        return self._result(runs, prob, solver, form, segment, _time.perf_counter() - started)
+        return self._result(runs, prob, solver, form, segment, _time.perf_counter() - started, u)
 
     def _result(self, runs, prob: OutputError, sv: "OutputErrorSolver", form: str, segment: float,
-                wall: float) -> IdentificationResult:
+                wall: float, u: list[np.ndarray]) -> IdentificationResult:
         p, P = self.profile_, prob.p
         cov_white, ill = sv.M.covariance()  # blocks: never (n_beta, n_beta) for a long record
         std_white, std_col, acf, passes = _std(cov_white, sv.active), None, None, 0
@@ -233,7 +235,10 @@ class ML(Estimator):
             "std_coloured": None if std_col is None else std_col[:P],
             "noise_autocorrelation": acf,
             "colour_passes": passes,
-            "estimator_advice": _advice(std_white[:P], None if std_col is None else std_col[:P]),
+            "whiteness": whiteness([z - y for z, y in zip(measured, modelled)], list(p.outputs)),
+            "estimator_advice": colour_advice(std_white[:P], None if std_col is None else std_col[:P],
+                                              lambda: follows_inputs([z - y for z, y in zip(measured, modelled)],
+                                                                     u, prob.dt, list(p.outputs))),
             "wall_time": wall,
         }
         if prior is not None:
@@ -380,23 +385,6 @@ class OutputErrorSolver(LevenbergMarquardt):
 
 
 # -- helpers ---------------------------------------------------------------------------------------
-COLOURED_ADVICE = 2.0  # coloured-residual bounds this many times the white ones: say FEM is the estimator
-
-
-def _advice(std_white: np.ndarray, std_col: np.ndarray | None) -> str | None:
-    """When the residuals are strongly coloured (median coloured/white bound >= COLOURED_ADVICE;
-    on the benchmarks' turbulent cases 4.5-7, in calm air 0.94-0.98): the filter-error method."""
-    if std_col is None:
-        return None
-    ok = np.isfinite(std_white) & np.isfinite(std_col) & (std_white > 0)
-    ratio = float(np.median(std_col[ok] / std_white[ok])) if ok.any() else float("nan")
-    if not ratio >= COLOURED_ADVICE:
-        return None
-    return (f"the residuals are strongly coloured (coloured-residual bounds {ratio:.1f}x the white ones): "
-            f"turbulence, or a pilot or SAS in the loop? Output error's estimates may then be biased beyond "
-            f"their bounds; the filter-error method (--method fem) models the process noise")
-
-
 def _held(prob: OutputError, beta: np.ndarray, x0_fixed: dict) -> np.ndarray:
     """Unknowns the profile fixes, set in ``beta``: each run's initial state (``[initial_state]``,
     the ``x0`` option; the first segment of the run) and the zero shifts ``[zero_shifts]`` holds."""

@@ -155,6 +155,8 @@ class OutputError:
     whether segment initial states / run zero shifts are unknowns (else held at their start values).
     """
 
+    prior = None  # a PriorTerm where set; a subclass that builds its own state (compat's kinematics) has none
+
     def __init__(self, profile: Profile, u: list[np.ndarray], z: list[np.ndarray], dt: float,
                  segment: float, estimate_x0: bool = True, estimate_bias: bool = True):
         self.profile, self.dt = profile, float(dt)

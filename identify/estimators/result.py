@@ -22,6 +22,7 @@ from ..model.linear import LinearModel, format_modes
 from ..model.profile import Profile
 from . import identifiability
 from .prior import summary_lines as prior_summary_lines
+from .whiteness import whiteness_line
 
 
 def insensitivity(cov: np.ndarray) -> np.ndarray:
@@ -83,6 +84,9 @@ class IdentificationResult:
     time: list[np.ndarray] = field(default_factory=list, repr=False)
     measured: list[np.ndarray] = field(default_factory=list, repr=False)
     modelled: list[np.ndarray] = field(default_factory=list, repr=False)
+    # where ``modelled`` is not a simulation (the filter-error method's one-step predictions): the
+    # identified model's open-loop simulation of each run, (N, ny), beside it in the plots
+    simulated: list[np.ndarray] = field(default_factory=list, repr=False)
 
     def __post_init__(self):
         """A standard error that is not a positive number (a variance clipped at zero or negative:
@@ -154,6 +158,8 @@ class IdentificationResult:
         not determine (:func:`identify.identifiability.assess`)."""
         check = identifiability.assess(self.names, self.theta, self.std, self.parameter_covariance(), self.model)
         held = {n for names in self.info.get("held", {}).values() for n in names}
+        # a degenerate fit's bounds are no measure (said on their own line): not "poorly determined"
+        held |= {n for n, why in (self.info.get("not_determined") or {}).items() if why.startswith("not meaningful")}
         if held:  # held at the a priori, said on their own line: not "poorly determined"
             check["poorly_determined"] = [n for n in check["poorly_determined"] if n not in held]
         return check
@@ -236,9 +242,16 @@ class IdentificationResult:
                 row += f"{truth.get(name, float('nan')):12.5g}"
             lines.append(row)
         lines.append(f"standard errors: {self.info.get('standard_errors', 'Cramér-Rao (white residuals)')}")
+        if self.info.get("bounds_choice"):
+            lines.append(f"bounds: {self.info['bounds_choice']}")
+        if self.info.get("whiteness"):
+            lines.append(whiteness_line(self.info["whiteness"], "innovations" if "process_noise" in self.info
+                                        else "residuals"))
+        if self.info.get("degenerate"):
+            lines.append(f"warning: {self.info['degenerate']}")
         if self.info.get("held_note"):
             lines.append(f"held (std inf): {self.info['held_note']}")
-        lines += [f"not determined: {n}: {why}" for n, why in self.info.get("not_determined", {}).items()]
+        lines += _not_determined_lines(self.info.get("not_determined", {}))
         if self.info.get("ill_conditioned"):
             lines.append("warning: the information matrix is ill-conditioned (rank deficient to rounding): "
                          "some parameter or combination is not determined by these runs")
@@ -328,7 +341,8 @@ class IdentificationResult:
         (outdir / "summary.txt").write_text(self.summary() + "\n")
         if self.time:
             arrays = {f"{kind}_{r}": a for kind, seq in (("time", self.time), ("measured", self.measured),
-                                                         ("modelled", self.modelled)) for r, a in enumerate(seq)}
+                                                         ("modelled", self.modelled), ("simulated", self.simulated))
+                      for r, a in enumerate(seq)}
             np.savez_compressed(outdir / HISTORIES, **arrays)
         return outdir
 
@@ -363,7 +377,17 @@ class IdentificationResult:
                     result.time.append(z[f"time_{r}"])
                     result.measured.append(z[f"measured_{r}"])
                     result.modelled.append(z[f"modelled_{r}"])
+                    if f"simulated_{r}" in z.files:
+                        result.simulated.append(z[f"simulated_{r}"])
         return result
+
+def _not_determined_lines(reasons: dict) -> list[str]:
+    """One line per reason, the parameters that share it listed together."""
+    grouped: dict[str, list[str]] = {}
+    for name, why in reasons.items():
+        grouped.setdefault(why, []).append(name)
+    return [f"not determined: {', '.join(names)}: {why}" for why, names in grouped.items()]
+
 
 def _prior_of(info: dict, name: str) -> dict:
     """A parameter's prior and data share for result.json (the estimate is the posterior), or nothing."""
@@ -382,8 +406,10 @@ def _noise_lines(info: dict) -> list[str]:
     def bound(s):
         return f"{s:.3g}" if np.isfinite(s) else "not determined"
 
-    lines = [""] + ([info["process_noise_model"]] if "process_noise_model" in info else [])
+    lines = [""] + ([info["process_noise_model"]] if info.get("process_noise_model") else [])
     lines += _turbulence_lines(info.get("turbulence"))
+    if info.get("r_start_choice"):
+        lines.append(f"R start: {info['r_start_choice']}")
     lines.append(f"process noise F ({info['process_noise_convention']}):")
     lines += [f"  {k:<16}{v['F']:12.4g}  std {bound(v['std'])}" for k, v in info["process_noise"].items()] or ["  none"]
     lines.append("measurement noise R (variances, output units squared):")
@@ -403,7 +429,7 @@ def _turbulence_lines(turb: dict | None) -> list[str]:
     lines = ["turbulence (gust std = F / sqrt(2 corner); bounds: 1 std):"]
     for s, g in turb["gusts"].items():
         extra = f" = {g['intensity_m_s']:.3g} m/s" if g.get("intensity_m_s") is not None else ""
-        lines.append(f"  {s:<6} corner {pm(g['corner'], g['corner_std'], not g['corner_estimated'])} rad/s, "
+        lines.append(f"  {s:<6} corner {pm(g['corner'], g.get('corner_std'), not g['corner_estimated'])} rad/s, "
                      f"intensity {pm(g['intensity'], g['intensity_std'])} {g['unit']}{extra}")
     return lines
 

@@ -127,7 +127,7 @@ class GustModel:
                 var = float(d @ cov[np.ix_(idx, idx)] @ d)
             entry = {"gust_state": g, "corner": omega, "corner_estimated": bool(c_name),
                      "corner_std": (math.sqrt(cov[rows[c_name], rows[c_name]]) if rows.get(c_name) is not None
-                                    else math.nan) if c_name else 0.0,
+                                    else math.nan) if c_name else math.nan,  # held: no bound
                      "correlation_time": 1 / omega if omega > 0 else math.inf,
                      "intensity": sigma, "intensity_std": math.sqrt(var) if var > 0 else math.nan,
                      "unit": self.profile.states[s], "F": F}

@@ -4,6 +4,7 @@ import pytest
 from scipy.optimize import brentq
 
 from identify import read_run
+from signaldesign.phases import relative_peak_factor
 from signaldesign.baselines import (doublet, m3211, make_signal, multisine, multistep, orthogonal_multisines,
                                     prts, step_sequence)
 from signaldesign.signal import SignalError, load_signals, save_signals, signals_to_run
@@ -131,3 +132,23 @@ def test_a_signal_with_a_nan_delay_is_rejected():
     from signaldesign.signal import Signal, SignalError
     with pytest.raises(SignalError, match="delay"):
         Signal("doublet", "theta_s", 1.0, [1, -1], delay=float("nan"))
+
+
+@pytest.mark.parametrize("low", [0.5, 0.63, 1.0])
+def test_optimised_multisines_have_a_small_relative_peak_factor(low):
+    """Two orthogonal multisines over a decade of band in 10 s: each input's relative peak factor
+    (max - min) / (2 sqrt(2) rms) at most 1.15 and below Schroeder's phases' (Morelli's target)."""
+    band = (low, 10 * low)
+    opt = orthogonal_multisines(["theta_s", "theta_c"], 10.0, band, dt=0.05)
+    sch = orthogonal_multisines(["theta_s", "theta_c"], 10.0, band, dt=0.05, phases="schroeder")
+    for o, s in zip(opt, sch):
+        assert o.params["harmonics"] == s.params["harmonics"] and len(o.params["harmonics"]) >= 3
+        rpf = relative_peak_factor(o.levels)
+        assert rpf == pytest.approx(o.params["relative_peak_factor"])
+        assert rpf <= 1.15 and rpf < relative_peak_factor(s.levels) - 0.05
+        # the same power in every harmonic: the phases changed, the spectrum did not
+        spec = np.abs(np.fft.rfft(o.levels))[o.params["harmonics"]]
+        assert np.ptp(spec) < 1e-6 * spec.max()
+    assert abs(opt[0].levels @ opt[1].levels) < 1e-9 * np.linalg.norm(opt[0].levels) * np.linalg.norm(opt[1].levels)
+    with pytest.raises(SignalError, match="phases"):
+        multisine(10.0, band, phases="random")

@@ -54,6 +54,24 @@ def test_make_compare_and_plot(tmp_path, capsys):
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_make_orthogonal_multisines_on_two_inputs(tmp_path, capsys):
+    out, csv = tmp_path / "ms.json", tmp_path / "ms.csv"
+    status, stdout, err = cli(capsys, "make", "multisine", "--input", "theta_s,theta_c", "--band", "0.5,5",
+                              "--duration", "10", "--out", out, "--csv", csv)
+    assert status == 0, err
+    rpf = [float(line.rsplit(" ", 1)[1]) for line in stdout.splitlines() if "relative peak factor" in line]
+    assert len(rpf) == 2 and max(rpf) <= 1.15
+    a, b = load_signals(out)
+    assert (a.input, b.input) == ("theta_s", "theta_c") and a.params["phases"] == "optimised"
+    assert set(a.params["harmonics"]).isdisjoint(b.params["harmonics"])
+    assert csv.read_text().splitlines()[2] == "time,theta_s,theta_c"
+    status, stdout, err = cli(capsys, "make", "multisine", "--input", "theta_s,theta_c", "--profile", "bo105_70kt",
+                              "--duration", "20", "--phases", "schroeder", "--out", out)
+    assert status == 0 and "band from the profile" in stdout and "schroeder phases" in stdout, err
+    one_line(capsys, ["make", "3211", "--width", "1", "--input", "theta_s,theta_c", "--out", out],
+             "several inputs")
+
+
 def test_design_command_writes_a_flyable_signal_within_the_limits(tmp_path, capsys):
     out = tmp_path / "opt.json"
     status, stdout, stderr = cli(capsys, "design", "--profile", "s61_hover_8state", "--input", "theta_s",
@@ -61,7 +79,7 @@ def test_design_command_writes_a_flyable_signal_within_the_limits(tmp_path, caps
                                  "--criterion", "nominal", "--jobs", "2", "--out", out, "--plot", tmp_path / "d.png")
     assert status == 0, stderr
     for label in ("doublet, best width", "3211, best width", "multisine", "PRTS", "optimised",
-                  "equal peak response", "BINDS", "limits: the profile's [limits]"):
+                  "equal peak response", "BINDS", "limits: the profile's [limits]", "certified D-efficiency"):
         assert label in stdout, label
     assert "designing [" in stderr  # the progress bar
     assert json.loads(out.read_text())["format"] == "pseudostep-signal/1"
@@ -78,6 +96,9 @@ def test_two_axis_design_reports_information_per_second(capsys):
                                  "--criterion", "nominal")
     assert status == 0, stderr
     assert "information per second of flight" in stdout and "one run per axis" in stdout
+    (cert,) = [line for line in stdout.splitlines() if line.startswith("certified D-efficiency")]
+    value = float(cert.split()[3 if ">=" in cert else 2])
+    assert 0 < value <= 1, cert
 
 
 def _profile_with_limits(tmp_path, limits: str):

@@ -13,21 +13,24 @@ import numpy as np
 from ...data.runs import Run
 from ...errors import ConvergenceWarning, EstimationError
 from ...model import pseudo_inputs as pi
-from ...model.profile import Profile
+from ...model.profile import VELOCITY_STATES, Profile
 from ...model.simulate import discretize, held_inputs, propagate
 from ..base import Estimator
 from ..ml import common_dt, finite_channels
 from ..output_error import pad
 from ..prior import posterior, prior_term
 from ..result import IdentificationResult, fit_metrics
+from ..whiteness import whiteness
 from .base import PROCESS_NOISE_CONVENTION, ProcessNoiseModel
-from .bounds import colour_failure, inverse_information
+from .bounds import TURBULENCE_ADVICE, degenerate_fit, fit_bounds
 from .filter import FilterProblem, NonlinearFilterProblem
+from .innovation import InnovationFilterProblem, InnovationSolver
 from .solver import FilterSolver
 from . import turbulence
 from .starts import fit_from_starts
 
 INNOVATION_CACHE = 8  # refine's predictions kept per estimator (profile x runs)
+FORMULATIONS = ("measurement", "innovation")  # R the measurement noise (ML), or the innovation covariance (textbook)
 NOISE_PARTS = ("f", "r", "corner")  # a ModelFit's noise: F, R and the estimated gust corners (turbulence)
 
 
@@ -39,12 +42,14 @@ class FEM(Estimator):
     ``x0``: ``{state: value}`` initial states held fixed in every run (with the profile's
     ``[initial_state]``); ``estimate_x0``/``estimate_bias`` as ML (False holds all of them;
     per-output zero shifts follow the profile's ``[zero_shifts]``). ``max_iter``, ``tol``,
-    ``progress``, ``verbose`` as ML. ``coloured``: standard errors corrected for coloured
-    innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`)
-    or (default) the plain Cramér-Rao bounds; both are then in ``info["std_coloured"]`` and
-    ``info["std_white"]`` (theta only). Opt-in: measured, it helps with coloured measurement noise
-    but over-widens the velocity derivatives' bounds (median 1.6-1.9x) on the piloted S 61 case of
-    benchmarks/filter_error.py, where the plain bounds are calibrated (docs/filter_error.md).
+    ``progress``, ``verbose`` as ML. ``coloured``: None (default) the standard errors corrected for
+    coloured innovations (ML's Morelli & Klein sandwich on the innovations, :meth:`FilterProblem.coloured`)
+    where the innovations fail the whiteness test (:mod:`identify.estimators.whiteness`, per
+    output, ``info["whiteness"]``), else the Cramér-Rao bounds; True the correction always, False
+    never. Both are then in ``info["std_coloured"]`` and ``info["std_white"]`` (theta only), the
+    choice in one line (``info["bounds_choice"]``). A degenerate fit (R on its floor on every
+    output, or a filter that copies the data) has its derivatives' bounds marked not meaningful
+    (NaN, ``info["degenerate"]`` says why).
 
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
@@ -62,9 +67,11 @@ class FEM(Estimator):
 
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
-                 progress=None, verbose: bool = False, coloured: bool = False):
+                 progress=None, verbose: bool = False, coloured: bool | None = None,
+                 formulation: str = "measurement"):
         super().__init__(profile)
         self.process_noise, self.x0, self.coloured = process_noise, x0, coloured
+        self.formulation = formulation
         self.max_iter, self.tol = max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.progress, self.verbose = progress, verbose
@@ -77,6 +84,8 @@ class FEM(Estimator):
             raise EstimationError(f"FEM: max_iter must be a positive integer, got {self.max_iter!r}")
         if not (np.isfinite(self.tol) and self.tol > 0):
             raise EstimationError(f"FEM: tol must be positive, got {self.tol!r}")
+        if self.formulation not in FORMULATIONS:
+            raise EstimationError(f"FEM: formulation must be one of {', '.join(FORMULATIONS)}, got {self.formulation!r}")
         self.noise_model_ = self.noise_model(p)
         noise = self.noise_model_.states
         x0 = {**p.initial_state, **(self.x0 or {})}
@@ -98,6 +107,12 @@ class FEM(Estimator):
         else:
             noise, source = p.process_noise_states(), "[process_noise]" if p.process_noise else "default: velocity states"
         noise = {s: p.process_noise.get(s) if v is None else v for s, v in noise.items()}
+        if not noise and self.process_noise is None and not p.turbulence:  # never output error in silence
+            raise EstimationError(
+                f"FEM: no process noise declared and the profile has no velocity state ({', '.join(VELOCITY_STATES)}): "
+                f"declare the equations that take it in the profile's [process_noise] (e.g. p = 0.1 and r = 0.1 "
+                f"for a lateral case), or turbulence in [turbulence] / --turbulence; without either FEM would be "
+                f"output error (--method ml)")
         return ProcessNoiseModel(noise, source)
 
     # -- fitting ---------------------------------------------------------------------------------
@@ -112,7 +127,11 @@ class FEM(Estimator):
         z = [finite_channels(r, list(p.outputs)) for r in runs]
         args = (p, u, z, common_dt(runs), list(self.process_noise_), holds.pop())
         # state-built terms (q|q|): the extended filter (.nonlinear)
-        prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else FilterProblem(*args)
+        if self.formulation == "innovation" and _state_terms(p):
+            raise EstimationError("FEM: the innovation formulation is for linear profiles; this one has state-built "
+                                  "terms (use the default formulation)")
+        prob = NonlinearFilterProblem(*args, runs) if _state_terms(p) else \
+            InnovationFilterProblem(*args) if self.formulation == "innovation" else FilterProblem(*args)
         prob.prior = prior_term(p)  # None without one: the data alone
         beta, active = prob.start(self.process_noise_, self.x0_, self.estimate_x0, self.estimate_bias)
         return prob, beta, active
@@ -132,6 +151,10 @@ class FEM(Estimator):
     def _solve(self, prob: FilterProblem, beta, active, **options) -> FilterSolver:
         """The fit from the start, and from the noise's other starts where the likelihood can have
         two optima (:func:`.starts.fit_from_starts`)."""
+        if isinstance(prob, InnovationFilterProblem):  # S relaxed, no R floor: one start
+            solver = InnovationSolver(self, prob, beta, active, **options)
+            solver.run()
+            return solver
         return fit_from_starts(self, prob, beta, active, **options)
 
     # -- the protocol of nested fits (refine; identify.estimators.base) ---------------------------
@@ -141,7 +164,7 @@ class FEM(Estimator):
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
         """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
-        return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured and bounds)
+        return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured if bounds else False)
 
     def prediction_segment(self, model, duration: float) -> float:
         """Whole runs: the filter stabilises the prediction of an unstable model."""
@@ -264,42 +287,49 @@ class FEM(Estimator):
         beta[ix["f"]] = np.abs(beta[ix["f"]])  # F enters as F F^T: its sign is not determined
         try:
             ev = prob.evaluate(beta, jacobian=True, noise=True)
-        except (np.linalg.LinAlgError, ValueError):
-            raise EstimationError(f"FEM: the fit failed ({sv.stop}): no bounds at its last point") from None
+        except (np.linalg.LinAlgError, ValueError):  # no sensitivities at the last point: no bounds, said
+            ev = None
+        last = ev if ev is not None else sv.ev
         bounded = sv.active.copy()
         bounded[ix["r"]] &= beta[ix["r"]] > sv.r_floor  # a variance on its floor has no bound
-        M, _ = prob.information(ev)
-        cov, ill = inverse_information(M, bounded)
-        std = std_white = np.sqrt(np.clip(np.diag(cov), 0, None))
-        std_col, acf, passes, colour_failed = None, None, 0, None
-        if self.coloured:  # once, at the estimate
-            cov_c, acf, passes = prob.coloured(ev, bounded)
-            colour_failed = colour_failure(cov_c, cov, bounded)
-            if colour_failed is None:
-                cov = cov_c
-                std = std_col = np.sqrt(np.clip(np.diag(cov), 0, None))
-            else:
-                warnings.warn(f"FEM: {colour_failed}; the Cramér-Rao bounds are reported", stacklevel=3)
-        std[~bounded] = np.inf  # a derivative no input excites, a held x0 or zero shift
-        boundary = np.zeros_like(bounded)
-        boundary[ix["f"]] = ~bounded[ix["f"]]
-        boundary[ix["r"]] = ~bounded[ix["r"]]
-        std[boundary] = np.nan  # F = 0 or R on its floor: on the boundary, the bound is not determined
-        std_white = np.where(np.isfinite(std), std_white, std)  # the same held / undetermined ones
+        white = whiteness(prob.per_run(last.nu), list(p.outputs))
+        # a white model from the profile (not the option a turbulence model or a benchmark passes)
+        advice = TURBULENCE_ADVICE if self.process_noise is None and not self.profile_.turbulence else ""
+        bd = fit_bounds(prob, ev, bounded, self.coloured, white, sv.stop, advice)
+        std, std_white, std_col, cov = bd.std, bd.std_white, bd.std_coloured, bd.cov
+        reasons = {f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not determined"
+                   for s in sv.at_zero}
+        innovation = isinstance(prob, InnovationFilterProblem)
+        if innovation:  # R implied by the relaxed S and the gain: no bound of its own
+            beta[ix["r"]] = np.diag((np.eye(prob.ny) - last.model.C @ last.K) @ last.S)
+            reasons.update({f"R of {y}": "implied, R = (I - C K) S (the innovation formulation): no bound of its own"
+                            for y in p.outputs})
+        else:
+            reasons.update({f"R of {y}": "on its floor (no measurement noise found), bound not determined"
+                            for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_})
+        degenerate = None if innovation else degenerate_fit(p, beta[ix["r"]], sv.r_floor, np.diag(last.model.C @ last.K))
+        if bd.failed:  # the information could not be formed or inverted: NaN bounds with the reason
+            reasons.update({n: bd.failed for n, a in zip(prob.model0.names, bounded[:P]) if a})
         self.covariance_, self.covariance_all_ = cov[:P, :P].copy(), cov  # all: a turbulence model's corners and F
         theta, f, x0, b, r = prob.unpack(beta)
         prior = None
-        if prob.prior is not None:  # M holds the prior's information: A = (M_d + P^-1)^-1
-            A = inverse_information(M, bounded)[0][:P, :P]
+        if prob.prior is not None and bd.failed is None:  # M holds the prior's information: A = (M_d + P^-1)^-1
+            A = bd.cov_white[:P, :P]
             D = self.covariance_ if std_col is not None else A - (A * prob.prior.precision) @ A
             self.covariance_, prior = posterior(prob.prior, theta, A, D, bounded[:P])
             std[:P] = np.where(bounded[:P], np.sqrt(np.clip(np.diag(self.covariance_), 0, None)), std[:P])
+        if degenerate:  # the derivatives' bounds are no measure of precision: said, not printed
+            reasons.update({n: f"not meaningful: {degenerate}" for n, a in zip(prob.model0.names, bounded[:P]) if a})
+            std[:P][bounded[:P]] = np.nan
         _, f_std, x0_std, b_std, r_std = prob.unpack(std)
         measured = prob.per_run(prob.Z)
-        modelled = prob.per_run(prob.Z - ev.nu)
-        C, K = ev.model.C, ev.K
+        modelled = prob.per_run(prob.Z - last.nu)
+        C, K = last.model.C, last.K
+        fitted_noise = dict(zip(prob.noise_states, map(float, f)))
         info = {
-            "form": "filter error (steady-state Kalman filter)",
+            "form": "filter error (steady-state Kalman filter)" + (
+                "; the textbook's formulation: R the innovation covariance, relaxed, C K <= 1" if innovation else ""),
+            "formulation": self.formulation,
             "iterations": sv.iterations,
             "converged": sv.converged,
             "stop": sv.stop,
@@ -309,14 +339,14 @@ class FEM(Estimator):
             "gauss_newton_step_se": sv.step_history,
             "modelled": "one-step-ahead predictions of the Kalman filter (residuals = innovations)",
             "input_hold": prob.hold,
+            "process_noise_model": self.noise_model_.describe(fitted_noise),  # which model was fitted, one line
             "process_noise_convention": PROCESS_NOISE_CONVENTION,
-            "process_noise_model": self.noise_model_.describe({s: float(v) for s, v in zip(prob.noise_states, f)}),
             "process_noise": {s: {"F": float(v), "std": float(e)} for s, v, e in zip(prob.noise_states, f, f_std)},
             "measurement_noise": {y: {"variance": float(v), "std": float(e)} for y, v, e in zip(p.outputs, r, r_std)},
             "noise_cov": np.diag(r),
             "noise_std": dict(zip(p.outputs, map(float, np.sqrt(r)))),
             "noise_cov_estimated": True,
-            "innovation_cov": ev.S,
+            "innovation_cov": last.S,
             "kalman_gain": K,  # x_corrected = x_predicted + K nu
             "diag_CK": np.diag(C @ K),  # <= 1: physically admissible
             "initial_states": [dict(zip(p.state_names, map(float, x0[:, k]))) for k in range(prob.n_runs)],
@@ -325,22 +355,21 @@ class FEM(Estimator):
             "zero_shifts": [dict(zip(p.outputs, map(float, b[:, k]))) for k in range(prob.n_runs)],
             "zero_shift_std": [dict(zip(p.outputs, map(float, b_std[:, k]))) for k in range(prob.n_runs)],
             "not_excited": [n for n, a in zip(prob.model0.names, sv.active[:P]) if not a],
-            # where F compensation put a start of R below its floor: the starts' -log L, the one kept
-            # (FEM._solve); None where it did not (one start)
+            # where F compensation put a start of R below its floor (or the first start failed): the
+            # starts' -log L, the one kept, the failures, and their one line (.starts); None: one start
             "r_start": sv.starts,
-            "not_determined": {**{f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not "
-                                                 "determined" for s in sv.at_zero},
-                               **{f"R of {y}": "on its floor (no measurement noise found), bound not determined"
-                                  for y, b_ in zip(p.outputs, bounded[ix["r"]]) if not b_}},
-            "ill_conditioned": ill,
-            "standard_errors": ("coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds"
-                                if std_col is not None else
-                                "Cramér-Rao bounds from the innovations' sensitivities (noise variances included)"),
-            "coloured_failed": colour_failed,  # why the coloured correction was not used (None: it was, or not asked)
+            "r_start_choice": None if sv.starts is None else sv.starts["line"],
+            "not_determined": reasons,
+            "degenerate": degenerate,  # why the fit is degenerate (None: it is not)
+            "ill_conditioned": bd.ill,
+            "whiteness": white,  # of the innovations, per output (.whiteness)
+            "standard_errors": bd.description,
+            "bounds_choice": bd.choice,  # why these bounds (one line)
+            "coloured_failed": bd.colour_failed,  # why the coloured correction was not used (None: it was, or not asked)
             "std_white": std_white[:P],
             "std_coloured": None if std_col is None else std_col[:P],
-            "noise_autocorrelation": acf,  # of the whitened innovations (L, ny), lag 0 first
-            "colour_passes": passes,
+            "noise_autocorrelation": bd.acf,  # of the whitened innovations (L, ny), lag 0 first
+            "colour_passes": bd.passes,
             "wall_time": wall,
         }
         if prior is not None:
@@ -351,9 +380,26 @@ class FEM(Estimator):
             method=self.method, profile=replace(p, process_noise={s: float(v) for s, v in zip(prob.noise_states, f)}),
             theta=theta.copy(), std=std[:P], runs=[r.source for r in runs],
             covariance=self.covariance_.copy(), fit=fit_metrics(list(p.outputs), measured, modelled), info=info,
-            time=[r.time.copy() for r in runs], measured=measured, modelled=modelled)
+            time=[r.time.copy() for r in runs], measured=measured, modelled=modelled,
+            simulated=_open_loop(prob, last.model, x0, b))
 
 
 def _state_terms(p: Profile) -> list[str]:
     """A profile's pseudo-inputs built from its states (products with a state factor)."""
     return [n for n, s in pi.specs(p).items() if set(s.get("product", ())) & set(p.states)]
+
+
+def _open_loop(prob: FilterProblem, model, x0: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
+    """The model's open-loop simulation of every run (N_r, ny) from its fitted initial state with
+    its zero shifts: what the one-step predictions are not (nothing fed back). Not finite (an
+    unstable model diverging) or a profile with state-built terms (the extended filter's): left out."""
+    if isinstance(prob, NonlinearFilterProblem):
+        return []
+    Dh = np.hstack([model.D, np.zeros_like(model.D)]) if prob.hold == "linear" else model.D
+    Phi, Gamma = discretize(model.A, model.B, prob.dt, prob.hold)
+    with np.errstate(all="ignore"):
+        x = propagate(Phi, Gamma @ prob.U, x0)
+        y = model.C @ x + Dh @ prob.U + b[None]
+    sim = prob.per_run(y)
+    return sim if all(np.all(np.isfinite(s)) for s in sim) else []
+

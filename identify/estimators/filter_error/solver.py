@@ -35,6 +35,7 @@ class FilterSolver(LevenbergMarquardt):
         self.floor_bound: list[str] = []  # the outputs where F compensation fell below the floor (_relax)
         self.starts = None  # identify.estimators.filter_error.starts' record when it fitted from several starts
         self._init_iteration()
+        self._info = None  # the information at the current point, formed when it was accepted
         self.ev = self._evaluate(self.beta, jacobian=False)
         if self.ev is None:
             raise EstimationError("FEM: the a priori model's Kalman filter has no steady state (the Riccati "
@@ -45,7 +46,10 @@ class FilterSolver(LevenbergMarquardt):
         self.ev = self._evaluate(self.beta, jacobian=True)
         if self.ev is None:
             raise EstimationError("FEM: the a priori model's filter sensitivities are not finite")
-        M, _ = prob.information(self.ev)
+        try:
+            M, _ = prob.information(self.ev)
+        except np.linalg.LinAlgError as e:
+            raise EstimationError(f"FEM: the start's information matrix cannot be formed ({e})") from None
         # a derivative no input excites (zero sensitivity) is held, std = inf, as in ML; the
         # threshold is relative to the derivatives' own information (the variances' is of
         # another scale altogether)
@@ -124,7 +128,7 @@ class FilterSolver(LevenbergMarquardt):
         self.history.append(self.ev.cost)
 
     def _information(self):
-        return self.prob.information(self.ev)
+        return self._info if self._info is not None else self.prob.information(self.ev)
 
     def _solve(self, M, g, lam) -> np.ndarray:
         a = self.active
@@ -139,7 +143,7 @@ class FilterSolver(LevenbergMarquardt):
 
     def _scale(self, M) -> np.ndarray:
         cov, _ = inverse_information(M, self.active)
-        sigma = np.sqrt(np.clip(np.diag(cov), 0, None))
+        sigma = np.sqrt(np.clip(np.nan_to_num(np.diag(cov)), 0, None))  # not formed: the values' scale alone
         return np.maximum(np.maximum(np.abs(self.beta), self.scale0), sigma)
 
     @property
@@ -154,11 +158,19 @@ class FilterSolver(LevenbergMarquardt):
         return ev, (ev.cost if ev is not None else np.inf)
 
     def _accept(self, ev) -> bool:
+        """Move to ``ev``; False (the previous point kept, the fit stopped as diverged) where its
+        sensitivities or its information cannot be formed."""
+        previous = self.beta, self.ev, self.active.copy(), list(self.at_zero)
         self.beta = ev.beta.copy()
         self._boundary()
-        found, self.ev = ev, self._evaluate(self.beta, jacobian=True)
-        if self.ev is None:  # the step's model has no finite sensitivities: a failed fit
-            self.ev = found
+        self.ev, self._info = self._evaluate(self.beta, jacobian=True), None
+        if self.ev is not None:
+            try:
+                self._info = self.prob.information(self.ev)
+            except np.linalg.LinAlgError:
+                self.ev = None
+        if self.ev is None:
+            self.beta, self.ev, self.active, self.at_zero = previous
             return False
         self.cost = self.ev.cost
         self.history.append(self.ev.cost)

@@ -12,8 +12,6 @@ no steady state fails alone: reported, the others stand.
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from ...errors import EstimationError
@@ -30,19 +28,23 @@ SAME_OPTIMUM = 1.0  # -log L within this of the best: the same optimum (a likeli
 
 def fit_from_starts(fem, prob, beta, active, **options) -> FilterSolver:
     """The fit from the start (:class:`FilterSolver`); where F compensation put a start of R below
-    its floor (``floor_bound``) from every start of R_STARTS too, the highest likelihood kept: the
-    likelihood can have two optima there, and each single start missed the better one on some
-    seeds; then once more from the better fit's derivatives (``RESTART``), since both starts from
-    the a priori derivatives can miss it too. The starts' -log L and the one kept in
-    ``solver.starts``, said in one line."""
-    solver = FilterSolver(fem, prob, beta, active, **options)
-    solver.run()
-    if not solver.floor_bound:
-        return solver
-    tried, failed = {"gain_held": solver}, {}
+    its floor (``floor_bound``), or the start failed, from every start of R_STARTS too, the highest
+    likelihood of the converged fits kept: the likelihood can have two optima there, and each single
+    start missed the better one on some seeds; then once more from the better fit's derivatives
+    (``RESTART``), since both starts from the a priori derivatives can miss it too. A start that
+    fails (no steady state, a numerical failure) is recorded, the others stand; all failed: one
+    :class:`EstimationError` naming why. The record in ``solver.starts`` (the starts' -log L, the
+    one kept, the failures, ``line``: one line for the summary); no warning per fit."""
+    tried, failed = {}, {}
+    _try(fem, "gain_held", ("gain_held", 1.0), beta, prob, active, tried, failed, **options)
+    first = tried.get("gain_held")
+    if first is not None and not first.floor_bound:
+        return first
     for name, start in R_STARTS.items():
-        if name not in tried:
+        if name not in tried and name not in failed:
             _try(fem, name, start, beta, prob, active, tried, failed, **options)
+    if not tried:
+        raise EstimationError("; ".join(dict.fromkeys(failed.values())))
     b = beta.copy()
     b[:prob.p] = tried[_kept(tried)].beta[:prob.p]
     # the a priori derivatives' starts missed it too (refine_blind lag_de seed 3); from the same
@@ -51,19 +53,21 @@ def fit_from_starts(fem, prob, beta, active, **options) -> FilterSolver:
         _try(fem, "restart", RESTART, b, prob, active, tried, failed, **options)
     kept = _kept(tried)
     best = tried[kept]
-    best.starts = {"floor_bound": list(solver.floor_bound), "kept": kept,
-                   "cost": {k: float(v.history[-1]) for k, v in tried.items()}, "failed": failed}
-    costs = ", ".join(f"{START_NAMES[k]}: {v.history[-1]:.6g}" for k, v in tried.items())
-    warnings.warn(f"FEM: the F-compensated start of R ({', '.join(solver.floor_bound)}) fell below its floor "
-                  f"(the likelihood can have two optima): fitted from {len(tried)} starts, -log L {costs}; "
-                  f"kept {START_NAMES[kept]}"
-                  + (f" ({', '.join(failed)} failed)" if failed else ""), stacklevel=5)
+    floor_bound = list(first.floor_bound) if first is not None else []
+    costs = ", ".join(f"{k} {v.history[-1]:.6g}" for k, v in tried.items())
+    why = (f"the F-compensated start of R fell below its floor on {', '.join(floor_bound)} (the likelihood can "
+           f"have two optima)" if floor_bound else "the first start failed")
+    line = (f"{why}: fitted from {len(tried) + len(failed)} starts (-log L {costs}), kept {kept} "
+            f"({START_NAMES[kept]})" + "".join(f"; {k} failed: {v}" for k, v in failed.items()))
+    best.starts = {"floor_bound": floor_bound, "kept": kept, "cost": {k: float(v.history[-1]) for k, v in tried.items()},
+                   "converged": {k: bool(v.converged) for k, v in tried.items()}, "failed": failed, "line": line}
     return best
 
 
 def _try(fem, name, start, beta, prob, active, tried, failed, **options) -> None:
     """The fit from ``beta`` with ``start`` = (R's start, F's factor), into ``tried[name]``, or
-    its error into ``failed[name]`` (a start whose filter has no steady state: the others stand)."""
+    why it failed into ``failed[name]`` (a start whose filter has no steady state, a numerical
+    failure on the way: the others stand)."""
     r_start, f_factor = start
     b = beta.copy()
     b[prob.index["f"]] *= f_factor
@@ -73,9 +77,14 @@ def _try(fem, name, start, beta, prob, active, tried, failed, **options) -> None
     except EstimationError as e:
         tried.pop(name, None)
         failed[name] = str(e)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        tried.pop(name, None)
+        failed[name] = f"FEM: a numerical failure in the filter ({e})"
 
 
 def _kept(tried: dict) -> str:
-    """The first start at the best optimum (ties: the earlier start, the default first)."""
-    low = min(v.history[-1] for v in tried.values())
-    return next(k for k, v in tried.items() if v.history[-1] <= low + SAME_OPTIMUM)
+    """The first start at the best optimum among the converged fits (all, where none converged;
+    ties: the earlier start, the default first)."""
+    pool = {k: v for k, v in tried.items() if v.converged} or tried
+    low = min(v.history[-1] for v in pool.values())
+    return next(k for k, v in pool.items() if v.history[-1] <= low + SAME_OPTIMUM)

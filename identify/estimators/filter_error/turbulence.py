@@ -9,6 +9,8 @@ process-noise model in one line (``info["process_noise_model"]``), and a profile
 """
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -65,11 +67,20 @@ def on_profile(gm: GustModel, res: IdentificationResult, inner) -> Identificatio
         if not (np.isfinite(cov[row, row]) and cov[row, row] > 0):
             del rows[name]
     line = gm.describe()
+    gusts = gm.report(res.theta, f, cov, rows)
     info = {**res.info, "process_noise_model": line,
-            "turbulence": {"model": line, "gusts": gm.report(res.theta, f, cov, rows), "airspeed": gm.airspeed}}
+            "turbulence": {"model": line, "gusts": gusts, "airspeed": gm.airspeed}}
+    nyquist = math.pi / prob.dt
+    odd = {f"corner of {s}": (f"{g['corner']:.4g} rad/s, {'beyond the Nyquist frequency' if g['corner'] > 0 else 'not positive'}"
+                              f": the gust is not determined (white at this sampling, or taking a misfit of the "
+                              f"model); its corner and intensity are not meaningful")
+           for s, g in gusts.items() if g["corner_estimated"] and not 0 < g["corner"] < nyquist}
+    if odd:
+        info["not_determined"] = {**res.info.get("not_determined", {}), **odd}
+        warnings.warn("FEM: " + "; ".join(f"{k}: {v}" for k, v in odd.items()), stacklevel=4)
     own = {s: v for s, v in f.items() if s in gm.profile.process_noise}
     profile = replace(gm.profile, turbulence=gm.fitted_table(res.theta, f),
                       process_noise=own or gm.profile.process_noise)
     return IdentificationResult(res.method, profile, res.theta[:k].copy(), res.std[:k].copy(), res.fit, info,
                                 res.runs, None if res.covariance is None else res.covariance[:k, :k].copy(),
-                                res.time, res.measured, res.modelled)
+                                res.time, res.measured, res.modelled, simulated=res.simulated)

@@ -2,6 +2,7 @@
 model with acceleration outputs, known x0 and an output without zero shift, the command line."""
 import json
 import math
+import re
 import warnings
 
 import numpy as np
@@ -271,10 +272,13 @@ def test_r_started_on_its_floor_is_started_from_the_gain_held_innovations(navion
     # and w on their floor, with C K = 1 on w: the fit stayed at a boundary optimum 3700 below the
     # one a nuisance re-fit at its own derivatives finds (seed 2)
     runs = [gusty_piloted_run(2)]
-    with pytest.warns(UserWarning, match="F-compensated start of R"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the R-start choice is a line of the summary, not a warning per fit
         r = FEM(navion).fit(runs).result_
         again = FEM(navion)._innovations(r.identified_profile("again"), runs, True, jacobian=False)[2]
     assert r.converged and "w" in r.info["r_start"]["floor_bound"]
+    assert "F-compensated start of R" in r.info["r_start_choice"]
+    assert sum("R start: " in line for line in r.summary().splitlines()) == 1
     assert r.info["cost"][-1] < again.cost + 1.0, (r.info["cost"][-1], again.cost)
 
 
@@ -287,8 +291,8 @@ def test_where_the_floor_binds_fem_keeps_the_better_of_the_two_optima(navion, se
     # gain-held one, finds the better one; seed 0: it does not). FEM also runs from the process
     # noise's side (F from the states' whole rms, R on its floor) and keeps the higher likelihood
     runs = [gusty_piloted_run(seed)]
-    with pytest.warns(UserWarning, match=r"can have two optima\): fitted from 3 starts.*kept F x3.33"):
-        r = FEM(navion).fit(runs).result_
+    r = FEM(navion).fit(runs).result_
+    assert re.search(r"can have two optima\): fitted from 3 starts.*kept wide_f \(F x3.33", r.info["r_start_choice"])
     starts = r.info["r_start"]
     assert r.converged and starts["failed"] == {} and set(starts["cost"]) == {"gain_held", "wide_f", "restart"}
     assert r.info["cost"][-1] == pytest.approx(min(starts["cost"].values()), abs=0.01)
@@ -307,8 +311,8 @@ def test_fem_restarts_from_the_best_fits_derivatives(navion):
     # derivatives end on the worse optimum (-log L -26008.5, R of w 2e-6), the process-noise side's
     # start from the fit's own derivatives on the better one, about 2000 higher in log-likelihood
     runs = [gusty_piloted_run(3, lag=0.1)]
-    with pytest.warns(UserWarning, match=r"fitted from 3 starts.*kept the best fit's derivatives"):
-        r = FEM(navion).fit(runs).result_
+    r = FEM(navion).fit(runs).result_
+    assert re.search(r"fitted from 3 starts.*kept restart \(the best fit's derivatives", r.info["r_start_choice"])
     starts = r.info["r_start"]
     assert r.converged and starts["kept"] == "restart" and set(starts["cost"]) == {"gain_held", "wide_f", "restart"}
     assert r.info["cost"][-1] == pytest.approx(starts["cost"]["restart"], abs=0.01)

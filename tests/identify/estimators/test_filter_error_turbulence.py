@@ -39,7 +39,7 @@ def gusty_runs(profile, seeds, duration=30.0, corner=CORNER, sigma=SIGMA_W):
     for seed in seeds:
         rng = np.random.default_rng(seed)
         u = np.zeros(len(t))
-        for k, (a, b, amp) in enumerate(((1, 2.5, 0.02), (2.5, 4, -0.02), (4, 5, 0.02), (8, 12, 0.01))):
+        for a, b, amp in ((1, 2.5, 0.02), (2.5, 4, -0.02), (4, 5, 0.02), (8, 12, 0.01)):
             u[(t >= a) & (t < b)] = amp
         x = np.zeros(n + 1)
         x[n] = sigma * rng.standard_normal()

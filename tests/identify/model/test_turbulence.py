@@ -1,5 +1,7 @@
 """Turbulence declared on a profile: the augmented model's structure (every derivative on a gusty
 velocity acts on the air-relative velocity), flow-angle form, the [turbulence] table's round trip."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -68,28 +70,18 @@ def test_turbulence_table_round_trip_and_held_corners():
         '\n[turbulence]\nstates = ["u", "v"]\ncorner = { u = 0.7, v = 0.5 }\nintensity = 0.2\n')
     p = parse_profile(text)
     assert p.turbulence == {"states": ["u", "v"], "corner": {"u": 0.7, "v": 0.5}, "intensity": {"u": 0.2, "v": 0.2}}
-    assert parse_profile(p.to_toml()) == replace_source(p)
+    assert parse_profile(p.to_toml()) == replace(p, source="<profile>")
     gm = augment(p)
     assert gm.corners == {} and gm.held == {"u": 0.7, "v": 0.5}
     assert gm.augmented.fixed["u_g_u_g"] == -0.7 and "corner_u_g" not in gm.augmented.free
     assert gm.augmented.process_noise == {"u_g": 0.2, "v_g": 0.2}
     # Dryden's V / L from the runs' airspeed
-    dryden = with_turbulence(replace_turbulence(p, {"states": ["u"], "scale_length": 100.0}), "u")
+    dryden = with_turbulence(replace(p, turbulence={"states": ["u"], "scale_length": 100.0}), "u")
     t = np.arange(0, 1, 0.02)
     runs = [Run(t, {c: np.zeros_like(t) for c in p.channels}, {"airspeed": "50 m/s"})]
     assert augment(dryden, runs).held == {"u": 0.5}
     with pytest.raises(EstimationError, match="airspeed"):
         augment(dryden)
-
-
-def replace_source(p):
-    from dataclasses import replace
-    return replace(p, source="<profile>")
-
-
-def replace_turbulence(p, table):
-    from dataclasses import replace
-    return replace(p, turbulence=table)
 
 
 @pytest.mark.parametrize("table, match", [
