@@ -170,7 +170,7 @@ def main(realisations: int, wrong: list[str]) -> dict:
     if g.get("moved_over_half"):
         print(f"  moved by over half a std: {', '.join(f'{k} x{v}' for k, v in g['moved_over_half'].items())}; their "
               f"RMS error in stds without the prior {g['moved_error_without_std']:.2f}, with {g['moved_error_with_std']:.2f} "
-              f"(a correlated poorly identified derivative pinned by its prior pulls them)")
+              "")
     print(f"RMS of (estimate - truth) / std: {out['rms_z_with']:.3f} with the prior "
           f"({out['rms_z_without']:.3f} without)")
     print(f"conflict said with the honest prior (false alarms): {out['false_alarms_honest_prior']:.1%} of realisations")

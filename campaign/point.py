@@ -64,39 +64,46 @@ def make_estimator(method: str, profile, options: dict):
 
 
 def _identify(task: dict) -> dict:
-    from identify.data.io import load_channel_map, read_run_files
     from identify.model.profile import parse_profile
     from identify.model.pseudo_inputs import prepare
+    from identify.pipeline import Job, Reading
 
     profile = parse_profile(task["profile"], source=task["profile_source"])
-    cmap = load_channel_map(task["channel_map"]) if task["channel_map"] else None
-    runs = read_run_files(task["runs"], cmap, profile)
-    held = read_run_files(task["validate"], cmap, profile)
-    estimator = make_estimator(task["method"], profile, task["options"])
+    job = Job(task["runs"], profile, task["method"], dict(task["options"]), Reading(task["channel_map"]))
+    names = {k: f"[options] {k}" for k in task["options"]}  # an option's name in a one-line error
     steps = []
     if task["refine"]:
-        from identify.refine.loop import Refine
-
-        refiner = Refine(profile, estimator=estimator).fit(runs, validate=held)
+        refiner = job.refine(task["validate"], names=names).refiner
         result, final = refiner.result_, refiner.profile_
+        runs, held = refiner.runs_, refiner.validation_runs_
         steps = [{"effect": s.effect, "target": s.target, "statistic": s.statistic} for s in refiner.steps_]
         steps += [{"rejected": f"{s.effect} on {s.target}", "reason": s.reason} for s in refiner.rejected_]
         steps.append({"stopped": refiner.stopped_})
     else:
-        result = estimator.fit(runs).result_
-        final = result.identified_profile()
+        est = job.estimate(names=names)
+        result, final, runs = est.result, est.result.identified_profile(), est.runs
+        held = job.reading.prepared(task["validate"], profile, window=False) if task["validate"] else []
     out = {"status": "ok" if result.converged else "not converged",
            "reason": "" if result.converged else f"did not converge ({result.info.get('stop', 'no reason given')})",
            "converged": result.converged,
            "parameters": {n: {"value": float(v), "std": float(s), "apriori": float(a)}
                           for n, v, s, a in zip(result.names, result.theta, result.std, result.apriori)},
            "identified_profile": final.to_toml(), "refine_steps": steps,
-           "fit_error": prediction_error(final, prepare(final, runs))}
+           "fit_error": prediction_error(final, prepare(final, runs)),
+           "result": _result_json(result)}
     out["validation_error"] = prediction_error(final, prepare(final, held)) if held else None
     prior = result.info.get("prior")
     if prior:  # a priori weighting: where the prior decided, and any conflict
         out["prior"] = {"decided_by_prior": prior["decided_by_prior"], "conflict": prior["conflict"],
                         "data_share": {n: v["data_share"] for n, v in prior["parameters"].items()}}
+    return out
+
+
+def _result_json(result) -> dict:
+    """What result.json holds for the same job on the command line, but the fit's wall time (the
+    record's ``seconds`` times the job): a record depends on its inputs only."""
+    out = result.to_dict()
+    out["info"].get("provenance", {}).pop("wall_time_s", None)
     return out
 
 

@@ -15,7 +15,7 @@ import json
 import os
 from pathlib import Path
 
-RECORD_VERSION = 1
+RECORD_VERSION = 2  # 2: the result (as result.json holds it) in every record
 CHUNK = 1 << 20
 LABELS = ("name", "key", "profile_source")  # not inputs: renaming a point recomputes nothing
 FILES = ("runs", "validate")

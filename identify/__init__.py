@@ -4,6 +4,8 @@ Typical use::
 
     from identify import load_profile, LinearModel, read_run
     model = LinearModel(load_profile("s61_hover_8state"))
+    est = Job(["run_lon.csv"], "profile.toml", method="ml", reading=Reading(trim="first:1s")).estimate()
+    print(est.text()); est.save("out")     # what ``identify estimate`` prints and writes
 
 Names are imported on first use (module ``__getattr__``): ``import identify`` and the command
 lines' ``--help`` stay fast, and scipy.signal, python-control and matplotlib load only when a
@@ -19,7 +21,9 @@ from .errors import ConvergenceWarning, EstimationError, ProfileError, Pseudoste
 # public name -> submodule that defines it
 _LAZY = {
     **dict.fromkeys(["Run"], "data.runs"),
-    **dict.fromkeys(["read_run", "read_runs"], "data.csvfile"),
+    **dict.fromkeys(["read_run"], "data.csvfile"),
+    **dict.fromkeys(["read_runs", "read_run_files"], "data.io"),  # .csv and .mat, through the one reader
+    **dict.fromkeys(["Job", "Reading"], "pipeline"),  # one identification: read, prepare, fit, check, write
     **dict.fromkeys(["IdentificationResult"], "estimators.result"),
     **dict.fromkeys(["LinearModel", "Mode", "format_modes", "modes_of", "residualize"], "model.linear"),
     **dict.fromkeys(["Profile", "load_profile", "output_units", "parse_profile"], "model.profile"),

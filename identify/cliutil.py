@@ -22,6 +22,7 @@ from ._version import __version__
 from .errors import PseudostepError
 
 EXIT_BAD_INPUT = 2
+EXIT_NUMERICAL = 1  # a computation that failed on valid input (a singular matrix, an SVD that did not converge)
 EXIT_BROKEN_PIPE = 141  # as a shell reports a program ended by SIGPIPE (``cmd | head``)
 DEFAULT_THREADS = 1
 
@@ -193,6 +194,12 @@ def run(parser: argparse.ArgumentParser, argv=None) -> int:
         print(f"{parser.prog}: error: an input file is not UTF-8 text ({exc.reason} at byte {exc.start})",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    except ValueError as exc:
+        if type(exc).__name__ != "LinAlgError":  # numpy's (not imported here: --help stays fast)
+            raise
+        # a computation that failed on valid input (a singular matrix, an SVD that did not converge)
+        print(f"{parser.prog}: error: numerical failure, not an input error: {exc}", file=sys.stderr)
+        return EXIT_NUMERICAL
     except OSError as exc:  # an output that cannot be written: a bad path, not a bug
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{parser.prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)

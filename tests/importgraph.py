@@ -11,10 +11,11 @@ from pathlib import Path
 
 PACKAGES = ("identify", "signaldesign", "cueing", "campaign")  # bottom to top: imports point down
 # identify's rooms, bottom to top: a module may import its own wing and those below it. The hall's
-# errors and command-line plumbing sit under everything, the command line and the lazy facade on top.
-WINGS = {"errors": 0, "_version": 0, "cliutil": 0, "data": 1, "model": 2, "estimators": 3, "refine": 4, "compat": 5, "structure": 5,
-         "cli": 6, "__main__": 6}
-FACADE = 6  # identify/__init__.py: names imported on first use from every wing
+# errors and command-line plumbing sit under everything; the pipeline of one identification (read, fit,
+# check, write) above the rooms it runs; the command line and the lazy facade on top.
+WINGS = {"errors": 0, "_version": 0, "cliutil": 0, "data": 1, "model": 2, "estimators": 3, "refine": 4, "compat": 5,
+         "structure": 5, "pipeline": 6, "commands": 7, "cli": 7, "__main__": 7}
+FACADE = 7  # identify/__init__.py: names imported on first use from every wing
 
 
 def modules(root: Path, packages=PACKAGES) -> dict[str, Path]:

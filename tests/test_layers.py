@@ -152,8 +152,9 @@ def _estimator_name_branches(source: str, filename: str) -> list[str]:
     return hits
 
 
-def test_refine_and_the_command_line_never_branch_on_an_estimator_name():
-    files = sorted((ROOT / "identify" / "refine").glob("*.py")) + [ROOT / "identify" / "cli.py"]
+def test_refine_the_pipeline_and_the_command_line_never_branch_on_an_estimator_name():
+    files = [f for room in ("refine", "pipeline", "commands") for f in sorted((ROOT / "identify" / room).glob("*.py"))]
+    files.append(ROOT / "identify" / "cli.py")
     hits = [h for f in files for h in _estimator_name_branches(f.read_text(), str(f.relative_to(ROOT)))]
     assert not hits, hits
     made_up = 'x = {"ls": 1}[m] if method == "ml" else 0'

@@ -164,6 +164,7 @@ def build_runs(raw: Raw, channels: dict[str, object], profile=None, options: Rea
             continue
         values[name], described[name] = v, how
     meta = {**_meta(raw, described, resolver.derived), **meta_time}
+    notes += [f"{raw.source}: {line}" for line in converted_lines(described)]
     notes += resolver.marker_notes(meta)
     warnings += [w for n, w in resolver.suspects.items() if n in values or n not in channels]  # operands too
     t, values, lines, rows = _missing(t, values, raw, options, meta, resolver.marked)
@@ -248,14 +249,24 @@ def _missing(t, values: dict, raw: Raw, options: ReadOptions, meta: dict, marked
     return t[good], {n: v[good] for n, v in values.items()}, notes, rows[good]
 
 
+def converted_lines(described: dict) -> list[str]:
+    """One line per channel converted to SI from its declared unit (said by every command)."""
+    return [f"channel '{n}' converted from {u} to {U.si_unit(u)} "
+            f"(x {U.UNITS[U.canonical(u)][0]:.10g})" for n, (how, u) in described.items()
+            if how == "declared" and u != "SI" and U.UNITS[U.canonical(u)][0] != 1.0]
+
+
 def _meta(raw: Raw, described: dict, derived: dict) -> dict[str, str]:
     """The file's metadata, ``units`` replaced by what was converted (the run is SI now: written
     again, it must not be converted twice) and the derived channels' expressions."""
-    meta = {k: v for k, v in raw.meta.items() if k != "units"}
+    meta = {k: v for k, v in raw.meta.items() if k not in ("units", "units_declared")}  # this reading's own
     converted = [f"{n} from {u} (x {U.UNITS[U.canonical(u)][0]:.10g})" for n, (how, u) in described.items()
                  if how == "declared" and u != "SI" and U.UNITS[U.canonical(u)][0] != 1.0]
     if converted:
         meta["converted_to_si"] = ", ".join(converted)
+    declared = [f"{n}={u}" for n, (how, u) in described.items() if how == "declared" and u != "SI"]
+    if declared:  # as read (every other channel had none: taken as SI)
+        meta["units_declared"] = ", ".join(declared)
     if derived:
         meta["derived"] = ", ".join(f"{n} = {e}" for n, e in derived.items())
     return meta

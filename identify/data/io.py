@@ -19,6 +19,9 @@ from .runs import Run
 from .units import unit_info
 
 
+KEYS = {"time", "matrix", "dt", "units", "columns", "index_base", "missing"}  # a map's keys besides "channels"
+
+
 def load_channel_map(spec: str | Path) -> dict:
     """A channel map from a JSON file or JSON text.
 
@@ -40,12 +43,15 @@ def load_channel_map(spec: str | Path) -> dict:
     if not isinstance(data, dict):
         raise RunError(f"{source}: channel map must be a JSON object")
     if "channels" not in data:
-        data = {"channels": data}
-    unknown = set(data) - {"channels", "time", "matrix", "dt", "units", "columns", "index_base", "missing"}
+        # a map of the structural keys alone (e.g. "columns" naming a headerless file's columns, which
+        # are then the channels) is not a flat {channel: source} map
+        data = dict(data, channels={}) if set(data) & KEYS and "columns" in data else {"channels": data}
+    unknown = set(data) - KEYS - {"channels"}
     if unknown:
         raise RunError(f"{source}: channel map has unknown key(s) {', '.join(sorted(unknown))}")
-    if not isinstance(data["channels"], dict) or not data["channels"]:
-        raise RunError(f"{source}: channel map 'channels' must be a non-empty object")
+    if not isinstance(data["channels"], dict) or not (data["channels"] or "columns" in data):
+        raise RunError(f"{source}: channel map 'channels' must be a non-empty object"
+                       + (" (or give \"columns\", the names of a headerless file's columns)" if set(data) & KEYS else ""))
     units = data.get("units", {})
     if not isinstance(units, dict) or not all(isinstance(u, str) for u in units.values()):
         raise RunError(f"{source}: channel map 'units' must be an object of {{name: unit}} strings")
@@ -91,13 +97,24 @@ def read_run_files(paths, channel_map: dict | None = None, profile=None, options
     return [r for p in paths for r in read_file_runs(p, channel_map, profile, options)]
 
 
+def read_runs(paths, require: list[str] | None = None, *, channel_map: dict | str | Path | None = None,
+              profile=None, options=None) -> list[Run]:
+    """Runs of several CSV or ``.mat`` files (:func:`read_run_files`), ``channel_map`` a map, a
+    JSON file or JSON text; each run must hold the channels ``require`` lists."""
+    cmap = load_channel_map(channel_map) if channel_map is not None and not isinstance(channel_map, dict) else channel_map
+    runs = read_run_files(paths, cmap, profile, options)
+    for run in runs:
+        run.require(require or [])
+    return runs
+
+
 def _ingest(path, channel_map, profile, options=None):
     path = Path(path)
     if path.suffix.lower() != ".mat":
         got = csv_runs(path, channel_map, profile, options)
     else:
         cmap = channel_map or {}
-        got = mat_runs(path, cmap.get("channels"), time=cmap.get("time"), matrix=cmap.get("matrix"),
+        got = mat_runs(path, cmap.get("channels") or None, time=cmap.get("time"), matrix=cmap.get("matrix"),
                        dt=cmap.get("dt"), units=cmap.get("units"), meta=None, profile=profile,
                        index_base=cmap.get("index_base"), options=options, missing=cmap.get("missing"))
     digest = file_sha256(path)

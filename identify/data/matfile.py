@@ -39,7 +39,7 @@ TIME_NAMES = ("t", "time")
 
 def read_mat(path: str | Path, channels: dict[str, str | int] | None = None, *, time: str | int | None = None,
              matrix: str | None = None, dt: float | None = None, units: dict[str, str] | None = None,
-             meta: dict | None = None, profile=None) -> Run:
+             meta: dict | None = None, profile=None, index_base: int | None = None) -> Run:
     """Read a run from a ``.mat`` file (MATLAB v5 through scipy, v7.3 through h5py).
 
     ``channels`` maps run channel names to variable names (str; ``s.q`` for a struct field),
@@ -47,18 +47,22 @@ def read_mat(path: str | Path, channels: dict[str, str | int] | None = None, *, 
     every numeric vector variable as long as the time vector becomes a channel of its own name.
     ``time`` names the time variable or column; ``matrix`` the data-matrix variable (default: the
     first of ``data``, ``Z``, ``fdata`` present); ``dt`` the sample interval in s when the file
-    holds no time; ``units`` declared units by channel or variable name (converted to SI).
-    A file that time gaps split into several runs is an error here: use :func:`read_mat_runs`.
+    holds no time; ``units`` declared units by channel or variable name (converted to SI);
+    ``index_base`` how ``channels``' matrix columns are numbered (0, as in Python, or 1, MATLAB's;
+    None: 0, numbers that look 1-based refused). A file that time gaps split into several runs
+    is an error here: use :func:`read_mat_runs`.
     """
     return mat_runs(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta,
-                profile=profile).one("read_mat_runs")
+                    profile=profile, index_base=index_base).one("read_mat_runs")
 
 
 def read_mat_runs(path: str | Path, channels: dict[str, str | int] | None = None, *,
                   time: str | int | None = None, matrix: str | None = None, dt: float | None = None,
-                  units: dict[str, str] | None = None, meta: dict | None = None, profile=None) -> list[Run]:
+                  units: dict[str, str] | None = None, meta: dict | None = None, profile=None,
+                  index_base: int | None = None) -> list[Run]:
     """Every run of a ``.mat`` file (several when time gaps split it); arguments as :func:`read_mat`."""
-    return mat_runs(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta, profile=profile).all()
+    return mat_runs(path, channels, time=time, matrix=matrix, dt=dt, units=units, meta=meta, profile=profile,
+                    index_base=index_base).all()
 
 
 def mat_runs(path, channels=None, *, time=None, matrix=None, dt=None, units=None, meta=None, profile=None,

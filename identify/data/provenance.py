@@ -16,7 +16,7 @@ from .runs import Run
 
 # run metadata keys that say how the numbers were obtained, in the order a reader wants them
 KEYS = ("sha256", "upstream_sha256", "compat_corrected", "compat_cut", "source_format", "matrix", "struct_element", "header", "time_from", "time_origin", "time_rebuilt", "channel_map",
-        "converted_to_si", "derived", "resampled", "time_jitter", "time_gaps", "segment",
+        "units_declared", "converted_to_si", "derived", "resampled", "time_jitter", "time_gaps", "segment",
         "missing_outside_window", "missing_markers", "rate_change_outside_window", "dropped_samples", "interpolated_samples", "slice", "warnings", "notes")
 
 

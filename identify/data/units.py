@@ -111,6 +111,12 @@ def to_si(values: np.ndarray, unit: str, where: str) -> np.ndarray:
     return np.asarray(values, dtype=float) * factor
 
 
+def si_unit(unit: str) -> str:
+    """The SI unit of ``unit``'s quantity (``deg/s`` -> ``rad/s``; ``SI`` for a unit not known)."""
+    kind = quantity(unit)
+    return next((u for u, (factor, q) in UNITS.items() if q == kind and factor == 1.0), "SI")
+
+
 def quantity(unit: str) -> str | None:
     """The quantity a unit measures (``angle``, ``speed`` ...), or None for a unit not in the table."""
     u = canonical(unit)

@@ -124,12 +124,15 @@ class Estimator:
             self.result_ = combined_with_prior(self.result_, self.profile_)
         from ..data.provenance import provenance
 
-        self.result_.info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
+        info = self.result_.info
+        info.setdefault("provenance", provenance(runs))  # into result.json with the estimates
+        if "wall_time" in info:  # how long this machine took: a fact of the run, beside its files, not a result
+            info["provenance"]["wall_time_s"] = info.pop("wall_time")
         if self.profile_.turbulence and not self.models_turbulence:
             line = (f"{self.method.upper()}: the profile's [turbulence] is modelled by the filter-error method only "
                     f"(--method fem); {self.method.upper()} took the gusts' response for measurement noise")
             warnings.warn(line, stacklevel=2)
-            self.result_.info["turbulence_not_modelled"] = line
+            info["turbulence_not_modelled"] = line
         return self
 
     def _fit_holding(self, runs: list[Run], unflown: dict[str, list[str]]) -> IdentificationResult:

@@ -36,21 +36,25 @@ def _units(result: IdentificationResult) -> list[str]:
     return [units[y] for y in result.profile.outputs]
 
 
-def plot_time_histories(result: IdentificationResult, path: str | Path, run: int = 0) -> Path:
+def plot_time_histories(result: IdentificationResult, path: str | Path, run: int = 0, inputs=None) -> Path:
     """Measured (markers) and identified-model (line) outputs of run ``run`` (0-based), one panel
     per output; where the modelled outputs are one-step predictions (filter error), the
-    identified model's open-loop simulation too, each labelled as what it is; written as PNG to ``path``."""
+    identified model's open-loop simulation too, each labelled as what it is; below them the
+    input(s) that drove the run: ``inputs`` the run itself (a :class:`~identify.data.runs.Run`
+    holding the profile's inputs; None: outputs only, as a result read back from result.json holds
+    no inputs). Written as PNG to ``path``."""
     _check(result)
     if not 0 <= run < len(result.time):
         raise EstimationError(f"no run {run + 1}: the result holds {len(result.time)} run(s)")
     t, z, y = result.time[run], result.measured[run], result.modelled[run]
     outputs = list(result.profile.outputs)
+    drive = [u for u in result.profile.input_names if inputs is not None and u in inputs.channels]
     source = result.runs[run] if run < len(result.runs) else f"run {run + 1}"
     # the filter-error method's modelled outputs are one-step predictions (the measurements fed
     # back every sample: they flatter any model); its open-loop simulation is drawn beside them
     sim = result.simulated[run] if run < len(result.simulated) else None
     what = "one-step prediction (--), open-loop simulation (-)" if sim is not None else "identified model (-)"
-    fig, axes = _figure(len(outputs), f"{result.method.upper()}: measured (+), {what}, {source}")
+    fig, axes = _figure(len(outputs) + bool(drive), f"{result.method.upper()}: measured (+), {what}, {source}")
     every = max(1, len(t) // 150)  # markers thin enough to see the line through them
     for j, (ax, name, unit) in enumerate(zip(axes, outputs, _units(result))):
         ax.plot(t[::every], z[::every, j], "+", color="0.35", markersize=4, label="measured")
@@ -62,6 +66,15 @@ def plot_time_histories(result: IdentificationResult, path: str | Path, run: int
         ax.set_ylabel(f"{name}\n[{unit}]" if unit else name, fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
+    if drive:  # what the pilot (or the designed signal) did: the cause of everything above
+        ax, units = axes[-1], result.profile.inputs
+        for k, u in enumerate(drive):
+            ax.step(inputs.time, inputs[u], where="post", color=f"C{k + 2}", linewidth=1.0,
+                    label=f"{u} [{units.get(u, '')}]".replace(" []", ""))
+        ax.set_ylabel("input(s)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
     axes[0].legend(fontsize=7, loc="upper right")
     axes[-1].set_xlabel("time [s]")
     return _save(fig, path)
@@ -90,11 +103,14 @@ def plot_residuals(result: IdentificationResult, path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def save_plots(result: IdentificationResult, outdir: str | Path) -> list[Path]:
-    """``time_history_run<k>.png`` per run and ``residuals.png`` in ``outdir``; returns the paths."""
+def save_plots(result: IdentificationResult, outdir: str | Path, runs=None) -> list[Path]:
+    """``time_history_run<k>.png`` per run (with its inputs drawn, given the fitted ``runs``) and
+    ``residuals.png`` in ``outdir``; returns the paths."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    paths = [plot_time_histories(result, outdir / f"time_history_run{r + 1}.png", r) for r in range(len(result.time))]
+    runs = list(runs) if runs is not None and len(runs) == len(result.time) else [None] * len(result.time)
+    paths = [plot_time_histories(result, outdir / f"time_history_run{r + 1}.png", r, runs[r])
+             for r in range(len(result.time))]
     paths.append(plot_residuals(result, outdir / "residuals.png"))
     return paths
 

@@ -7,8 +7,9 @@ backward elimination's decisions, :class:`identify.structure.prune.Prune`), top-
 ``error_after`` ({"fit": {output: rms, ..., "overall"}, "validation": ...}), the residual
 ``diagnostics`` before and after, ``frequency_cost_J`` (Tischler's frequency-domain fit cost of
 the declared model's fit and of the refined model against the fit runs' frequency responses, per
-input-output pair and the mean: :func:`identify.estimators.frequency.response.cost_report`) and ``final_profile`` (the
-refined model as profile TOML text).
+input-output pair and the mean: :func:`identify.estimators.frequency.response.cost_report`), ``final_profile`` (the
+refined model as profile TOML text) and ``provenance`` (the fit and held-out runs' files, hashes, reading
+and processing: :func:`identify.data.provenance.provenance`), whoever calls :func:`write`.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.provenance import provenance, provenance_lines
 from ..estimators.result import jsonable
 from ..estimators.frequency.response import cost_report, format_cost
 from ..model.profile import output_units
@@ -61,6 +63,7 @@ def to_dict(r: Refine) -> dict:
         "final_parameters": {n: {"value": float(v), "std": float(s)}
                              for n, v, s in zip(r.result_.names, r.result_.theta, r.result_.std)},
         "final_profile": r.profile_.to_toml(),
+        "provenance": provenance(list(r.runs_) + list(r.validation_runs_)),
     })
 
 
@@ -191,6 +194,7 @@ def markdown(r: Refine, data: dict, figures: list[str]) -> str:
     lines += ["", "## Final identification", "", r.result_.markdown(start=declared, start_label="a priori (declared)")]
     lines += ["", "## Final model", "", "Written to `final_profile.toml`:", "", "```toml",
               r.profile_.to_toml().rstrip(), "```", ""]
+    lines += ["## Data provenance", "", "```", *provenance_lines(data["provenance"]), "```", ""]
     return "\n".join(lines)
 
 

@@ -146,13 +146,21 @@ CRAMER_RAO = "Cramér-Rao bounds from the innovations' sensitivities (noise vari
 COLOURED = "coloured-innovation correction (Morelli & Klein) of the Cramér-Rao bounds"
 
 
-def fit_bounds(prob, ev, bounded: np.ndarray, coloured: bool | None, white: dict, stop: str) -> FitBounds:
+TURBULENCE_ADVICE = ("; a process-noise model that leaves them coloured can also bias the estimates beyond any "
+                     "bound (measured: the Navion in gusts with white process noise, benchmarks/filter_error_bounds.py): "
+                     "declare the gusts as turbulence ([turbulence], --turbulence)")
+
+
+def fit_bounds(prob, ev, bounded: np.ndarray, coloured: bool | None, white: dict, stop: str,
+               advice: str = "") -> FitBounds:
     """The bounds of a :class:`~.filter.FilterProblem` at ``ev`` (None: its sensitivities failed)
     on the ``bounded`` unknowns: Cramér-Rao, and the coloured-innovation sandwich where
     ``coloured`` is True, or (None, the default) where the whiteness test ``white``
     (:func:`identify.estimators.whiteness.whiteness`) finds the innovations coloured. Never raises:
     an information that cannot be formed or inverted gives NaN bounds and the reason in ``failed``.
-    Inf: held (not excited, a held x0 or zero shift); NaN: F = 0 or R on its floor (on the boundary)."""
+    Inf: held (not excited, a held x0 or zero shift); NaN: F = 0 or R on its floor (on the boundary).
+    ``advice``: appended to the choice where the innovations are coloured (:data:`TURBULENCE_ADVICE`
+    for a white process-noise model the user declared in the profile)."""
     n, ix = prob.n_beta, prob.index
     failed, cov, ill = None, np.full((n, n), np.nan), True
     if ev is None:
@@ -193,8 +201,8 @@ def fit_bounds(prob, ev, bounded: np.ndarray, coloured: bool | None, white: dict
         choice = failed
     elif std_col is not None:
         choice = ("coloured-innovation bounds: the innovations are coloured on " + listed +
-                  " (the Cramér-Rao bounds, in info.std_white, would be too narrow)" if coloured is None
-                  else "coloured-innovation bounds, as asked (coloured=True)")
+                  " (the Cramér-Rao bounds, in info.std_white, would be too narrow)" + advice
+                  if coloured is None else "coloured-innovation bounds, as asked (coloured=True)")
     elif colour_failed:
         choice = f"Cramér-Rao bounds: {colour_failed}"
     elif coloured_list:

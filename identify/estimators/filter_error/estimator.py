@@ -22,7 +22,7 @@ from ..prior import posterior, prior_term
 from ..result import IdentificationResult, fit_metrics
 from ..whiteness import whiteness
 from .base import PROCESS_NOISE_CONVENTION, ProcessNoiseModel
-from .bounds import degenerate_fit, fit_bounds
+from .bounds import TURBULENCE_ADVICE, degenerate_fit, fit_bounds
 from .filter import FilterProblem, NonlinearFilterProblem
 from .innovation import InnovationFilterProblem, InnovationSolver
 from .solver import FilterSolver
@@ -293,7 +293,9 @@ class FEM(Estimator):
         bounded = sv.active.copy()
         bounded[ix["r"]] &= beta[ix["r"]] > sv.r_floor  # a variance on its floor has no bound
         white = whiteness(prob.per_run(last.nu), list(p.outputs))
-        bd = fit_bounds(prob, ev, bounded, self.coloured, white, sv.stop)
+        # a white model from the profile (not the option a turbulence model or a benchmark passes)
+        advice = TURBULENCE_ADVICE if self.process_noise is None and not self.profile_.turbulence else ""
+        bd = fit_bounds(prob, ev, bounded, self.coloured, white, sv.stop, advice)
         std, std_white, std_col, cov = bd.std, bd.std_white, bd.std_coloured, bd.cov
         reasons = {f"F of {s}": "at the boundary F = 0 (no process noise found on it), bound not determined"
                    for s in sv.at_zero}

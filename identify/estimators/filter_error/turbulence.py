@@ -83,4 +83,4 @@ def on_profile(gm: GustModel, res: IdentificationResult, inner) -> Identificatio
                       process_noise=own or gm.profile.process_noise)
     return IdentificationResult(res.method, profile, res.theta[:k].copy(), res.std[:k].copy(), res.fit, info,
                                 res.runs, None if res.covariance is None else res.covariance[:k, :k].copy(),
-                                res.time, res.measured, res.modelled)
+                                res.time, res.measured, res.modelled, simulated=res.simulated)

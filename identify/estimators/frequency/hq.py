@@ -13,6 +13,14 @@ not) with its level; a LOES that does not fit
 
 From runs the responses are the composite estimates (points with coherence >= 0.6 only); from a
 model, its exact response on a dense grid (declared delays included).
+
+What is graded depends on the aircraft (:class:`Aircraft`: its class and flight phase, given, read
+from the profile's ``[meta]`` ``aircraft_class`` / ``flight_phase``, or guessed from the control
+names and said): ADS-33's bandwidth chart only for a rotorcraft in hover and low speed (the charts
+built in and the ``--boundaries`` files are those), MIL-STD-1797A's short period for every class in
+the flight-phase category (A: rapid manoeuvring and tracking, B: cruise, climb, descent, C: take-off,
+approach, landing). A transport in cruise is never graded on the hover chart: its bandwidth and
+phase delay are reported, not graded.
 """
 from __future__ import annotations
 
@@ -26,8 +34,73 @@ from ...model.linear import LinearModel
 from .handling import BUILTIN_BOUNDARIES, TASK_NAMES, Bandwidth, Boundaries, ads33_chart, bandwidth, load_boundaries
 from .loes import ShortPeriod, fit_transfer_function, short_period
 
+# flight phase -> (aircraft class, MIL-STD-1797A flight-phase category; None: not a MIL-STD-1797A phase)
+PHASES = {"hover": ("rotorcraft", None), "low-speed": ("rotorcraft", None), "forward": ("rotorcraft", None),
+          "tracking": ("fixed-wing", "A"), "combat": ("fixed-wing", "A"), "climb": ("fixed-wing", "B"),
+          "cruise": ("fixed-wing", "B"), "loiter": ("fixed-wing", "B"), "descent": ("fixed-wing", "B"),
+          "takeoff": ("fixed-wing", "C"), "approach": ("fixed-wing", "C"), "landing": ("fixed-wing", "C")}
+CLASSES = ("rotorcraft", "fixed-wing")
+ROTOR_CONTROLS = ("theta_s", "theta_c", "theta_0", "theta_1s", "theta_1c", "theta_tr", "theta_p")
+FIXED_WING_CONTROLS = ("delta_e", "delta_a", "delta_r", "delta_t", "delta_f")
 AXES = {"pitch": (("theta_s", "delta_e"), "q", "theta"), "roll": (("theta_c", "delta_a"), "p", "phi")}
 LOES_RANGE = (1.0, 10.0)  # rad/s: MIL-STD-1797A's 0.1-10 above the phugoid, which the 2nd-order form lacks
+
+
+@dataclass(frozen=True)
+class Aircraft:
+    """Who is graded: ``kind`` (rotorcraft or fixed-wing), flight ``phase`` (a key of :data:`PHASES`,
+    or None), MIL-STD-1797A ``category``; ``notes`` say what was guessed or assumed."""
+
+    kind: str
+    phase: str | None
+    category: str
+    notes: tuple[str, ...] = ()
+
+    @property
+    def ads33(self) -> bool:
+        """Graded on ADS-33's hover and low-speed bandwidth charts: a rotorcraft there."""
+        return self.kind == "rotorcraft" and self.phase in ("hover", "low-speed")
+
+    def line(self) -> str:
+        grading = ("ADS-33 hover and low-speed bandwidth" if self.ads33 else
+                   f"ADS-33 bandwidth charts not applied ({self.kind}" + (f" in {self.phase}" if self.phase else "")
+                   + ": they are a rotorcraft's in hover and low speed)")
+        return f"{self.kind}, {self.phase or 'flight phase not given'}: {grading}; MIL-STD-1797A category {self.category}"
+
+
+def aircraft_of(inputs, meta: dict | None = None, kind: str | None = None, phase: str | None = None,
+                category: str | None = None) -> Aircraft:
+    """The :class:`Aircraft`: ``kind`` and ``phase`` as given, else the profile's ``meta``
+    (``aircraft_class``, ``flight_phase``), a phase's class, or the class the control names say
+    (guessed, said); ``category`` as given, else the phase's, else A (said)."""
+    meta, notes = meta or {}, []
+    kind, phase = kind or meta.get("aircraft_class"), phase or meta.get("flight_phase")
+    if kind is not None and kind not in CLASSES:
+        raise EstimationError(f"aircraft class must be one of {', '.join(CLASSES)}, got '{kind}'")
+    if phase is not None and phase not in PHASES:
+        raise EstimationError(f"flight phase must be one of {', '.join(PHASES)}, got '{phase}'")
+    if phase is not None and kind is not None and PHASES[phase][0] != kind:
+        raise EstimationError(f"flight phase '{phase}' is not a {kind}'s (phases of {kind}: "
+                              f"{', '.join(k for k, v in PHASES.items() if v[0] == kind)})")
+    if kind is None and phase is not None:
+        kind = PHASES[phase][0]
+    if kind is None:
+        rotor = [u for u in inputs if u in ROTOR_CONTROLS]
+        fixed = [u for u in inputs if u in FIXED_WING_CONTROLS]
+        if bool(rotor) == bool(fixed):
+            raise EstimationError(f"aircraft class not given and not told by the controls ({', '.join(inputs)}): "
+                                  f"give --aircraft-class ({', '.join(CLASSES)}) or [meta] aircraft_class")
+        kind = "rotorcraft" if rotor else "fixed-wing"
+        notes.append(f"aircraft class {kind} guessed from the controls ({', '.join(rotor or fixed)}): "
+                     "give --aircraft-class or [meta] aircraft_class")
+    if kind == "rotorcraft" and phase is None:
+        phase = "hover"
+        notes.append("rotorcraft flight phase not given: hover and low speed assumed (--phase)")
+    if category is None:
+        category = (PHASES[phase][1] if phase else None) or "A"
+        if not (phase and PHASES[phase][1]):
+            notes.append("MIL-STD-1797A category A assumed (give --category or a fixed-wing --phase)")
+    return Aircraft(kind, phase, category, tuple(notes))
 
 
 @dataclass
@@ -50,6 +123,7 @@ class HQReport:
     axes: list[AxisHQ] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     boundaries: Boundaries = BUILTIN_BOUNDARIES
+    aircraft: Aircraft = Aircraft("rotorcraft", "hover", "A")
 
     def markdown(self) -> str:
         bounds = self.boundaries
@@ -59,8 +133,9 @@ class HQReport:
             about = "simplified corner boundaries, see docs/frequency.md)." + (
                 " **UNVERIFIED boundaries**: the corner values were not checked against ADS-33E-PRF; "
                 "a level near a boundary may be wrong." if any(bounds.status(a.axis, self.task) for a in self.axes) else "")
-        lines = [f"# Handling qualities: {self.source}", "",
-                 f"ADS-33 task category: {TASK_NAMES.get(self.task, self.task)} (hover and low speed; " + about, "",
+        lines = [f"# Handling qualities: {self.source}", "", f"Aircraft: {self.aircraft.line()}.", "",
+                 (f"ADS-33 task category: {TASK_NAMES.get(self.task, self.task)} (hover and low speed; " + about
+                  if self.aircraft.ads33 else "ADS-33 level: not graded (see the aircraft above)."), "",
                  "| axis | response | omega_180 [rad/s] | BW phase [rad/s] | BW gain [rad/s] | bandwidth [rad/s] "
                  "| phase delay [s] | ADS-33 level |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
         for a in self.axes:
@@ -84,11 +159,12 @@ class HQReport:
                 lines += ["```", a.loes.fit.summary(), *a.loes.lines(), "```"]
                 if a.loes_note:
                     lines.append(a.loes_note)
-        lines += [f"- {n}" for n in self.notes]
+        lines += [f"- {n}" for n in self.notes + list(self.aircraft.notes)]
         return "\n".join(lines) + "\n"
 
     def lines(self) -> list[str]:
-        out = [f"handling qualities ({TASK_NAMES.get(self.task, self.task)}):"]
+        out = [f"handling qualities ({self.aircraft.line()}"
+               + (f"; {TASK_NAMES.get(self.task, self.task)})" if self.aircraft.ads33 else ")") + ":"]
         for a in self.axes:
             b = a.bandwidth
             lvl = b.level(a.axis, self.task, self.boundaries)
@@ -101,7 +177,7 @@ class HQReport:
                 out += ["  " + s for s in a.loes.lines()] + ([f"  {a.loes_note}"] if a.loes_note else [])
             elif a.axis == "pitch":
                 out.append(f"  short-period LOES not fitted: {a.loes_note}")
-        return out + [f"  {n}" for n in self.notes]
+        return out + [f"  {n}" for n in self.notes] + [f"  note: {n}" for n in self.aircraft.notes]
 
     def save(self, outdir: str | Path, model: "HQReport | None" = None) -> list[Path]:
         """hq.md and one chart PNG per axis (``hq_<axis>.png``); ``model``: a model's report whose
@@ -113,7 +189,7 @@ class HQReport:
         paths = [outdir / "hq.md"]
         paths[0].write_text(self.markdown() + ("\n" + model.markdown() if model else ""))
         others = {a.axis: a for a in (model.axes if model else [])}
-        for a in self.axes:
+        for a in self.axes if self.aircraft.ads33 else ():  # no ADS-33 chart for an aircraft it does not grade
             points = {f"{'flight data' if model else a.axis} ({a.response})": a.bandwidth}
             if a.axis in others:
                 points[f"model ({others[a.axis].response})"] = others[a.axis].bandwidth
@@ -126,6 +202,8 @@ class HQReport:
 
     def _level(self, lvl: int | None, axis: str) -> str:
         """The ADS-33 level as printed: with its boundaries' status (UNVERIFIED or the user's source)."""
+        if not self.aircraft.ads33:
+            return "not graded"
         if not lvl:
             return "not determined"
         status = self.boundaries.status(axis, self.task)
@@ -168,20 +246,23 @@ def _attitude(omega, H, coherence, outputs, inputs, axis, u):
 
 
 def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: str = "tracking",
-                       pitch: str | None = None, roll: str | None = None, category: str = "A",
-                       n_alpha: float | None = None, boundaries: Boundaries | str | Path | None = None) -> HQReport:
+                       pitch: str | None = None, roll: str | None = None, category: str | None = None,
+                       n_alpha: float | None = None, boundaries: Boundaries | str | Path | None = None,
+                       aircraft: Aircraft | None = None) -> HQReport:
     """The report from responses ``H`` (nf, ny, nu) at ``omega`` (rad/s), ``coherence`` (nf, ny, nu) or None;
     ``n_alpha`` (g/rad): normal load factor per angle of attack, for the short period's CAP (none: the
     short-period frequency is not graded); ``boundaries``: the ADS-33 boundaries graded against, or a
-    JSON file of them (:func:`.handling.load_boundaries`); None: the built-in (UNVERIFIED) corners."""
+    JSON file of them (:func:`.handling.load_boundaries`); None: the built-in (UNVERIFIED) corners;
+    ``aircraft`` who is graded (None: :func:`aircraft_of` the inputs, ``category`` applied)."""
+    aircraft = aircraft or aircraft_of(list(inputs), category=category)
     if task not in TASK_NAMES:
         raise EstimationError(f"task must be one of {', '.join(TASK_NAMES)}, got '{task}'")
     try:
         if isinstance(boundaries, (str, Path)):
             boundaries = load_boundaries(boundaries)
-        report = HQReport(source, task, boundaries=boundaries or BUILTIN_BOUNDARIES)
+        report = HQReport(source, task, boundaries=boundaries or BUILTIN_BOUNDARIES, aircraft=aircraft)
         chosen = axis_inputs(list(inputs), pitch, roll)
-        for axis in chosen:
+        for axis in chosen if aircraft.ads33 else ():
             report.boundaries.pair(axis, task)  # a user file lacking the chart needed: said before any work
     except ValueError as exc:
         raise EstimationError(str(exc)) from None
@@ -193,7 +274,7 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
             try:
                 fit = fit_transfer_function(omega, H[:, j, i], None if coherence is None else coherence[:, j, i],
                                             n_num=1, n_den=2, omega_range=LOES_RANGE)
-                ax.loes = short_period(fit, category, n_alpha)
+                ax.loes = short_period(fit, aircraft.category, n_alpha)
                 if fit.J > 100:
                     ax.loes_note = (f"LOES J {fit.J:.0f} > 100: the pitch-rate response is not short-period-like "
                                     "here (hover; or a mode inside the band the form lacks); its omega, zeta "
@@ -204,23 +285,26 @@ def handling_qualities(omega, H, coherence, inputs, outputs, source: str, task: 
     return report
 
 
-def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str = "A",
-                n_alpha: float | None = None, boundaries=None) -> HQReport:
-    """The report from a model's exact responses (0.05-50 rad/s, 400 points; declared delays included)."""
+def hq_of_model(model: LinearModel, task: str = "tracking", pitch=None, roll=None, category: str | None = None,
+                n_alpha: float | None = None, boundaries=None, aircraft: Aircraft | None = None) -> HQReport:
+    """The report from a model's exact responses (0.05-50 rad/s, 400 points; declared delays included);
+    ``aircraft`` None: the profile's (its ``[meta]``, else guessed from its controls)."""
     from .response import model_response
 
     p = model.profile
     omega = np.geomspace(0.05, 50, 400)
     H = model_response(model, omega)
+    aircraft = aircraft or aircraft_of(p.input_names, p.meta, category=category)
     return handling_qualities(omega, H, None, p.input_names, list(p.outputs), f"model '{p.name}'", task, pitch,
-                              roll, category, n_alpha, boundaries)
+                              roll, category, n_alpha, boundaries, aircraft)
 
 
-def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str = "A",
-                   n_alpha: float | None = None, boundaries=None) -> HQReport:
+def hq_of_response(fr, task: str = "tracking", pitch=None, roll=None, category: str | None = None,
+                   n_alpha: float | None = None, boundaries=None, aircraft: Aircraft | None = None) -> HQReport:
     """The report from a composite frequency response of runs (coherent points only)."""
     src = f"{len(fr.runs)} run(s): {', '.join(Path(r).name for r in fr.runs[:4])}{' ...' if len(fr.runs) > 4 else ''}"
     coh = np.where(fr.resolved, fr.coherence, 0.0)
-    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category, n_alpha, boundaries)
+    report = handling_qualities(fr.omega, fr.H, coh, fr.inputs, fr.outputs, src, task, pitch, roll, category, n_alpha,
+                                boundaries, aircraft)
     report.notes.append(fr.resolution_line())
     return report

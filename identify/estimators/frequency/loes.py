@@ -81,14 +81,18 @@ class TransferFunctionFit:
 
     def summary(self) -> str:
         lines = [f"transfer function: ({_poly(self.num)}) / ({_poly(self.den)})"
-                 + (f" e^(-{self.tau:.4g} s)" if "tau" in self.names else ""),
+                 + (f" e^(-{_shown(self.tau)} s)" if "tau" in self.names else ""),
                  f"J = {self.J:.1f} over {self.n_points} coherent frequencies ("
                  + ("fits: J <= 100)" if self.J <= 100 else "does NOT fit: J > 100)"),
                  f"{'parameter':<10}{'estimate':>12}{'std':>11}{'CR %':>8}{'insens. %':>10}  flag"]
         for n, v, s in zip(self.names, self.theta, self.std):
             a = self.accuracy()[n]
+            why = undetermined(v, s, n in self.at_bound)
+            if why:  # no digits of nothing: a value at its bound or smaller than its standard error
+                lines.append(f"{n:<10}{_shown(v):>12}  not determined ({why})")
+                continue
             lines.append(f"{n:<10}{v:12.5g}{s:11.3g}{a['cramer_rao_pct']:8.3g}{a['insensitivity_pct']:10.3g}  "
-                         + ", ".join(a["over_gates"] + (["at its bound"] if n in self.at_bound else [])))
+                         + ", ".join(a["over_gates"]))
         for p in _unique_poles(self.poles):
             if abs(p.imag) > 0:
                 wn = abs(p)
@@ -97,6 +101,23 @@ class TransferFunctionFit:
                 lines.append(f"pole: {p.real:.4g} 1/s")
         return "\n".join(lines + self.notes)
 
+
+
+def undetermined(value: float, std: float, at_bound: bool = False) -> str:
+    """Why a fitted figure is not determined ("" if it is): at its bound, a standard error that is
+    not finite, or one larger than the value itself."""
+    if at_bound:
+        return f"at its bound {_shown(value)}"
+    if not np.isfinite(std):
+        return "standard error not finite"
+    if std > abs(value):
+        return f"standard error {std:.2g} larger than the value"
+    return ""
+
+
+def _shown(value: float) -> str:
+    """A value at a bound as read: 0 rather than 1e-11 of optimiser residue."""
+    return "0" if abs(value) < 1e-9 else f"{value:.4g}"
 
 
 def _poly(c: np.ndarray) -> str:
@@ -288,9 +309,15 @@ class ShortPeriod:
             return [f"short period: not determined (the LOES denominator s^2 + {self.fit.den[1]:.4g} s + "
                     f"{self.fit.den[2]:.4g} has no stable pair; LOES J {self.fit.J:.1f})"]
         cap_text = "" if self.n_alpha is None else \
-            f", CAP {self.cap:.4g} ± {2 * s['omega'] / self.omega * self.cap:.2g} 1/(g s^2) at n/alpha {self.n_alpha:g} g/rad"
-        return [f"short period: omega_sp {self.omega:.4g} ± {s['omega']:.2g} rad/s, zeta_sp {self.zeta:.4g} ± "
-                f"{s['zeta']:.2g}, tau_e {self.tau_e:.4g} ± {s['tau_e']:.2g} s{cap_text} (LOES J {self.fit.J:.1f})",
+            f", CAP {_pm(self.cap, 2 * s['omega'] / self.omega * self.cap, '1/(g s^2)')} at n/alpha {self.n_alpha:g} g/rad"
+        if "tau" not in self.fit.names:
+            tau = "no delay fitted"
+        elif "tau" in self.fit.at_bound and abs(self.tau_e) < 1e-9:  # at its lower bound: only an upper limit
+            tau = f"at its bound 0 (not determined; below {2 * s['tau_e']:.2g} s at 2 sigma)"
+        else:
+            tau = _pm(self.tau_e, s["tau_e"], "s", "tau" in self.fit.at_bound)
+        return [f"short period: omega_sp {_pm(self.omega, s['omega'], 'rad/s')}, zeta_sp {_pm(self.zeta, s['zeta'])}, "
+                f"tau_e {tau}{cap_text} (LOES J {self.fit.J:.1f})",
                 f"MIL-STD-1797A level: {self.level if self.level else 'not determined'} "
                 f"({'; '.join(self.level_reasons)})"]
 
@@ -310,9 +337,27 @@ def short_period(fit: TransferFunctionFit, category: str = "A", n_alpha: float |
            "zeta": float(np.hypot(s1 / (2 * omega), a1 * s0 / (4 * omega ** 3)))
            if np.isfinite(omega) else float("nan"),
            "tau_e": float(fit.std[fit.names.index("tau")]) if "tau" in fit.names else float("nan")}
-    level, reasons = mil1797_short_period_level(zeta, fit.tau if "tau" in fit.names else float("nan"), category,
-                                                omega, n_alpha)
+    level, reasons = mil1797_short_period_level(zeta if not undetermined(zeta, std["zeta"]) else float("nan"),
+                                                _graded_delay(fit), category,
+                                                omega if not undetermined(omega, std["omega"]) else float("nan"), n_alpha)
     return ShortPeriod(omega, zeta, fit.tau, std, level, reasons, fit, n_alpha)
+
+
+def _pm(value: float, std: float, unit: str = "", at_bound: bool = False) -> str:
+    """``value ± std unit``, or "not determined (why)" (:func:`undetermined`)."""
+    why = undetermined(value, std, at_bound)
+    return f"not determined ({why})" if why else f"{value:.4g} ± {std:.2g}" + (f" {unit}" if unit else "")
+
+
+def _graded_delay(fit: TransferFunctionFit) -> float:
+    """The equivalent delay a level is graded on: the estimate; at its lower bound 0, its upper
+    limit (2 sigma), the delay's criteria being upper limits; NaN where not determined."""
+    if "tau" not in fit.names:
+        return float("nan")
+    std = float(fit.std[fit.names.index("tau")])
+    if "tau" in fit.at_bound and abs(fit.tau) < 1e-9:
+        return 2 * std if np.isfinite(std) else float("nan")
+    return float("nan") if undetermined(fit.tau, std, "tau" in fit.at_bound) else float(fit.tau)
 
 
 def mil1797_short_period_level(zeta: float, tau_e: float, category: str = "A", omega: float = float("nan"),

@@ -95,6 +95,10 @@ class FR(Estimator):
             gain, bound = None, fit.std  # J's bound: points taken as independent
             if self.n_draws:
                 fit, standard_errors, gain = self._bootstrap(fit, fr, ratio, runs, delays)
+        except np.linalg.LinAlgError as exc:  # not the input's fault: said as what it is
+            raise EstimationError(f"FR: numerical failure, not an input error: {exc} (a model with non-finite "
+                                  "responses or predictions: the fit diverged along directions these runs do not "
+                                  "determine; --prune holds them, or fly runs that move every input)") from None
         except ValueError as exc:
             raise EstimationError(f"FR: {exc}") from None
         model, predictions = self._predicted(fit, runs)

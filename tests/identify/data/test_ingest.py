@@ -421,8 +421,13 @@ def test_cli_estimate_same_result_from_degree_csv_and_v73_with_gap(truth_run, tm
     for name, path in (("rad", rad), ("deg", deg)):
         code, _, err = identify_cli(capsys, "estimate", "--profile", prof, "--method", "ls", path, "--out",
                                     tmp_path / name)
-        assert code == 0 and not err, err
+        # every conversion said, one line per converted channel (the walkthrough's promise), nothing else
+        said = {line.split("'")[1]: line for line in err}
+        assert code == 0 and sorted(said) == (sorted(FOREIGN) if name == "deg" else []), err
+        assert all(f"converted from {FOREIGN[n][0]} to " in line for n, line in said.items()), err
         out[name] = json.loads((tmp_path / name / "result.json").read_text())
+        prov = out[name]["info"]["provenance"]["runs"][0]
+        assert (prov.get("units_declared", "").count("=") == len(FOREIGN)) == (name == "deg")  # recorded
     for name, p in out["rad"]["parameters"].items():
         assert out["deg"]["parameters"][name]["value"] == pytest.approx(p["value"], rel=1e-9)
     # a v7.3 file with a gap: two runs, exit 0, the split said

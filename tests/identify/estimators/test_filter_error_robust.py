@@ -143,9 +143,9 @@ def test_an_information_matrix_that_cannot_be_formed_gives_nan_bounds_with_the_r
     from identify.estimators.filter_error import estimator
     p, run = parse_profile(HFB), _hfb_run(1)
 
-    def broken(prob, ev, bounded, coloured, white, stop):
+    def broken(prob, ev, *args):
         from identify.estimators.filter_error.bounds import fit_bounds
-        return fit_bounds(prob, None, bounded, coloured, white, stop)  # as if the sensitivities failed
+        return fit_bounds(prob, None, *args)  # as if the sensitivities failed
 
     monkeypatch.setattr(estimator, "fit_bounds", broken)
     r = FEM(p).fit([run]).result_

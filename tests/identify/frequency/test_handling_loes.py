@@ -333,9 +333,12 @@ def test_cli_hq_n_alpha_and_boundaries(tmp_path, capsys):
 
     example = Path(__file__).resolve().parents[3] / "examples" / "ads33_boundaries.json"
     assert main(["hq", "--profile", "navion_cruise_long", "--n-alpha", "11.05", "--boundaries", str(example),
-                 "--out", str(tmp_path / "hq")]) == 0
-    out = capsys.readouterr().out
+                 "--out", str(tmp_path / "nav")]) == 0
+    out, err = capsys.readouterr()
     assert re.search(r"CAP 1\.1\d 1/\(g s\^2\) \(omega_sp 3\.6 rad/s, n/alpha 11\.05 g/rad\): Level 1", out)
+    assert "(user-supplied)" not in out and "--boundaries not used" in err  # a fixed wing: no ADS-33 chart
+    assert main(["hq", "--profile", "s61_hover_8state", "--boundaries", str(example), "--out", str(tmp_path / "hq")]) == 0
+    out = capsys.readouterr().out
     assert "(user-supplied)" in out and str(example) in (tmp_path / "hq" / "hq.md").read_text()
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"boundaries": {"tracking": {"pitch": {"level1": [[2, 0.1]], "level2": [[1, 0.3]]}}}}))
