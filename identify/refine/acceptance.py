@@ -9,14 +9,14 @@
   metric, a one-sided test along the fitted change;
 * :class:`ErrorChange` and :func:`error_refusal`: the error the user sees, the plain RMS error of
   the report's before/after table (simulation under output error, one-step prediction under filter
-  error) on the held-out data: on the *judging* data it must fall by more than its noise; on any
-  held-out data, overall or for any output, it may not rise beyond its noise.
+  error) on the held-out data: on the *judging* data it must fall, beyond its noise in the plain
+  error's metric or in the noise model's; no error the report shows may rise beyond its noise.
 
 Why both metrics. The noise-model metric is the efficient one (a generalised least-squares
 metric: it discounts turbulence the model cannot predict) and it chooses; but a candidate it
 favours can still raise the error the user reads (real lateral data: ``L_da_absda`` lowered the
 whitened cost by 0.33 of 2443 while the validation simulation error rose from 0.0715 to 0.0818).
-The plain error is what the report promises, so it confirms.
+The plain error is what the report promises: it must fall, and rise nowhere beyond its noise.
 """
 from __future__ import annotations
 

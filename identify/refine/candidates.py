@@ -282,7 +282,10 @@ class Delay(Candidate):
         options = []
         dt = fitting.dt
         if self.spec["_search"]:
-            fits: dict[float, tuple] = {}
+            # no delay is the model already fitted (p itself, unless searched again in a final model that
+            # was fitted with this delay): its cost needs no re-fit
+            fits: dict[float, tuple] = {} if self.spec.get("_local") else \
+                {0.0: (0.5 * noise.cost(fitting.residuals(p)), p, None)}
 
             def at(tau: float):
                 tau = float(np.clip(tau, 0.0, fitting.tau_max))
