@@ -99,7 +99,11 @@ def test_without_process_noise_the_extended_filter_is_output_error_ml():
 
 def test_refine_on_fem_finds_undeclared_quadratic_damping_under_turbulence():
     turbulence = TURBULENCE / 2
-    fit, val = [simulate(1, turbulence), simulate(2, turbulence)], [simulate(9, turbulence)]
+    # refine accepts an effect only where it lowers the held-out error beyond its noise: one 20 s
+    # validation run shows the true q|q| at 1.8 sd of the paired test (bar 2.49) and it is refused;
+    # three show it (measured; the power this costs is in the closing note of #29)
+    fit = [simulate(1, turbulence), simulate(2, turbulence)]
+    val = [simulate(s, turbulence) for s in (9, 10, 11)]
     r = Refine(PROFILE, estimator=FEM(PROFILE, process_noise=NOISE), kinds=("derivative", "nonlinear")
                ).fit(fit, validate=val)
     assert [(s.effect, s.target) for s in r.steps_] == [("nonlinear", "M:q_absq")], \
