@@ -22,6 +22,18 @@ WHITENESS_LAGS = 20  # lags of the portmanteau statistic (0.4 s at 50 Hz: a gust
 WHITENESS_LEVEL = 0.01  # family-wise level over the outputs
 
 
+def pooled_autocovariance(residuals, lags: int) -> np.ndarray:
+    """``(lags + 1, ny)`` sums of lagged products of residuals (N_r, ny) per run, each run's mean
+    removed, pooled over the runs (row 0 the sums of squares): the Ljung-Box statistic's ingredients,
+    shared with refine's residual diagnostics."""
+    acov = np.zeros((lags + 1, np.shape(residuals[0])[1]))
+    for e in residuals:
+        e = np.asarray(e, float) - np.mean(e, axis=0)
+        for k in range(lags + 1):
+            acov[k] += np.einsum("ij,ij->j", e[:len(e) - k], e[k:])
+    return acov
+
+
 def whiteness(residuals: list[np.ndarray], outputs: list[str], lags: int = WHITENESS_LAGS,
               level: float = WHITENESS_LEVEL) -> dict:
     """``{"outputs": {name: {Q, lags, p_value, rho_1, white}}, "coloured": [names], "level", "test"}``
@@ -29,11 +41,7 @@ def whiteness(residuals: list[np.ndarray], outputs: list[str], lags: int = WHITE
     ny = len(outputs)
     n_total = sum(len(e) for e in residuals)
     h = int(max(1, min(lags, n_total // 5, min(len(e) for e in residuals) - 1)))
-    acov = np.zeros((h + 1, ny))
-    for e in residuals:
-        e = np.asarray(e, float) - np.mean(e, axis=0)
-        for k in range(h + 1):
-            acov[k] += np.einsum("ij,ij->j", e[:len(e) - k], e[k:])
+    acov = pooled_autocovariance(residuals, h)
     per_output, coloured = {}, []
     for j, name in enumerate(outputs):
         if not (acov[0, j] > 0) or n_total <= h + 1:

@@ -25,6 +25,7 @@ from scipy import signal, stats
 
 from ..errors import EstimationError
 from ..estimators.prediction import block_design
+from ..estimators.whiteness import pooled_autocovariance
 
 
 def _stack(residuals) -> list[np.ndarray]:
@@ -41,19 +42,10 @@ def whiteness(residuals, max_lag: int = 20) -> dict:
     p-value says the residual of that output is correlated in time (structure left in it).
     """
     runs = _stack(residuals)
-    ny = runs[0].shape[1]
     lags = int(min(max_lag, min(e.shape[0] for e in runs) // 4))
-    num = np.zeros((lags + 1, ny))
-    den = np.zeros(ny)
-    n_total = 0
-    for e in runs:
-        e = e - e.mean(axis=0)
-        for k in range(lags + 1):
-            num[k] += np.einsum("ky,ky->y", e[k:], e[: len(e) - k])
-        den += np.einsum("ky,ky->y", e, e)
-        n_total += len(e)
-    acf = num / np.where(den > 0, den, 1.0)
-    n = float(n_total)
+    num = pooled_autocovariance(runs, lags)
+    acf = num / np.where(num[0] > 0, num[0], 1.0)
+    n = float(sum(len(e) for e in runs))
     k = np.arange(1, lags + 1)[:, None]
     Q = n * (n + 2) * np.sum(acf[1:] ** 2 / (n - k), axis=0)
     return {"Q": Q, "p_value": stats.chi2.sf(Q, lags), "lags": lags, "acf": acf}
