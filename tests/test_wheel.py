@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import tarfile
 import venv
 import zipfile
 from pathlib import Path
@@ -72,7 +73,6 @@ def test_wheel_holds_every_module_and_profile(built):
     missing = sorted(_tree_modules() - names)
     assert not missing, f"not in the wheel: {missing}"
     assert {f"profiles/{p.name}" for p in (ROOT / "profiles").glob("*.toml")} <= names
-    import tarfile
     with tarfile.open(sdist) as tar:
         in_sdist = {n.split("/", 1)[1] for n in tar.getnames() if "/" in n}
     assert not sorted(_tree_modules() - in_sdist)
