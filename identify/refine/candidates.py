@@ -51,6 +51,7 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError, ProfileError, PseudostepError, SimulationError
 from ..model import pseudo_inputs as pi
+from ..model.linear import LinearModel
 from ..model.profile import Profile
 from ..model.pseudo_inputs import delay_run
 from .noise import line_frequency
@@ -457,8 +458,9 @@ class SensorLag(Candidate):
     delays every output's response to that input, a sensor lag only its own output's.
 
     Not linear in k (the null is k = infinity): its score column is ``dy_m/dtau`` at tau = 0,
-    ``-dy/dt`` of the model's prediction on its own output (zero on the others). Proposed for an
-    output that is a state measured as itself."""
+    ``-dy/dt`` on its own output (zero on the others), through the estimator's own prediction
+    (:func:`_first_order_sensor_columns`). Proposed for an output that is a state measured as
+    itself and no output-equation parameter of its own yet (a scale factor)."""
 
     kind = "sensor_lag"
     linear = False
@@ -470,8 +472,7 @@ class SensorLag(Candidate):
 
     @classmethod
     def propose(cls, p, context):
-        return [cls(y) for y in _measured_states(p, context.runs, through_sensor=False)
-                if f"{y}_sensor" not in p.states]
+        return [cls(y) for y in _sensor_outputs(p) if all(y in r.channels for r in context.runs)]
 
     def null_values(self):
         return {self.params[0]: self.spec["k"]}
@@ -486,13 +487,7 @@ class SensorLag(Candidate):
                        ties={**p.ties, k: {f"{x}_{x}": -1.0, f"{x}_{y}": 1.0}})
 
     def score_columns(self, fitting, p):
-        j = list(p.outputs).index(self.target)
-        out = []
-        for m in fitting.prediction(p).modelled:
-            col = np.zeros((len(m), len(p.outputs), 1))
-            col[:, j, 0] = -np.gradient(m[:, j], fitting.dt)
-            out.append(col)
-        return out
+        return _first_order_sensor_columns(fitting, p)[self.target]
 
     def estimate(self, fitting, p, noise, hint=None):
         # the score's linearised tau starts the fit (a few samples at least: k of a vanishing lag is
@@ -510,6 +505,48 @@ class SensorLag(Candidate):
             return (f"a sensor lag of {what} on '{self.target}' (k = {k:.3g} 1/s) is no sensor's filter (limit "
                     f"{MAX_SENSOR_LAG:g} s): it stands in for dynamics the model lacks")
         return ""
+
+
+def _sensor_outputs(p: Profile) -> list[str]:
+    """Outputs a sensor lag can be added to: states measured as themselves, no lag yet and no
+    parameter on their output equation (its entries would clash with the score's surrogate)."""
+    taken = {e.row for name in p.parameters for e, _ in p.parameter_entries(name) if e.matrix in "CD"}
+    return [y for j, y in enumerate(p.outputs) if y in p.states and p.output_terms(y) == {y: 1.0}
+            and f"{y}_sensor" not in p.states and j not in taken]
+
+
+def _first_order_sensor_columns(fitting, p: Profile) -> dict[str, list[np.ndarray]]:
+    """Per output of :func:`_sensor_outputs`, per fit run (N_r, ny, 1): ``dy_m/dtau`` of a sensor
+    lag at tau = 0 as the loop's estimator predicts it. To first order the lag measures
+    ``y - tau dy/dt`` and ``dy/dt = A_y x + B_y u`` (the state's own equation at the current fit):
+    a surrogate profile with, per output, a parameter ``tau`` tied to ``"<y>:<term>" = -A_y, -B_y``
+    (linear, zero at the null) gives that column from the estimator's own sensitivities, the
+    model's states as it predicts them (a simulation, or a filter's, whose innovations the
+    derivative of the measured output would not describe). One computation for every output,
+    cached per fitted profile."""
+    key = ("sensor_lag columns", p.to_toml())
+    if key not in fitting.cache:
+        model = LinearModel(p)
+        outputs = _sensor_outputs(p)
+        ties = {}
+        for y in outputs:
+            i = p.state_names.index(y)
+            row = [(s, model.A[i, c]) for c, s in enumerate(p.state_names)] + \
+                  [(u, model.B[i, c]) for c, u in enumerate(p.input_names)]
+            ties[f"tau1_{y}_sensor"] = {f"{y}:{term}": -float(v) for term, v in row if v != 0.0}
+        ties = {k: v for k, v in ties.items() if v}
+        columns = {}
+        if ties:
+            ext = replace(p, free={**p.free, **{k: 0.0 for k in ties}}, ties={**p.ties, **ties})
+            ev = fitting.prediction(p)
+            dy = fitting.sensitivities(ext, ev.runs, ev).dy
+            first = len(p.free)
+            for c, name in enumerate(ties):
+                y = name[len("tau1_"):-len("_sensor")]
+                columns[y] = [d[:, :, first + c:first + c + 1] for d in dy]
+        fitting.cache[key] = {y: columns.get(y, [np.zeros((len(r), len(p.outputs), 1)) for r in fitting.data["fit"]])
+                              for y in outputs}
+    return fitting.cache[key]
 
 
 class OutputTerm(Candidate):

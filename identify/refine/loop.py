@@ -314,7 +314,7 @@ class Refine:
                         error_before=before, error_after=before, accepted=False,
                         reason=f"could not be estimated: {exc}", **_common(best, tested))
             return step, p, None
-        first = None
+        first = None  # the refusal recorded: the chosen candidate's own first fit's (a rival's if it has none)
         for test, (new_p, result, params, kind) in options:
             step, new_p, result, changes = self._evidence(p, null_result, test, (new_p, result, params, kind),
                                                           before, held_data, _common(test, tested))
@@ -325,8 +325,9 @@ class Refine:
                 step.accepted, step.reason = not reason, reason
                 return step, new_p, result
             step.accepted, step.reason = False, reason
-            first = first or (step, new_p, result)
-        return first
+            if first is None or (test is best and first[3] is not best):
+                first = (step, new_p, result, test)
+        return first[:3]
 
     def _options(self, p: Profile, best: ScoreTest, held_data: list):
         """``[(test, (profile, result, parameters, kind))]``: the fits of ``best`` and of its most
