@@ -110,6 +110,10 @@ class Candidate:
     def propose(cls, p: Profile, context: Context) -> list["Candidate"]:
         return []
 
+    def as_rival(self) -> "Candidate":
+        """The candidate fitted when this one is another's rival (by default itself)."""
+        return self
+
     def null_values(self) -> dict[str, float]:
         return {k: 0.0 for k in self.params}
 
@@ -261,6 +265,11 @@ class Delay(Candidate):
     def profile(self, p, values=None):
         tau = (values or {}).get(self.params[0], self.spec["tau"])
         return _add(p, meta={"delays": {**dict(p.meta.get("delays", {})), self.target: float(tau)}})
+
+    def as_rival(self):
+        """Beside a sensor's lag, the input's lag: the same first-order shape, one re-fit instead of
+        the delay's search (the delay itself where lags are not in the catalogue)."""
+        return Delay(self.target, lag=True, search=False) if self.spec["_lag"] else self
 
     def runs(self, runs, tau: float | None = None):
         tau = self.spec["tau"] if tau is None else tau

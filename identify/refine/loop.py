@@ -331,8 +331,9 @@ class Refine:
 
     def _options(self, p: Profile, best: ScoreTest, held_data: list):
         """``[(test, (profile, result, parameters, kind))]``: the fits of ``best`` and of its most
-        significant rival (tested in ``best``'s metric), the likeliest first; a fit that diverges
-        on some data set is dropped (the rival's), or refuses the candidate (its own)."""
+        significant rival (:meth:`Candidate.as_rival`, tested in ``best``'s metric), the likeliest
+        first; a fit that diverges on some data set is dropped (the rival's), or refuses the
+        candidate (its own)."""
         fitting = self.fitting_
         own = best.candidate.estimate(fitting, p, best.noise, best.hint)
         [fitting.prediction(o[0], d) for o in own for d in ["fit"] + held_data]
@@ -342,7 +343,7 @@ class Refine:
         for t in rivals:
             rival = replace(t, noise=best.noise)  # one metric for every option's likelihood
             try:
-                fits = t.candidate.estimate(fitting, p, best.noise, t.hint)
+                fits = t.candidate.as_rival().estimate(fitting, p, best.noise, t.hint)
                 [fitting.prediction(o[0], d) for o in fits for d in ["fit"] + held_data]
             except PseudostepError:
                 continue  # a rival that cannot be fitted is no better explanation
