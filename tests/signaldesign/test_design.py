@@ -191,7 +191,8 @@ def test_robust_criterion_mixes_mean_and_worst_and_keeps_the_nominal_floor(s61m)
     assert d.nominal_gain_ < d.nominal_margin and "NOT REACHED" in d.summary()
 
 
-@pytest.mark.parametrize("profile", ["s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long"])
+@pytest.mark.parametrize("profile", ["s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long",
+                                     "hover_4input"])
 def test_default_design_on_every_bundled_profile_is_no_plain_step(profile):
     model = LinearModel(load_profile(profile))
     d = SequenceDesign(model.profile.input_names[0], n_iter=200, restarts=1, kicks=4, nominal_kicks=2).fit(model)  # small budget
