@@ -332,8 +332,9 @@ class SequenceDesign:
                      f"limits: {self.evaluator_.limits_source}")
         cells = [f"{y} {pk:.3g}/{lim:.3g}" + (" BINDS" if y == self.binding_ else "")
                  for y, pk, lim in zip(p.outputs, self.peaks_, self.limits_) if np.isfinite(lim)]
-        lines.append("peak response / limit on the a priori" + (" (the run's whole response: the inputs' add)"
-                                                                   if self._per_input() else "") + ": " + ", ".join(cells))
+        whole = " (the run's whole response: the inputs' add; BINDS: at its limit under one input alone)"
+        lines.append("peak response / limit on the a priori" + (whole if self._per_input() else "") + ": "
+                     + ", ".join(cells))
         lines += [f"WARNING: {line}" for line in self.implausible_]
         res = self.result_
         how = ("exhaustive: exact optimum among flyable sequences" if res.method == "exhaustive" else
