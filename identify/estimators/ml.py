@@ -78,6 +78,8 @@ class ML(Estimator):
     and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``:
     ``"relax"`` (estimate R) or the measurement-noise
     covariance, (ny,) variances or (ny, ny), in output units squared.
+    ``advice``: the colour note ``info["estimator_advice"]`` when the residuals are strongly
+    coloured (its cause test fits ~100 least-squares FIRs; refine skips it for its candidates' fits).
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
 
@@ -106,19 +108,21 @@ class ML(Estimator):
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
-                 verbose: bool = False, x0: dict | None = None):
+                 verbose: bool = False, x0: dict | None = None, advice: bool = True):
         super().__init__(profile)
         self.segment, self.max_iter, self.tol = segment, max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.noise_cov, self.coloured = noise_cov, coloured
-        self.progress, self.verbose, self.x0 = progress, verbose, x0
+        self.progress, self.verbose, self.x0, self.advice = progress, verbose, x0, advice
         self.covariance_ = self.problem_ = self.beta_ = None
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True) -> "ML":
+               bounds: bool = True, advice: bool = True) -> "ML":
         """Refine's nested fit: the loop's zero shifts and segments (so that likelihoods before and
-        after an added effect compare); without ``bounds`` the coloured-residual correction is skipped."""
-        return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds)
+        after an added effect compare); without ``bounds`` the coloured-residual correction is
+        skipped, without ``advice`` the colour note (a candidate's fit needs neither)."""
+        return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds,
+                          advice=self.advice and advice)
 
     def prediction_segment(self, model: LinearModel, duration: float) -> float:
         """Its own ``segment`` if given, else the automatic choice for ``model`` (multiple shooting
@@ -236,9 +240,9 @@ class ML(Estimator):
             "noise_autocorrelation": acf,
             "colour_passes": passes,
             "whiteness": whiteness([z - y for z, y in zip(measured, modelled)], list(p.outputs)),
-            "estimator_advice": colour_advice(std_white[:P], None if std_col is None else std_col[:P],
-                                              lambda: follows_inputs([z - y for z, y in zip(measured, modelled)],
-                                                                     u, prob.dt, list(p.outputs))),
+            "estimator_advice": None if not self.advice else colour_advice(
+                std_white[:P], None if std_col is None else std_col[:P],
+                lambda: follows_inputs([z - y for z, y in zip(measured, modelled)], u, prob.dt, list(p.outputs))),
             "wall_time": wall,
         }
         if prior is not None:
