@@ -73,7 +73,12 @@ class SequenceDesign:
     ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`). The search:
     ``restarts`` annealing runs of ``n_iter`` proposals, each polished, then ``kicks`` rounds of
     iterated local search from the best restarts (:func:`~signaldesign.search.anneal`);
-    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``jobs`` worker processes
+    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``spread_efficiency_``:
+    the worst restart's D-efficiency over the best's; the summary says whether the restarts agree
+    within ``agreement`` (a D-efficiency fraction) or not.
+    ``peak``: with several inputs, ``shared`` (the run's whole response within the limits, one
+    amplitude) or ``per-input`` (each input as large as its own response, alone, allows, as in a
+    run of its own; the responses add; :class:`~signaldesign.quadform.PerInputObjective`). ``jobs`` worker processes
     run the restarts (default: the available CPUs, at most ``restarts``); the design is the same
     for any number. ``certify``: the upper bound's effort, ``quick`` (default: valid, looser,
     seconds) or ``full`` (``signaldesign design``'s default: a few log det units from the
@@ -98,7 +103,7 @@ class SequenceDesign:
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
                  draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20,
                  nominal_kicks: int = 20, jobs: int | None = None, prior: bool = False, certify: str = "quick",
-                 peak: str = "shared"):
+                 peak: str = "shared", agreement: float = 0.01):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -111,6 +116,7 @@ class SequenceDesign:
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
         self.kicks, self.nominal_kicks, self.jobs, self.certify = kicks, nominal_kicks, jobs, certify
         self.prior, self.peak = prior, peak
+        self.agreement = agreement
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -167,7 +173,7 @@ class SequenceDesign:
         models, labels = self._model_set(model)
         basis = StepBasis(ev, self.grid, K, self.delay, models)
         offsets = None
-        if self.criterion in ("worst", "robust"):
+        if self.criterion in ("worst", "robust") and not self._per_input():
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
             offsets = yardsticks(yard, self.duration, self.min_pulse, jobs=self._jobs()).yardstick_log_dets
@@ -178,6 +184,11 @@ class SequenceDesign:
         kind = PerInputObjective if self._per_input() else Objective
         if self._per_input():  # the classic inputs scored as the design is: each input at its own peak
             classic = [float(kind(basis, "nominal", stride=1)(s)) for s in starts]
+            if self.criterion in ("worst", "robust"):  # each model's yardstick: the 3211 flown by that rule
+                if not starts:
+                    raise DesignError(f"duration {self.duration:g} s is too short for the 3211 yardstick of "
+                                      f"{self.min_pulse:g} s pulses")
+                offsets = kind(basis, "mean", stride=1).terms(starts[0])
         floor = None
         if self.criterion == "robust":
             # the nominal optimum seeds the robust search; the floor keeps the robust design at least
@@ -233,6 +244,7 @@ class SequenceDesign:
         params = {"criterion": self.criterion, "method": result.method, "duration": self.duration,
                   "record": self.record, "grid": self.grid, "min_pulse": self.min_pulse,
                   "max_changes": self.max_changes, "binding_limit": self.binding_, "peak": self.peak,
+                  "restarts_spread": float(np.ptp(result.trace)) if result.trace else 0.0,
                   "units": {i: model.profile.inputs[i] for i in self.inputs}}
         self.signals_ = basis.signals(result.levels, amplitude, params=params)
         self.seconds_ = time.perf_counter() - t0
@@ -320,13 +332,14 @@ class SequenceDesign:
                      f"limits: {self.evaluator_.limits_source}")
         cells = [f"{y} {pk:.3g}/{lim:.3g}" + (" BINDS" if y == self.binding_ else "")
                  for y, pk, lim in zip(p.outputs, self.peaks_, self.limits_) if np.isfinite(lim)]
-        lines.append("peak response / limit on the a priori" + (" (the run's whole response: the inputs' add)"
-                                                                   if self._per_input() else "") + ": " + ", ".join(cells))
+        whole = " (the run's whole response: the inputs' add; BINDS: at its limit under one input alone)"
+        lines.append("peak response / limit on the a priori" + (whole if self._per_input() else "") + ": "
+                     + ", ".join(cells))
         lines += [f"WARNING: {line}" for line in self.implausible_]
         res = self.result_
         how = ("exhaustive: exact optimum among flyable sequences" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
-               f"of each other in the criterion")
+               f"of each other in the criterion ({self._agreement_text()})")
         if self.prior:
             how += "; the criterion: log det of the prior's information plus the flight's at the amplitude flown"
         floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
@@ -338,6 +351,18 @@ class SequenceDesign:
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         lines.append(self.certificate())
         return "\n".join(lines)
+
+    @property
+    def spread_efficiency_(self) -> float:
+        """The worst restart's D-efficiency relative to the best restart's (1: every restart agrees)."""
+        spread = max(self.result_.trace) - min(self.result_.trace)
+        return float(np.exp(-spread / (self.evaluator_.p * self._weight())))
+
+    def _agreement_text(self) -> str:
+        eff = self.spread_efficiency_
+        verdict = ("they agree" if eff >= 1 - self.agreement - 1e-12 else
+                   f"they DISAGREE beyond {100 * self.agreement:g} %: a better optimum may exist")
+        return f"the worst restart reaches D-efficiency {eff:.3f} of the best; {verdict}"
 
     def _amplitude_rule(self) -> str:
         if self._per_input():

@@ -310,6 +310,11 @@ class Objective:
         M, y = self._candidate(levels)
         return self._value(M, self.ratios(y))
 
+    def terms(self, levels) -> np.ndarray:
+        """Each model's term (m,) of ``levels``, offsets subtracted (scored from scratch)."""
+        M, y = self._state(np.asarray(levels, float))[2:]
+        return self.per_model(M, self.ratios(y))
+
     def batch(self, L: np.ndarray, chunk: int = 2048) -> np.ndarray:
         """Objective of many candidates L (C, Ktot)."""
         self.evaluations += len(L)
@@ -407,9 +412,16 @@ class PerInputObjective(Objective):
             return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
 
     def _value(self, B, y) -> float:
+        return self.combine(self._terms(B, y))
+
+    def _terms(self, B, y) -> np.ndarray:
         s = self.scales(y)
         M = np.einsum("ma,mb,mabxy->mxy", s, s, B)
-        return self.combine(self.per_model(M, np.ones(M.shape[0])))
+        return self.per_model(M, np.ones(M.shape[0]))
+
+    def terms(self, levels) -> np.ndarray:
+        B, y = self._state(np.asarray(levels, float))[2:]
+        return self._terms(B, y)
 
     def __call__(self, levels) -> float:
         levels = np.asarray(levels, dtype=float)

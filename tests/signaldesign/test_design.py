@@ -122,6 +122,12 @@ def test_design_respects_flyability_and_limits_and_beats_the_3211_at_equal_peak(
     ev = Evaluator(s61m, "theta_s", 12.0, 0.05)
     best3211 = max(ev.equal_peak_log_det(m3211(w)) for w in np.arange(0.5, 0.75, 0.05))
     assert ev.equal_peak_log_det(d.signals_) > best3211
+    # the restarts' agreement is said (D-efficiency of the worst restart against the best) and recorded
+    spread = max(d.result_.trace) - min(d.result_.trace)
+    assert d.spread_efficiency_ == pytest.approx(np.exp(-spread / d.evaluator_.p))
+    said = "they agree" if spread <= -d.evaluator_.p * np.log(0.99) else "they DISAGREE beyond 1 %"
+    assert said in d.summary() and f"{d.spread_efficiency_:.3f} of the best" in d.summary()
+    assert d.signals_[0].params["restarts_spread"] == pytest.approx(spread)
 
 
 def test_fixed_amplitude_is_flown_or_reported_infeasible(s61m):

@@ -75,3 +75,16 @@ def test_design_flies_each_input_at_its_own_limit_and_beats_the_shared_design_th
     assert ev.p == per.evaluator_.p
     with pytest.raises(DesignError, match="amplitude"):
         SequenceDesign(INPUTS, peak="per-input", amplitude=0.01, **kw).n_steps()
+
+
+def test_robust_per_input_yardsticks_are_the_3211_flown_by_the_same_rule(s61m):
+    """Each model's yardstick is the grid 3211 with every input at its own peak on that model, so
+    the 3211 scores exactly 0 (relative D-efficiency 1) on every model; the shared-peak yardsticks
+    would leave it a different offset per model and mislead the worst-model term."""
+    from signaldesign.robust import frequency_scaled
+    models = [s61m, frequency_scaled(s61m, 0.7), frequency_scaled(s61m, 1.4)]
+    d = SequenceDesign(INPUTS, peak="per-input", criterion="robust", models=models, duration=3.0, grid=0.3,
+                       min_pulse=0.3, max_changes=6, restarts=1, n_iter=60, kicks=0, nominal_kicks=0, jobs=1,
+                       record=12.0).fit(s61m)
+    start = d._starts(d.evaluator_, d.basis_)[0][0]
+    assert d._objective_.exact().terms(start) == pytest.approx(np.zeros(3), abs=1e-9)
