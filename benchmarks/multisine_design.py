@@ -14,18 +14,18 @@ axes in one run against one run per axis. Every figure is measured in this run, 
      7 s input (13 s), and std falls as 1 / sqrt(flight time), so each std is rescaled to 20 s of
      flight (the 3211's runs are shorter: it can be flown more often).
    One summary line per case says which wins.
-2. S 61, both cyclics: one 20 s run with the two-axis design against one 20 s run per axis (each
-   axis' own design, both runs fitted together) and against simultaneous orthogonal optimised
-   multisines (one run). Every run at equal peak response with the same limits, the one-axis-at-
-   a-time runs and the simultaneous one either with the limits shared (the run's whole response at
-   them) or at equal per-input peak response (each input as large as its response alone allows, as
-   in a run of its own: the responses add). The flight time the one-run design needs to reach the
-   separate runs' median std, as a fraction of their 40 s. (The designs: smaller searches.)
-3. Information only (Cramer-Rao), no Monte Carlo: the multi-axis design against one run per axis
-   at equal total flight time on the BO 105 (its two cyclics; ``--bo105-all`` also its four inputs).
+2. All axes in one run (``--multi s61,bo105,hover4``: the S 61's two cyclics, the BO 105's two
+   cyclics, the 4-input hover model's four inputs): one 20 s run against one 20 s run per axis, every
+   input at equal per-input peak response (each as large as its own response, alone, allows, as in
+   a run of its own; the responses add): the multi-axis design made for that rule (``--peak
+   per-input``), each axis' own design (its runs fitted together) and simultaneous orthogonal
+   optimised multisines; ``--shared`` adds the design made with the limits shared by the run's whole
+   response. The flight time the one run needs to reach the separate runs' median std, as a fraction
+   of their total (std falls as 1 / sqrt(flight time)), measured and predicted (Cramer-Rao).
 
     python benchmarks/multisine_design.py                 # default designs, 50 realisations
     python benchmarks/multisine_design.py --quick-design  # smaller searches (say so when quoting)
+    python benchmarks/multisine_design.py --cases "" --multi s61 --mc 200   # part 2 only
 """
 from __future__ import annotations
 
@@ -47,10 +47,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from identify import ML, LinearModel, load_profile, simulate_run  # noqa: E402
 from signaldesign.band import excited_parameters, required_band  # noqa: E402
 from signaldesign.baselines import multisine  # noqa: E402
-from signaldesign.compare import equal_peak_information, reference_of, tuned_baselines  # noqa: E402
+from signaldesign.compare import reference_of, tuned_baselines  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
 from signaldesign.evaluate import Evaluator, record_inputs  # noqa: E402
-from signaldesign.information import log_det  # noqa: E402
 from signaldesign.robust import frequency_scaled  # noqa: E402
 from signal_design import DT, DURATION, RECORD, _information_x0_estimated, _robust_std  # noqa: E402
 from _cli import count, parser as cli_parser, positive  # noqa: E402
@@ -59,11 +58,11 @@ CASES = [("s61_hover_8state", "theta_s"), ("bo105_70kt", "theta_s"), ("navion_cr
 SETTLE = RECORD - DURATION  # s of record after a 7 s input: the run's settling time
 
 
-def _design(model, inputs, quick: bool) -> SequenceDesign:
+def _design(model, inputs, quick: bool, peak: str = "shared", certify: str = "full") -> SequenceDesign:
     """The default design with the certificate as ``signaldesign design`` prints it (``quick``: a
     smaller search and the quick certificate)."""
-    kw = dict(restarts=4, n_iter=400, kicks=6, nominal_kicks=6, certify="quick") if quick else dict(certify="full")
-    d = SequenceDesign(inputs, **kw).fit(model)
+    kw = dict(restarts=4, n_iter=400, kicks=6, nominal_kicks=6, certify="quick") if quick else dict(certify=certify)
+    d = SequenceDesign(inputs, peak=peak, **kw).fit(model)
     print(f"design on {', '.join(d.inputs)} ({'smaller search' if quick else 'default'}): "
           f"{d.seconds_:.0f} s wall; restarts' criteria {min(d.result_.trace):.2f}..{max(d.result_.trace):.2f}, "
           f"best {d.result_.objective:.2f}")
@@ -155,63 +154,54 @@ def one_axis(name: str, inp: str, trials: int, truth_scale: float, quick: bool):
     return rows
 
 
-def multi_axis(trials: int, truth_scale: float, quick: bool):
-    name, inputs = "s61_hover_8state", ["theta_s", "theta_c"]
+MULTI = {"s61": ("s61_hover_8state", ["theta_s", "theta_c"]), "bo105": ("bo105_70kt", ["theta_s", "theta_c"]),
+         "hover4": ("hover_4input", ["theta_s", "theta_c", "theta_0", "theta_TR"])}
+
+
+def multi_axis(key: str, trials: int, truth_scale: float, quick: bool, shared: bool = False):
+    """One simultaneous run against one run per axis at equal per-input peak response (each input
+    as large as its own response allows, as in a run of its own): the multi-axis design made for that
+    rule (``signaldesign design --peak per-input``), each axis' own design, and simultaneous
+    orthogonal optimised multisines; with ``shared`` also the design made with the limits shared by
+    the run's whole response. ML on ``trials`` realisations, all runs of a case fitted together."""
+    name, inputs = MULTI[key]
     model = LinearModel(load_profile(name))
-    print(f"\n=== {model.profile.name}: both cyclics in one {RECORD:g} s run vs one run per axis; truth frequencies "
-          f"x{truth_scale:g}; {trials} realisations ===")
-    joint = _design(model, inputs, quick)
-    singles = [_design(model, i, quick) for i in inputs]
+    print(f"\n=== {model.profile.name}: {', '.join(inputs)} in one {RECORD:g} s run vs one run per axis; truth "
+          f"frequencies x{truth_scale:g}; {trials} realisations ===")
+    joint = _design(model, inputs, quick, peak="per-input", certify="quick")
+    singles = [_design(model, i, quick, certify="quick") for i in inputs]
     ev = Evaluator(model, inputs, RECORD, DT)
     base = dict(tuned_baselines(ev, DURATION, 1.0, max(required_band(model, i).high for i in inputs)))
     label_ms = next(k for k in base if "optimised phases" in k)
     apriori = _excited(model, inputs)
     truth = apriori if truth_scale == 1 else frequency_scaled(apriori, truth_scale)
-    cases = {"one run, designed (shared limits)": ([joint.signals_], False),
-             "one run, designed (equal per-input peak response)": ([joint.signals_], True),
-             "one run per axis, designed": ([s.signals_ for s in singles], False),
-             f"one run, {label_ms} (shared limits)": ([base[label_ms]], False),
-             f"one run, {label_ms} (equal per-input peak)": ([base[label_ms]], True)}
+    cases = {"one run, designed for equal per-input peak": [joint.signals_],
+             "one run per axis, each axis' design": [s.signals_ for s in singles],
+             f"one run, {label_ms}": [base[label_ms]]}
+    if shared:
+        cases["one run, designed with the limits shared"] = [_design(model, inputs, quick, certify="quick").signals_]
     out = {}
-    for label, (runs, per_input) in cases.items():
+    for label, runs in cases.items():
         us = []
-        for sigs in runs:
+        for sigs in runs:  # every input at its own equal peak response on the truth
             tev = Evaluator(truth, [s.input for s in sigs], RECORD, DT, limits=model.profile.limits)
-            us.append(record_inputs(truth, _at_equal_peak(tev, sigs, per_input), RECORD, DT))
+            us.append(record_inputs(truth, _at_equal_peak(tev, sigs, per_input=True), RECORD, DT))
         tev = Evaluator(truth, inputs, RECORD, DT, limits=model.profile.limits)
         E, failed = _fits(truth, us, tev, trials, seed=23)
-        out[label] = (_median_std(E, truth), RECORD * len(runs), _crb_median(truth, us, tev.noise_std))
+        crb = _crb_median(truth, us, tev.noise_std)
+        out[label] = (_median_std(E, truth), RECORD * len(runs), crb)
         print(f"  {label:<62} {len(runs)} run(s), {RECORD * len(runs):4.0f} s: median std/|theta| "
-              f"{100 * out[label][0]:6.2f}% (CRB {100 * out[label][2]:.2f}%; {failed} failed fits)")
-    ss, ts, cs = out["one run per axis, designed"]
-    for how in ("equal per-input peak response", "shared limits"):
-        sj, tj, cj = out[f"one run, designed ({how})"]
+              f"{100 * out[label][0]:6.2f}% (CRB {100 * crb:.2f}%; measured/CRB {out[label][0] / crb:.2f}; "
+              f"{failed} failed fits)")
+    ss, ts, cs = out["one run per axis, each axis' design"]
+    for label in [k for k in out if k.startswith("one run,")]:
+        sj, tj, cj = out[label]
         need = tj * (sj / ss) ** 2  # std falls as 1/sqrt(flight time): runs of the joint design to match
-        crb_need = tj * (cj / cs) ** 2
-        print(f"DONE-WHEN multi-axis (S 61, {how}): one simultaneous run reaches one-run-per-axis' median std in "
-              f"{need:.1f} s = {100 * need / ts:.0f}% of their {ts:.0f} s (<= 60%: "
-              f"{'PASS' if need <= 0.6 * ts else 'FAIL'}); predicted (CRB) {100 * crb_need / ts:.0f}%")
-
-
-def information_only(all_inputs: bool):
-    """Multi-axis design against one run per axis at equal total flight time, by the Fisher
-    information (det^(1/p) per second), on the BO 105 (both cyclics; with ``all_inputs`` also its
-    four inputs)."""
-    print("\n=== information per second of flight (det M^(1/p) / s), one run vs one run per axis: BO 105 ===")
-    model = LinearModel(load_profile("bo105_70kt"))
-    sets = [["theta_s", "theta_c"]] + ([list(model.profile.input_names)] if all_inputs else [])
-    for inputs in sets:
-        ev = Evaluator(model, inputs, RECORD, DT)
-        joint = _design(model, inputs, quick=True)
-        singles = [_design(model, i, quick=True).signals_ for i in inputs]
-        Mj = equal_peak_information(ev, joint.signals_)
-        Ms = sum(equal_peak_information(ev, s) for s in singles)
-        p = ev.p
-        rj, rs = np.exp(log_det(Mj) / p) / RECORD, np.exp(log_det(Ms) / p) / (RECORD * len(inputs))
-        frac = rs / rj  # flight time for the same det^(1/p) (information grows with time), over theirs
-        print(f"BO 105 {'/'.join(inputs)}: one run {rj:.4g}, one run per axis {rs:.4g} per s (x{rj / rs:.2f}): "
-              f"one run reaches the separate runs' information in {100 * frac:.0f}% of their flight time "
-              f"(smaller searches)")
+        print(f"{'DONE-WHEN' if 'designed for' in label else '         '} multi-axis ({model.profile.name.split(',')[0]}, "
+              f"{label[9:]}): one simultaneous run reaches one-run-per-axis' median std in {need:.1f} s = "
+              f"{100 * need / ts:.0f}% of their {ts:.0f} s (<= 60%: {'PASS' if need <= 0.6 * ts else 'FAIL'}); "
+              f"predicted (CRB) {100 * tj * (cj / cs) ** 2 / ts:.0f}%")
+    return out
 
 
 def parser():
@@ -220,8 +210,11 @@ def parser():
     ap.add_argument("--truth", type=positive, default=0.8, help="truth = a priori frequencies x this (default 0.8)")
     ap.add_argument("--quick-design", action="store_true", help="smaller design searches (4 restarts of 400)")
     ap.add_argument("--cases", default=",".join(n for n, _ in CASES), help="profiles of part 1 (comma-separated)")
-    ap.add_argument("--no-multi", action="store_true", help="skip parts 2 and 3")
-    ap.add_argument("--bo105-all", action="store_true", help="part 3 also with the BO 105's four inputs (slow)")
+    ap.add_argument("--multi", default="s61,bo105,hover4",
+                    help=f"part 2's cases, comma-separated ({', '.join(MULTI)}; empty: none)")
+    ap.add_argument("--multi-mc", type=count, help="part 2's realisations (default --mc)")
+    ap.add_argument("--multi-quick", action="store_true", help="part 2 with the smaller design searches")
+    ap.add_argument("--shared", action="store_true", help="part 2 also with the design made with the limits shared")
     return ap
 
 
@@ -231,9 +224,8 @@ def main(argv=None):
     for name, inp in CASES:
         if name in args.cases.split(","):
             one_axis(name, inp, args.mc, args.truth, args.quick_design)
-    if not args.no_multi:
-        multi_axis(args.mc, args.truth, True)
-        information_only(args.bo105_all)
+    for key in filter(None, args.multi.split(",")):
+        multi_axis(key, args.multi_mc or args.mc, args.truth, args.multi_quick, args.shared)
     print(f"\nbenchmark took {time.perf_counter() - t0:.0f} s")
 
 

@@ -100,6 +100,10 @@ def _rows(objective, m: int) -> np.ndarray:
     objective (its stride), over its limit, per unit level. With a fixed amplitude A the objective
     checks the limits on the a priori only: its outputs times A, and the levels' box |l_k| <= 1."""
     A = objective.Yk[m if objective.amplitude is None else 0].T  # (samples x limited outputs, K)
+    axes = getattr(objective, "axes", None)
+    if axes:  # equal per-input peak response: each input's own response within the limits
+        K = objective.K
+        A = np.vstack([A * (np.arange(A.shape[1]) // K == a) for a in range(axes)])
     A = A[np.abs(A).max(axis=1) > 0]
     if objective.amplitude is not None:
         A = np.vstack([A * objective.amplitude, np.eye(A.shape[1])])

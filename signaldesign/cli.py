@@ -13,7 +13,7 @@ from .band import plot_band, required_band
 from .phases import PHASES
 from .baselines import make_signal
 from .compare import MIN_WIDTH, default_limits, information_per_second, reference_of, tuned_baselines, yardsticks
-from .design import CRITERIA, SequenceDesign
+from .design import CRITERIA, PEAKS, SequenceDesign
 from .evaluate import Evaluator, band_coverage, check_record, format_scores
 from .robust import evaluation_set
 from .information import default_noise, format_noise
@@ -73,7 +73,8 @@ def _designer(inputs, args, progress=None) -> SequenceDesign:
                           args.max_changes, not args.no_double_jumps, args.criterion,
                           reference_amplitude=args.reference_amplitude, seed=args.seed, progress=progress,
                           jobs=getattr(args, "jobs", None), certify=getattr(args, "certify", "full"),
-                          prior=bool(getattr(args, "with_prior", False) or getattr(args, "prior_relative", None)))
+                          prior=bool(getattr(args, "with_prior", False) or getattr(args, "prior_relative", None)),
+                          peak=getattr(args, "peak", "shared"))
 
 
 def cmd_design(args) -> int:
@@ -103,8 +104,10 @@ def cmd_design(args) -> int:
             single = _designer([i], args)
             single.limits, single.certify = designer.limits, "quick"  # its certificate is not printed
             singles.append(single.fit(model).signals_)
-        joint, separate = information_per_second(ev, designer.signals_, singles, args.record)
-        print(f"information per second of flight (det M^(1/p) / s): {joint:.4g} with the axes in one run, "
+        joint, separate = information_per_second(ev, designer.signals_, singles, args.record,
+                                                 per_input=designer.peak == "per-input")
+        print(f"information per second of flight (det M^(1/p) / s): {joint:.4g} with the axes in one run"
+              f"{' (each input at its own peak response)' if designer.peak == 'per-input' else ''}, "
               f"{separate:.4g} with one run per axis (x{joint / separate:.2f})")
     if args.out:
         save_signals(designer.signals_, args.out)
@@ -248,6 +251,10 @@ def build_parser() -> Parser:
     p.add_argument("--jobs", type=positive_int, metavar="N",
                    help="worker processes for the search's restarts (default: the available CPUs, at most "
                         "the restarts); the design is the same for any N")
+    p.add_argument("--peak", choices=PEAKS, default="shared",
+                   help="several inputs: shared (default: the run's whole response within the limits) or "
+                        "per-input (each input as large as its own response, alone, allows, as in a run of its "
+                        "own; the responses add)")
     p.add_argument("--certify", choices=("full", "quick"), default="full",
                    help="the certificate's upper bound: full (default; the semidefinite relaxation solved to "
                         "within a few log det units, about 10-40 s per model) or quick (valid, looser, seconds)")

@@ -14,6 +14,7 @@ orthogonal multisines, and a PRTS rotated by a third of its period on the second
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 
@@ -147,14 +148,27 @@ def equal_peak_information(ev: Evaluator, signals) -> np.ndarray:
     return ev.information(signals) / r ** 2
 
 
-def information_per_second(ev: Evaluator, joint, separate, record: float) -> tuple[float, float]:
+def per_input_peak(ev: Evaluator, signals) -> list:
+    """The signals of one run each scaled so that its own response, alone, has its largest output
+    peak / limit at 1 (as in a run of its own; together the responses add)."""
+    out = []
+    for s in signals:
+        r, _ = ev.response([s] + [replace(o, amplitude=0.0) for o in signals if o is not s])
+        out.append(replace(s, amplitude=s.amplitude / r))
+    return out
+
+
+def information_per_second(ev: Evaluator, joint, separate, record: float,
+                           per_input: bool = False) -> tuple[float, float]:
     """D-optimal information per second of flight, det(M)^(1/p) / time: the ``joint`` signals
     flown in one run of ``record`` s, against each of ``separate`` (one signal list per run) flown
     in its own run (their informations add; the time is one record per run). Every run is at
-    equal peak response, so the limits are shared within a run."""
+    equal peak response, so the limits are shared within a run; with ``per_input`` the joint run
+    has each input at its own equal peak response (:func:`per_input_peak`)."""
     from .information import log_det
 
     p = ev.p
-    joint_rate = np.exp(log_det(equal_peak_information(ev, joint)) / p) / record
+    Mj = ev.information(per_input_peak(ev, joint)) if per_input else equal_peak_information(ev, joint)
+    joint_rate = np.exp(log_det(Mj) / p) / record
     M = sum(equal_peak_information(ev, s) for s in separate)
     return float(joint_rate), float(np.exp(log_det(M) / p) / (record * len(separate)))

@@ -26,12 +26,13 @@ from .bound import EFFORTS, objective_bound
 from .compare import width_grid, tune, default_limits, yardsticks
 from .evaluate import DesignError, Evaluator, check_record
 from .flyable import LEVELS, Flyability, count_sequences, enumerate_sequences  # noqa: F401 (re-exported)
-from .quadform import Objective, StepBasis
+from .quadform import Objective, PerInputObjective, StepBasis
 from .robust import design_set
 from .search import SearchResult, anneal, exhaustive, polish  # noqa: F401 (re-exported)
 from .workers import check_jobs
 
 CRITERIA = ("robust", "mean", "worst", "nominal")
+PEAKS = ("shared", "per-input")
 
 
 PLAUSIBLE_CONTROL = np.radians(20.0)  # rad: beyond this a control deflection is no small test input
@@ -72,7 +73,12 @@ class SequenceDesign:
     ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`). The search:
     ``restarts`` annealing runs of ``n_iter`` proposals, each polished, then ``kicks`` rounds of
     iterated local search from the best restarts (:func:`~signaldesign.search.anneal`);
-    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``jobs`` worker processes
+    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``spread_efficiency_``:
+    the worst restart's D-efficiency over the best's; the summary says whether the restarts agree
+    within ``agreement`` (a D-efficiency fraction) or not.
+    ``peak``: with several inputs, ``shared`` (the run's whole response within the limits, one
+    amplitude) or ``per-input`` (each input as large as its own response, alone, allows, as in a
+    run of its own; the responses add; :class:`~signaldesign.quadform.PerInputObjective`). ``jobs`` worker processes
     run the restarts (default: the available CPUs, at most ``restarts``); the design is the same
     for any number. ``certify``: the upper bound's effort, ``quick`` (default: valid, looser,
     seconds) or ``full`` (``signaldesign design``'s default: a few log det units from the
@@ -96,7 +102,8 @@ class SequenceDesign:
                  n_iter: int = 1000, restarts: int = 10, seed: int = 0, noise_std=None, delay: float = 0.0,
                  progress=None, apriori_weight: float = 0.5, worst_weight: float = 1.0, softness: float = 0.0,
                  draws: int = 2, extreme_draws: int = 3, nominal_margin: float | None = 1.22, kicks: int = 20,
-                 nominal_kicks: int = 20, jobs: int | None = None, prior: bool = False, certify: str = "quick"):
+                 nominal_kicks: int = 20, jobs: int | None = None, prior: bool = False, certify: str = "quick",
+                 peak: str = "shared", agreement: float = 0.01):
         self.inputs = [inputs] if isinstance(inputs, str) else list(inputs)
         self.duration, self.record, self.amplitude, self.dt = duration, record, amplitude, dt
         self.grid, self.min_pulse, self.max_changes = grid, min_pulse, max_changes
@@ -108,7 +115,8 @@ class SequenceDesign:
         self.apriori_weight, self.worst_weight, self.softness = apriori_weight, worst_weight, softness
         self.draws, self.extreme_draws, self.nominal_margin = draws, extreme_draws, nominal_margin
         self.kicks, self.nominal_kicks, self.jobs, self.certify = kicks, nominal_kicks, jobs, certify
-        self.prior = prior
+        self.prior, self.peak = prior, peak
+        self.agreement = agreement
 
     # -- validation ---------------------------------------------------------------------------------
     def n_steps(self) -> int:
@@ -132,6 +140,10 @@ class SequenceDesign:
         self._jobs()
         if self.criterion not in CRITERIA:
             raise DesignError(f"unknown criterion '{self.criterion}' ({', '.join(CRITERIA)})")
+        if self.peak not in PEAKS:
+            raise DesignError(f"unknown peak rule '{self.peak}' ({', '.join(PEAKS)})")
+        if self.peak == "per-input" and self.amplitude is not None:
+            raise DesignError("per-input peak response makes every input's amplitude an outcome: leave the amplitude free")
         if self.certify not in EFFORTS:
             raise DesignError(f"unknown certificate effort '{self.certify}' ({', '.join(EFFORTS)})")
         if self.amplitude is not None:
@@ -161,7 +173,7 @@ class SequenceDesign:
         models, labels = self._model_set(model)
         basis = StepBasis(ev, self.grid, K, self.delay, models)
         offsets = None
-        if self.criterion in ("worst", "robust"):
+        if self.criterion in ("worst", "robust") and not self._per_input():
             yard = Evaluator(model, self.inputs, self.record, self.dt, self.noise_std, models=models,
                              limits=dict(zip(model.profile.outputs, ev.limits)))
             offsets = yardsticks(yard, self.duration, self.min_pulse, jobs=self._jobs()).yardstick_log_dets
@@ -169,25 +181,37 @@ class SequenceDesign:
         if self.amplitude is not None and np.ptp(np.atleast_1d(self.amplitude)) > 0:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
         starts, classic = self._starts(ev, basis)
+        kind = PerInputObjective if self._per_input() else Objective
+        if self._per_input():  # the classic inputs scored as the design is: each input at its own peak
+            classic = [float(kind(basis, "nominal", stride=1)(s)) for s in starts]
+            if self.criterion in ("worst", "robust"):  # each model's yardstick: the 3211 flown by that rule
+                if not starts:
+                    raise DesignError(f"duration {self.duration:g} s is too short for the 3211 yardstick of "
+                                      f"{self.min_pulse:g} s pulses")
+                offsets = kind(basis, "mean", stride=1).terms(starts[0])
         floor = None
         if self.criterion == "robust":
             # the nominal optimum seeds the robust search; the floor keeps the robust design at least
             # ``nominal_margin`` times as informative as the best tuned classic input on the a priori
-            nominal = Objective(basis, "nominal", amplitude=amp, stride=2)
+            nominal = kind(basis, "nominal", amplitude=amp, stride=2)
             best, _ = self._search(nominal, fly, starts, n_iter=2 * self.n_iter, kicks=self.nominal_kicks)
             starts = [best.levels] + starts
             if self.nominal_margin is not None and amp is None:
                 floor = max(classic) - offsets[0] + basis.evaluator.p * float(np.log(self.nominal_margin))
-        objective = Objective(basis, self.criterion, amplitude=amp, offsets=offsets,
+        objective = kind(basis, self.criterion, amplitude=amp, offsets=offsets,
                               weights=prior_weights(len(models), self.apriori_weight),
                               worst_weight=self.worst_weight, softness=self.softness, nominal_floor=floor,
                               stride=2, prior_information=prior_information)
         result, gap = self._search(objective, fly, starts)
         amplitude, r0 = objective.feasible_amplitude(result.levels)
         if not r0 > 0:
-            raise DesignError("the designed sequence moves no output that has a response limit")
-        peaks = basis.peaks(result.levels) * amplitude
-        ratios = peaks / ev.limits
+            raise DesignError("the designed sequence moves no output that has a response limit"
+                              + (" on one of its inputs" if self._per_input() else ""))
+        flown = self._flown(basis, result.levels, amplitude)
+        peaks = basis.peaks(flown)
+        # per input: each input alone within the limits (together the responses add)
+        ratios = (np.max([basis.peaks(self._flown(basis, result.levels, amplitude, axis=a))
+                          for a in range(len(self.inputs))], axis=0) if self._per_input() else peaks) / ev.limits
         if ratios.max() > 1 + 1e-9:
             i = int(np.argmax(ratios))
             y = model.profile.outputs[i]
@@ -204,7 +228,7 @@ class SequenceDesign:
             self.gap_ = gap if gap is not None else max(0.0, self.bound_.value - exact(result.levels))
         else:  # the relaxation's bound rests on log det's scale invariance, which the prior breaks
             self.bound_, self.gap_ = None, gap if gap is not None else float("nan")
-        self.levels_, self.amplitude_ = result.levels, np.full(len(self.inputs), amplitude)
+        self.levels_, self.amplitude_ = result.levels, np.broadcast_to(amplitude, (len(self.inputs),)).copy()
         self.peaks_, self.limits_ = peaks, ev.limits
         self.binding_ = model.profile.outputs[int(np.argmax(ratios))]
         self.implausible_ = implausible_amplitudes(model.profile, self.inputs, self.amplitude_)
@@ -212,18 +236,32 @@ class SequenceDesign:
             warnings.warn(line, stacklevel=2)
         self.result_, self.basis_, self.evaluator_, self._objective_ = result, basis, ev, objective
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
-        self.nominal_gain_ = float(np.exp((ev.equal_peak_log_det(basis.signals(result.levels, amplitude))
-                                           - max(classic)) / ev.p)) if classic else float("nan")
+        nominal_ld = (kind(basis, "nominal", stride=1)(result.levels) if self._per_input()
+                      else ev.equal_peak_log_det(basis.signals(result.levels, amplitude)))
+        self.nominal_gain_ = float(np.exp((nominal_ld - max(classic)) / ev.p)) if classic else float("nan")
         self.models_, self.model_labels_ = models, labels
         self.width_ = self.grid
         params = {"criterion": self.criterion, "method": result.method, "duration": self.duration,
                   "record": self.record, "grid": self.grid, "min_pulse": self.min_pulse,
-                  "max_changes": self.max_changes, "binding_limit": self.binding_,
+                  "max_changes": self.max_changes, "binding_limit": self.binding_, "peak": self.peak,
+                  "restarts_spread": float(np.ptp(result.trace)) if result.trace else 0.0,
                   "units": {i: model.profile.inputs[i] for i in self.inputs}}
         self.signals_ = basis.signals(result.levels, amplitude, params=params)
         self.seconds_ = time.perf_counter() - t0
         self.cpu_seconds_ = _cpu_seconds() - c0  # this process and its workers: the machine may be shared
         return self
+
+    def _per_input(self) -> bool:
+        return self.peak == "per-input" and len(self.inputs) > 1
+
+    @staticmethod
+    def _flown(basis, levels, amplitude, axis=None) -> np.ndarray:
+        """Levels times each axis' amplitude (``axis``: that axis alone, the others at rest)."""
+        K = basis.n_steps
+        scale = np.repeat(np.broadcast_to(np.asarray(amplitude, float), (len(basis.inputs),)), K)
+        if axis is not None:
+            scale = scale * (np.arange(scale.size) // K == axis)
+        return np.asarray(levels, float) * scale
 
     def _prior_information(self, model, ev) -> np.ndarray | None:
         """With ``prior``: the profile's prior information ``diag(1 / std^2)`` over the scored
@@ -290,16 +328,18 @@ class SequenceDesign:
             lines.append(f"optimised levels on {s.input} ({s.dt:g} s grid, {_changes(s.levels)} changes): "
                          + " ".join(f"{int(v):+d}" for v in s.levels))
         lines.append(f"amplitude {', '.join(f'{a:.4g}' for a in self.amplitude_)} "
-                     f"({'fixed' if self.amplitude is not None else 'outcome: the largest within the limits'}); "
+                     f"({'fixed' if self.amplitude is not None else self._amplitude_rule()}); "
                      f"limits: {self.evaluator_.limits_source}")
         cells = [f"{y} {pk:.3g}/{lim:.3g}" + (" BINDS" if y == self.binding_ else "")
                  for y, pk, lim in zip(p.outputs, self.peaks_, self.limits_) if np.isfinite(lim)]
-        lines.append("peak response / limit on the a priori: " + ", ".join(cells))
+        whole = " (the run's whole response: the inputs' add; BINDS: at its limit under one input alone)"
+        lines.append("peak response / limit on the a priori" + (whole if self._per_input() else "") + ": "
+                     + ", ".join(cells))
         lines += [f"WARNING: {line}" for line in self.implausible_]
         res = self.result_
         how = ("exhaustive: exact optimum among flyable sequences" if res.method == "exhaustive" else
                f"annealing, {len(res.trace)} restarts ending within {max(res.trace) - min(res.trace):.3f} "
-               f"of each other in the criterion")
+               f"of each other in the criterion ({self._agreement_text()})")
         if self.prior:
             how += "; the criterion: log det of the prior's information plus the flight's at the amplitude flown"
         floor = (f", floor {self.nominal_margin:g}x" if self.criterion == "robust" and self.nominal_margin
@@ -311,6 +351,23 @@ class SequenceDesign:
                      f"{res.evaluations} candidates scored in {self.seconds_:.1f} s")
         lines.append(self.certificate())
         return "\n".join(lines)
+
+    @property
+    def spread_efficiency_(self) -> float:
+        """The worst restart's D-efficiency relative to the best restart's (1: every restart agrees)."""
+        spread = max(self.result_.trace) - min(self.result_.trace)
+        return float(np.exp(-spread / (self.evaluator_.p * self._weight())))
+
+    def _agreement_text(self) -> str:
+        eff = self.spread_efficiency_
+        verdict = ("they agree" if eff >= 1 - self.agreement - 1e-12 else
+                   f"they DISAGREE beyond {100 * self.agreement:g} %: a better optimum may exist")
+        return f"the worst restart reaches D-efficiency {eff:.3f} of the best; {verdict}"
+
+    def _amplitude_rule(self) -> str:
+        if self._per_input():
+            return "outcome: each input the largest its own response, alone, allows (equal per-input peak response)"
+        return "outcome: the largest within the limits"
 
     def certificate(self) -> str:
         """One line: the D-efficiency the design is certified to reach relative to the optimum, from

@@ -310,6 +310,11 @@ class Objective:
         M, y = self._candidate(levels)
         return self._value(M, self.ratios(y))
 
+    def terms(self, levels) -> np.ndarray:
+        """Each model's term (m,) of ``levels``, offsets subtracted (scored from scratch)."""
+        M, y = self._state(np.asarray(levels, float))[2:]
+        return self.per_model(M, self.ratios(y))
+
     def batch(self, L: np.ndarray, chunk: int = 2048) -> np.ndarray:
         """Objective of many candidates L (C, Ktot)."""
         self.evaluations += len(L)
@@ -326,3 +331,116 @@ class Objective:
         """(amplitude flown, r_0 at unit amplitude) for a final sequence."""
         r0 = float(((np.abs(self.Y[0] @ np.asarray(levels, float)).max(axis=0)) * self.inv_limits).max())
         return (self.amplitude if self.amplitude is not None else 1.0 / r0), r0
+
+
+class PerInputObjective(Objective):
+    """The criterion of a multi-axis run at equal per-input peak response: each input flown as
+    large as its own response, alone, allows (its largest output peak / limit at 1, as in a run of
+    its own), so the inputs' responses add in the run. Per model m and axis a the scale is
+    ``s_a = 1 / r_ma(l_a)`` and the information ``sum_ab s_a s_b M_ab(l)``, with ``M_ab`` the
+    block of the quadratic form between axes a and b. Free amplitude only (a fixed amplitude is
+    already one per input). The low-rank update keeps the blocks and, per axis b, ``V^b_k = sum_{j
+    in b} G_kj l_j``: a proposal changes one axis c, so it moves the blocks of row and column c."""
+
+    def __init__(self, basis: StepBasis, criterion: str = "mean", **kw):
+        if kw.get("amplitude") is not None:
+            raise DesignError("per-input peak response needs a free amplitude (a fixed one is the same on every input)")
+        super().__init__(basis, criterion, **kw)
+        self.axes, self.K = len(basis.inputs), basis.n_steps
+
+    def _axis_y(self, levels):
+        """Outputs over limits per axis (m, axes, X)."""
+        K = self.K
+        return np.stack([np.matmul(levels[a * K:(a + 1) * K], self.Yk[:, a * K:(a + 1) * K])
+                         for a in range(self.axes)], axis=1)
+
+    def _state(self, levels):
+        """(levels, V (m, axes, Ktot, p, p) per axis of j, blocks (m, axes, axes, p, p), y)."""
+        K = self.K
+        V = np.stack([np.einsum("mkjab,j->mkab", self.G[:, :, b * K:(b + 1) * K], levels[b * K:(b + 1) * K])
+                      for b in range(self.axes)], axis=1)
+        B = np.stack([np.einsum("k,mbkxy->mbxy", levels[a * K:(a + 1) * K], V[:, :, a * K:(a + 1) * K])
+                      for a in range(self.axes)], axis=1)
+        return levels.copy(), V, B, self._axis_y(levels)
+
+    def commit(self) -> None:
+        if self._last is None:
+            return
+        levels, idx, d, B, y, fresh = self._last
+        if fresh is not None:
+            V = fresh
+        else:
+            V = self._base[1]
+            if idx.size:
+                c = int(idx[0]) // self.K
+                m = V.shape[0]
+                dV = np.matmul(d, self.G[:, idx].reshape(m, idx.size, -1)).reshape(V[:, c].shape)
+                V[:, c] += dV.transpose(0, 1, 3, 2)
+        self._base = (levels, V, B, y)
+
+    def _candidate(self, levels):
+        if self._base is not None:
+            l0, V, B0, y0 = self._base
+            idx = np.flatnonzero(levels != l0)
+            if idx.size == 0:
+                self._last = (levels.copy(), idx, idx.astype(float), B0, y0, None)
+                return B0, y0
+            c = int(idx[0]) // self.K
+            if int(idx[-1]) // self.K == c and idx.size <= max(2, self.K // 3):
+                d = (levels - l0)[idx]
+                m, p = B0.shape[0], B0.shape[-1]
+                # row c of the blocks: d . V^b over the changed steps, for every axis b
+                Vi = np.matmul(d, V[:, :, idx].reshape(m, self.axes, idx.size, p * p)).reshape(m, self.axes, p, p)
+                Gii = self.G[:, idx[:, None], idx[None, :]]
+                dGd = np.matmul(d, np.matmul(d, Gii.reshape(m, idx.size, idx.size, p * p))).reshape(m, p, p)
+                B = B0.copy()
+                B[:, c] += Vi
+                B[:, :, c] += Vi.transpose(0, 1, 3, 2)
+                B[:, c, c] += dGd
+                y = y0.copy()
+                y[:, c] += np.matmul(d, self.Yk[:, idx])
+                self._last = (levels.copy(), idx, d, B, y, None)
+                return B, y
+        _, V, B, y = self._state(levels)
+        self._last = (levels.copy(), None, None, B, y, V)
+        return B, y
+
+    def scales(self, y) -> np.ndarray:
+        """1 / each axis' own largest peak over limit (m, axes); 0 for an axis at rest."""
+        r = np.abs(y).max(axis=2)
+        with np.errstate(divide="ignore"):
+            return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
+
+    def _value(self, B, y) -> float:
+        return self.combine(self._terms(B, y))
+
+    def _terms(self, B, y) -> np.ndarray:
+        s = self.scales(y)
+        M = np.einsum("ma,mb,mabxy->mxy", s, s, B)
+        return self.per_model(M, np.ones(M.shape[0]))
+
+    def terms(self, levels) -> np.ndarray:
+        B, y = self._state(np.asarray(levels, float))[2:]
+        return self._terms(B, y)
+
+    def __call__(self, levels) -> float:
+        levels = np.asarray(levels, dtype=float)
+        self.evaluations += 1
+        B, y = self._candidate(levels)
+        return self._value(B, y)
+
+    def batch(self, L: np.ndarray, chunk: int = 2048) -> np.ndarray:
+        saved = self._base
+        out = np.empty(len(L))
+        for i, levels in enumerate(np.asarray(L, float)):
+            self._base = None
+            out[i] = self(levels)
+        self._base = saved
+        return out
+
+    def feasible_amplitude(self, levels):
+        """(amplitude flown per axis (axes,), the largest axis' r_0 at unit amplitude)."""
+        levels, K = np.asarray(levels, float), self.K
+        r = np.array([(np.abs(self.Y[0][:, :, a * K:(a + 1) * K] @ levels[a * K:(a + 1) * K]).max(axis=0)
+                       * self.inv_limits).max() for a in range(self.axes)])
+        return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0), float(r.min())

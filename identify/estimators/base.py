@@ -213,7 +213,7 @@ class Estimator:
         return type(self)(**params)
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True) -> "Estimator":
+               bounds: bool = True, advice: bool = True) -> "Estimator":
         return self.clone(profile)
 
     def prediction_segment(self, model, duration: float) -> float:

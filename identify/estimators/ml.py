@@ -24,8 +24,11 @@ Morelli & Klein's correction for coloured residuals in output error::
     Cov = M^-1 [ sum over outputs y and segments s of J_ys^T T_y J_ys ] M^-1
 
 ``J_ys`` the whitened sensitivities of output y over segment s, ``T_y`` the Toeplitz matrix of the
-autocorrelation of output y's whitened noise, pooled over all runs and segments (segments and
-outputs taken as independent of each other), estimated from the residuals' autocorrelation with
+autocorrelation of output y's whitened noise in the run of segment s, pooled over that run's
+segments (segments and outputs taken as independent of each other; each run its own, as runs
+flown on different axes leave residuals of different size: with one pooled over an S 61 fit of
+one run per cyclic the bounds were 0.3-1.6x the spread over realisations, with one per run
+0.7-1.5x, tests/identify/estimators/test_ml_runs_noise.py), estimated from the residuals' autocorrelation with
 the part the fit itself removes added back (it matters for short segments with many unknowns;
 :meth:`identify.estimators.output_error.OutputError.coloured_information`). Computed once, after convergence, by
 FFT (:mod:`identify.estimators.colour`, as the equation-error estimators do); the iteration itself is the
@@ -78,6 +81,8 @@ class ML(Estimator):
     and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``:
     ``"relax"`` (estimate R) or the measurement-noise
     covariance, (ny,) variances or (ny, ny), in output units squared.
+    ``advice``: the colour note ``info["estimator_advice"]`` when the residuals are strongly
+    coloured (its cause test fits ~100 least-squares FIRs; refine skips it for its candidates' fits).
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
     negative log-likelihood ``cost`` (constant terms dropped); ``verbose`` prints the same.
 
@@ -94,8 +99,8 @@ class ML(Estimator):
     corrected for coloured residuals (Morelli & Klein, see the module notes; default True) or the
     plain Cramér-Rao bounds ``M^-1`` (False, which skips the correction's cost). With True both
     are in ``info["std_coloured"]`` and ``info["std_white"]`` (theta only);
-    ``info["noise_autocorrelation"]`` (L, ny) is the pooled whitened noise autocorrelation per
-    output behind the correction, lag 0 first.
+    ``info["noise_autocorrelation"]`` (L, ny) is the whitened noise autocorrelation per output
+    behind the correction (the runs' averaged, weighted by their samples), lag 0 first.
     """
 
     method = "ml"
@@ -106,19 +111,21 @@ class ML(Estimator):
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
-                 verbose: bool = False, x0: dict | None = None):
+                 verbose: bool = False, x0: dict | None = None, advice: bool = True):
         super().__init__(profile)
         self.segment, self.max_iter, self.tol = segment, max_iter, tol
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.noise_cov, self.coloured = noise_cov, coloured
-        self.progress, self.verbose, self.x0 = progress, verbose, x0
+        self.progress, self.verbose, self.x0, self.advice = progress, verbose, x0, advice
         self.covariance_ = self.problem_ = self.beta_ = None
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True) -> "ML":
+               bounds: bool = True, advice: bool = True) -> "ML":
         """Refine's nested fit: the loop's zero shifts and segments (so that likelihoods before and
-        after an added effect compare); without ``bounds`` the coloured-residual correction is skipped."""
-        return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds)
+        after an added effect compare); without ``bounds`` the coloured-residual correction is
+        skipped, without ``advice`` the colour note (a candidate's fit needs neither)."""
+        return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds,
+                          advice=self.advice and advice)
 
     def prediction_segment(self, model: LinearModel, duration: float) -> float:
         """Its own ``segment`` if given, else the automatic choice for ``model`` (multiple shooting
@@ -236,9 +243,9 @@ class ML(Estimator):
             "noise_autocorrelation": acf,
             "colour_passes": passes,
             "whiteness": whiteness([z - y for z, y in zip(measured, modelled)], list(p.outputs)),
-            "estimator_advice": colour_advice(std_white[:P], None if std_col is None else std_col[:P],
-                                              lambda: follows_inputs([z - y for z, y in zip(measured, modelled)],
-                                                                     u, prob.dt, list(p.outputs))),
+            "estimator_advice": None if not self.advice else colour_advice(
+                std_white[:P], None if std_col is None else std_col[:P],
+                lambda: follows_inputs([z - y for z, y in zip(measured, modelled)], u, prob.dt, list(p.outputs))),
             "wall_time": wall,
         }
         if prior is not None:

@@ -145,7 +145,10 @@ class GustModel:
         fit, refine's nested ones, start there)."""
         t = dict(self.profile.turbulence)
         if self.corners:
-            t["corner_start"] = {s: float(theta[self.augmented.free_names.index(c)]) for s, c in self.corners.items()}
+            # a corner fitted to zero or below is not determined (said with the result): the next
+            # fit starts where this one did, not at a value the profile cannot hold
+            fitted = {s: float(theta[self.augmented.free_names.index(c)]) for s, c in self.corners.items()}
+            t["corner_start"] = {s: w if 0 < w < math.inf else self.held_start(s) for s, w in fitted.items()}
         t["intensity"] = {s: max(abs(float(f[g])), 1e-12) for s, g in self.gusts.items()}
         return t
 

@@ -120,11 +120,11 @@ class Refine:
         # a priori values: before spending a fit on it
         check_identifiable(self.declared_, prepare(self.declared_, runs), self.zero_shifts, self.segment_)
         self._say(f"fitting the declared model ({len(self.declared_.free)} parameters, {len(runs)} runs)")
-        current, est = self.fitting_.refit(self.declared_, self.declared_)
+        current, est = self.fitting_.refit(self.declared_, self.declared_, advice=True)
         if self._segment(runs, current) < self.segment_:  # the fit diverges faster than the a priori
             self.segment_ = self.fitting_.segment = self._segment(runs, current)
             self._say(f"the fitted model diverges faster: segments cut to {self.segment_:.3g} s, re-fitting")
-            current, est = self.fitting_.refit(self.declared_, self.declared_)
+            current, est = self.fitting_.refit(self.declared_, self.declared_, advice=True)
         self.initial_result_ = est
         if est.info.get("estimator_advice"):  # output error on strongly coloured residuals
             self._say(f"note: {est.info['estimator_advice']}; refine --method fem tests in the innovations' metric")

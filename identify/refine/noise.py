@@ -139,12 +139,24 @@ class NoiseModel:
 
     def _whiten(self, x: np.ndarray) -> np.ndarray:
         s = self.sigma.reshape((1, -1) + (1,) * (x.ndim - 2))
-        z = x / s
         p, N = self.order, len(x)
-        out = z[p:].copy()
+        if x.ndim == 2:
+            z = x / s
+            out = z[p:].copy()
+            for k in range(1, p + 1):
+                out -= z[p - k:N - k] @ self.A[k - 1].T
+            return out @ self.L_inv.T
+        # columns (N, ny, K): outputs first, time and columns flattened, so that each lag is one
+        # matrix product over a contiguous window (a tensordot per lag transposed the block each
+        # time: 60 % of a score round on the 8-state, 11-output helicopter)
+        shape = x.shape
+        z = np.ascontiguousarray(np.moveaxis(x / s, 1, 0).reshape(shape[1], -1))
+        width = z.shape[1] // N  # columns per sample
+        out = z[:, p * width:].copy()
         for k in range(1, p + 1):
-            out -= _on_outputs(self.A[k - 1], z[p - k:N - k])
-        return _on_outputs(self.L_inv, out)
+            out -= self.A[k - 1] @ z[:, (p - k) * width:(N - k) * width]
+        out = self.L_inv @ out
+        return np.moveaxis(out.reshape((shape[1], N - p) + shape[2:]), 0, 1)
 
     def effective_dof(self, columns: list[np.ndarray]) -> float:
         """Degrees of freedom of this model's estimate of the noise variance along ``columns``
@@ -229,13 +241,6 @@ class NoiseModel:
 
     def to_dict(self) -> dict:
         return {"order": self.order, "sigma": self.sigma.tolist()}
-
-
-def _on_outputs(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``M`` (ny, ny) applied along axis 1 of ``x`` (N, ny, ...)."""
-    if x.ndim == 2:
-        return x @ M.T
-    return np.moveaxis(np.tensordot(M, x, axes=([1], [1])), 0, 1)
 
 
 def _logdet(S: np.ndarray) -> float:

@@ -165,15 +165,15 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
     sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals], base_w, sigma=np.ones(len(noise.sigma)))
     J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
     out = []
-    base = None  # the model's and nuisance columns unwhitened, for the F tests' dof (built once)
+    base = None  # the model's and nuisance columns unwhitened and their whitened ones in sb's basis (built once)
     for (c, cols), (stat, q) in zip(groups, sb.statistics(J, [[where[k] for k in cols] for _, cols in groups])):
         if q == 0:
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
         nu = math.inf
         if metric == "alternative" or c.removed_by_noise_fit:
-            base = dg.block_design([d[:, :, :nb] for d in dy], nuisance) if base is None else base
-            nu = _noise_dof(noise, sb, base, base_w, [d[:, :, [nb + k for k in cols]] for d in dy])
+            base = (dg.block_design([d[:, :, :nb] for d in dy], nuisance), sb.Q.T @ base_w) if base is None else base
+            nu = _noise_dof(noise, sb, *base, [d[:, :, [nb + k for k in cols]] for d in dy])
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
@@ -199,13 +199,13 @@ def _threshold(level: float, q: int, nu: float) -> float:
     return float(q * (d + q) / d * stats.f.isf(level, q, d))
 
 
-def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: np.ndarray, base_w: np.ndarray,
+def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: np.ndarray, base_q: np.ndarray,
                columns: list[np.ndarray]) -> float:
     """Degrees of freedom of ``noise``'s level along a candidate's ``columns`` (per run (N_r, ny, q))
-    less their fit, in that metric, on the model's and nuisance columns (``base``, ``base_w``
-    whitened, whose basis is ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
+    less their fit, in that metric, on the model's and nuisance columns (``base``; ``base_q`` the
+    whitened ones in the coordinates of their basis ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
     Jw = np.concatenate([noise.whiten(c).reshape(-1, c.shape[2]) for c in columns])
-    coef = np.linalg.lstsq(sb.Q.T @ base_w, sb.Q.T @ Jw, rcond=None)[0]
+    coef = np.linalg.lstsq(base_q, sb.Q.T @ Jw, rcond=None)[0]
     rest = np.concatenate([c.reshape(-1, c.shape[2]) for c in columns]) - base @ coef
     parts = np.split(rest, np.cumsum([c.shape[0] * c.shape[1] for c in columns])[:-1])
     return noise.effective_dof([r.reshape(c.shape) for r, c in zip(parts, columns)])

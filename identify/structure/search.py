@@ -99,7 +99,7 @@ class StructureSearch:
         if not validate:  # the decisions were taken on half of each run: the final fit uses all of it
             self._say("final fit on every run")
             final = self._fitting(runs, [])
-            self.profile_, self.result_ = final.refit(self.profile_, self.profile_)
+            self.profile_, self.result_ = final.refit(self.profile_, self.profile_, advice=True)
         return self
 
     # -- the stages ---------------------------------------------------------------------------------

@@ -122,6 +122,12 @@ def test_design_respects_flyability_and_limits_and_beats_the_3211_at_equal_peak(
     ev = Evaluator(s61m, "theta_s", 12.0, 0.05)
     best3211 = max(ev.equal_peak_log_det(m3211(w)) for w in np.arange(0.5, 0.75, 0.05))
     assert ev.equal_peak_log_det(d.signals_) > best3211
+    # the restarts' agreement is said (D-efficiency of the worst restart against the best) and recorded
+    spread = max(d.result_.trace) - min(d.result_.trace)
+    assert d.spread_efficiency_ == pytest.approx(np.exp(-spread / d.evaluator_.p))
+    said = "they agree" if spread <= -d.evaluator_.p * np.log(0.99) else "they DISAGREE beyond 1 %"
+    assert said in d.summary() and f"{d.spread_efficiency_:.3f} of the best" in d.summary()
+    assert d.signals_[0].params["restarts_spread"] == pytest.approx(spread)
 
 
 def test_fixed_amplitude_is_flown_or_reported_infeasible(s61m):
@@ -191,7 +197,8 @@ def test_robust_criterion_mixes_mean_and_worst_and_keeps_the_nominal_floor(s61m)
     assert d.nominal_gain_ < d.nominal_margin and "NOT REACHED" in d.summary()
 
 
-@pytest.mark.parametrize("profile", ["s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long"])
+@pytest.mark.parametrize("profile", ["s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long",
+                                     "hover_4input"])
 def test_default_design_on_every_bundled_profile_is_no_plain_step(profile):
     model = LinearModel(load_profile(profile))
     d = SequenceDesign(model.profile.input_names[0], n_iter=200, restarts=1, kicks=4, nominal_kicks=2).fit(model)  # small budget

@@ -170,7 +170,8 @@ class FEM(Estimator):
     builds_state_terms = True  # ... inside each fit (the extended filter): one fit, no settling loop
     progress_quantity = "cost"
 
-    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True) -> "FEM":
+    def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True,
+               advice: bool = True) -> "FEM":
         """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
         return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured if bounds else False)
 

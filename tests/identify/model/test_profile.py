@@ -202,7 +202,7 @@ def test_limits_are_read_validated_and_written_back():
 
 
 def test_every_bundled_profile_limits_every_output():
-    for name in ("s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long"):
+    for name in ("s61_hover_8state", "s61_hover_4dof", "bo105_70kt", "navion_cruise_long", "hover_4input"):
         p = load_profile(name)
         assert set(p.limits) == set(p.outputs), name
 

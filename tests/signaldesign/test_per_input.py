@@ -1,0 +1,90 @@
+"""Several inputs in one run at equal per-input peak response (each input as large as its own
+response allows): the criterion's low-rank updates, its bound, and the design."""
+import itertools
+
+import numpy as np
+import pytest
+
+from identify import LinearModel, load_profile
+from signaldesign.bound import objective_bound
+from signaldesign.design import DesignError, SequenceDesign
+from signaldesign.evaluate import Evaluator
+from signaldesign.quadform import PerInputObjective, StepBasis
+from signaldesign.robust import design_set
+
+INPUTS = ["theta_s", "theta_c"]
+
+
+@pytest.fixture(scope="module")
+def s61m():
+    return LinearModel(load_profile("s61_hover_8state"))
+
+
+def _direct(basis, inv_limits, levels, m):
+    """log det of model m's information with each axis scaled alone to peak/limit 1, from scratch."""
+    K, v = basis.n_steps, np.array(levels, float)
+    for a in range(len(basis.inputs)):
+        alone = np.where(np.arange(v.size) // K == a, levels, 0.0)
+        v[a * K:(a + 1) * K] /= (basis.peaks(alone, m) * inv_limits).max()
+    return np.linalg.slogdet(basis.information(v, m))[1]
+
+
+def test_low_rank_updates_match_the_information_from_scratch(s61m):
+    ev = Evaluator(s61m, INPUTS, record=12.0, dt=0.05)
+    models, _ = design_set(s61m, draws=1, extreme_draws=1)
+    basis = StepBasis(ev, 0.2, 15, models=models[:3])
+    obj = PerInputObjective(basis, "mean")
+    rng = np.random.default_rng(1)
+    levels = rng.integers(-1, 2, 30).astype(float)
+    obj.reset(levels)
+    for trial in range(25):
+        cand = levels.copy()
+        a, k = rng.integers(2), rng.integers(14)
+        cand[a * 15 + k:a * 15 + k + rng.integers(1, 3)] = rng.integers(-1, 2)
+        want = np.mean([_direct(basis, obj.inv_limits, cand, m) for m in range(3)])
+        assert obj(cand) == pytest.approx(want, abs=1e-8)
+        if trial % 3:
+            obj.commit()
+            levels = cand
+
+
+def test_bound_exceeds_every_two_axis_sequence(s61m):
+    ev = Evaluator(s61m, INPUTS, record=8.0, dt=0.05, params=[0, 3, 5, 7])
+    basis = StepBasis(ev, 0.5, 4)
+    obj = PerInputObjective(basis, "nominal")
+    one = [np.array(s, float) for s in itertools.product((-1, 0, 1), repeat=4) if any(s)]
+    values = np.array([obj(np.concatenate([a, b])) for a in one for b in one])
+    best = np.argmax(values)
+    bound = objective_bound(obj, np.concatenate([one[best // len(one)], one[best % len(one)]]))
+    assert np.isfinite(bound.value) and values.max() <= bound.value + 1e-9
+
+
+def test_design_flies_each_input_at_its_own_limit_and_beats_the_shared_design_there(s61m):
+    kw = dict(duration=3.0, grid=0.3, min_pulse=0.3, max_changes=6, criterion="nominal", restarts=2, n_iter=150,
+              kicks=2, nominal_kicks=0, jobs=1, record=12.0)
+    per = SequenceDesign(INPUTS, peak="per-input", **kw).fit(s61m)
+    shared = SequenceDesign(INPUTS, **kw).fit(s61m)
+    ev = Evaluator(s61m, INPUTS, record=12.0, dt=0.05)
+    for a, sig in enumerate(per.signals_):
+        assert Evaluator(s61m, [sig.input], record=12.0, dt=0.05).response([sig])[0] == pytest.approx(1.0, abs=1e-9)
+    assert per.amplitude_[0] != pytest.approx(per.amplitude_[1])
+    # scored by the rule it was designed for, the per-input design carries more information
+    score = PerInputObjective(per.basis_, "nominal")
+    assert score(per.levels_) > score(shared.levels_)
+    assert "equal per-input peak response" in per.summary()
+    assert ev.p == per.evaluator_.p
+    with pytest.raises(DesignError, match="amplitude"):
+        SequenceDesign(INPUTS, peak="per-input", amplitude=0.01, **kw).n_steps()
+
+
+def test_robust_per_input_yardsticks_are_the_3211_flown_by_the_same_rule(s61m):
+    """Each model's yardstick is the grid 3211 with every input at its own peak on that model, so
+    the 3211 scores exactly 0 (relative D-efficiency 1) on every model; the shared-peak yardsticks
+    would leave it a different offset per model and mislead the worst-model term."""
+    from signaldesign.robust import frequency_scaled
+    models = [s61m, frequency_scaled(s61m, 0.7), frequency_scaled(s61m, 1.4)]
+    d = SequenceDesign(INPUTS, peak="per-input", criterion="robust", models=models, duration=3.0, grid=0.3,
+                       min_pulse=0.3, max_changes=6, restarts=1, n_iter=60, kicks=0, nominal_kicks=0, jobs=1,
+                       record=12.0).fit(s61m)
+    start = d._starts(d.evaluator_, d.basis_)[0][0]
+    assert d._objective_.exact().terms(start) == pytest.approx(np.zeros(3), abs=1e-9)
