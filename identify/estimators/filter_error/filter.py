@@ -254,13 +254,16 @@ class FilterProblem:
         return s2, ds2
 
     def diffuse_term(self, Abar, Kp, C, Sinv, s2=None) -> float:
-        """``0.5 sum_r log det(H_r^T S^-1 H_r)``: what the negative log-likelihood gains when each
-        run's initial states and zero shifts (the columns ``diffuse`` (R, n + ny) lists) are
-        integrated out with a flat prior instead of estimated (de Jong's diffuse likelihood, REML
-        for a state-space model). ``H_r`` = d(innovations)/d(those unknowns) of run r; they enter
-        the innovations linearly, so the integral is exact. Estimated with the rest (the profile
-        likelihood), they take up part of the slow disturbances, and the noise's parameters follow
-        (a gust's corner too high and its intensity too low on short runs)."""
+        """``0.5 sum_r log det(H_r^T S^-1 H_r + Lambda)``: what the negative log-likelihood gains when
+        each run's initial states and zero shifts (the columns ``diffuse`` (R, n + ny) lists) are
+        integrated out instead of estimated (de Jong's diffuse likelihood, REML for a state-space
+        model): with a flat prior, but a ``stationary`` state's start with its stationary one
+        (precision ``Lambda = 1 / s2``; its own ``0.5 x0^2 / s2 + 0.5 log s2`` per run is added by
+        :meth:`evaluate`, the estimated x0 being the mode). ``H_r`` = d(innovations)/d(those
+        unknowns) of run r; they enter the innovations linearly, so the integral is exact.
+        Estimated with the rest (the profile likelihood), they take up part of the slow
+        disturbances and the noise's parameters follow (a gust's corner too high and its intensity
+        too low on short runs); integrated flat, a gust's start lets its corner run to zero."""
         return self._diffuse_parts(Abar, Kp, C, Sinv, s2)[0]
 
     def _diffuse_parts(self, Abar, Kp, C, Sinv, s2=None):
