@@ -6,12 +6,18 @@ turbulence without the vibration (the truth is then the declared model: anything
 A fourth has no vibration and a delay on every input (0.06, 0.08, 0.05 and 0.07 s: four delays to
 find, each by a profile-likelihood search; issue 29's target: under 2 minutes on one core).
 
-Prints each case's steps, the wall time of each, and the progress lines refine writes to stderr.
+Prints each case's steps, the wall time of each (with the machine's load average: the machine may
+be shared), the delays found against the truth, and the progress lines refine writes to stderr.
+``--baseline REF`` runs the same cases with the code of a git revision (exported to a temporary
+directory) right after, in the same process's run, and prints the ratio of the wall times.
 
-    .venv/bin/python benchmarks/refine_speed.py [cases, e.g. 123]   # --help: options
+    .venv/bin/python benchmarks/refine_speed.py [cases, e.g. 123] [--baseline main]   # --help: options
 """
 import os
+import re
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -25,6 +31,7 @@ from identify import LinearModel, load_profile, simulate_run  # noqa: E402
 from identify.refine import Refine  # noqa: E402
 from _cli import add_parts, parser as cli_parser  # noqa: E402
 
+ROOT = Path(__file__).resolve().parent.parent
 DT, LENGTH, TARGET = 0.01, 12.0, 120.0
 DELAYS = {"theta_s": 0.06, "theta_c": 0.08, "theta_0": 0.05, "theta_TR": 0.07}  # case 4
 
@@ -49,7 +56,8 @@ def runs(turbulence: bool, vibration: bool = True, delays: dict | None = None) -
     return out
 
 
-def main(cases: str = "1234") -> None:
+def main(cases: str = "1234") -> dict:
+    walls = {}
     for case, turbulence, vibration, delays in (("1", False, True, None), ("2", True, True, None),
                                                 ("3", True, False, None), ("4", False, False, DELAYS)):
         if case not in cases:
@@ -64,15 +72,41 @@ def main(cases: str = "1234") -> None:
               f"full catalogue")
         print(f"  added {[f'{s.effect}:{s.target}' for s in r.steps_]}; rejected "
               f"{[f'{s.effect}:{s.target}' for s in r.rejected_]}; {r.tries_} tried; stopped: {r.stopped_}")
-        print(f"  wall time {wall:.1f} s (target {TARGET:g} s: {'met' if wall < TARGET else 'NOT met'})", flush=True)
+        for s in r.steps_:
+            if s.effect == "delay":
+                v = s.parameters[f"tau_{s.target}"]
+                print(f"  delay on {s.target}: {v['value']:.4f} +- {v['std']:.4f} s (truth {(delays or {}).get(s.target, 0)})")
+        walls[case] = wall
+        print(f"  wall time {wall:.1f} s (target {TARGET:g} s: {'met' if wall < TARGET else 'NOT met'}; load average "
+              f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)", flush=True)
+    return walls
+
+
+def baseline(ref: str, cases: str) -> dict:
+    """Wall time per case of the same cases with the code of git revision ``ref``."""
+    with tempfile.TemporaryDirectory() as where:
+        archive = subprocess.run(["git", "archive", ref], cwd=ROOT, capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", where], input=archive, check=True)
+        env = dict(os.environ, PYTHONPATH=where)
+        proc = subprocess.run([sys.executable, "benchmarks/refine_speed.py", cases], cwd=where, env=env,
+                              capture_output=True, text=True)
+    print(f"baseline {ref}:\n{proc.stdout}", flush=True)
+    return {c: float(w) for c, w in re.findall(r"^case (\d):.*?wall time ([0-9.]+) s", proc.stdout, re.S | re.M)}
 
 
 def parser():
     ap = cli_parser(__doc__)
     add_parts(ap, "cases", "1234", "the cases to run (1: vibration, 2: with turbulence, 3: turbulence alone, "
               "4: a delay on every input)")
+    ap.add_argument("--baseline", default="", help="a git revision whose code runs the same cases after, for the ratio")
     return ap
 
 
 if __name__ == "__main__":
-    main(parser().parse_args().cases)
+    args = parser().parse_args()
+    walls = main(args.cases)
+    if args.baseline:
+        old = baseline(args.baseline, args.cases)
+        for case, wall in walls.items():
+            print(f"case {case}: {wall:.1f} s, baseline {args.baseline} {old.get(case, float('nan')):.1f} s: "
+                  f"{old.get(case, float('nan')) / wall:.2f} times faster", flush=True)

@@ -3,7 +3,7 @@
 Morelli & Klein's correction for coloured residuals replaces the white-noise information
 ``J^T J / sigma^2`` by ``J^T T J``, ``T`` the Toeplitz matrix of the residuals' (biased)
 autocorrelation ``r(k) = 1/N sum_t v(t) v(t+k)``. Both the equation-error estimators (per run and
-equation) and output-error ML (per output, pooled over runs and segments) use it.
+equation) and output-error ML (per output and run, pooled over the run's segments) use it.
 
 ``T Z`` is a linear convolution of each column of ``Z`` (N, ...) with ``r(-(N-1)..N-1)``; it is done
 as a circular one over ``n_fft >= 2N - 1`` points. The circular autocorrelation of ``v`` zero-padded

@@ -51,11 +51,18 @@ class ColouredBounds:
         self.L, self.ny, self.S = L, ny, S
         self.n_fft = scipy.fft.next_fast_len(2 * L - 1, real=True)
         self.F = self.n_fft // 2 + 1
-        self.count = max(float(prob.mask.sum()), 1.0)
-        # the autocorrelations (even in the lag) are held as their real spectra (F, ny): half the
-        # floats of the n_fft lags, and an hour's record keeps one per pass for the acceleration
-        self.r = power(Wh @ ev.e, self.n_fft).sum(axis=2) / self.count  # of the whitened residuals
-        self.variance = np.fft.irfft(self.r, self.n_fft, axis=0)[0]  # lag 0 (ny,)
+        # one noise autocorrelation per run (its segments pooled): runs flown on different axes
+        # leave residuals of different size and colour (the unmodelled part scales with the
+        # response), and one pooled autocorrelation would give a sandwich that is wrong both ways
+        self.run = np.asarray(prob.layout.run, dtype=int)[:S]
+        self.n_runs = int(self.run.max()) + 1
+        counts = np.bincount(self.run, weights=prob.mask.sum(axis=0)[:S], minlength=self.n_runs)
+        self.count = np.maximum(counts, 1.0)[:, None, None]  # (runs, 1, 1)
+        # the autocorrelations (even in the lag) are held as their real spectra (runs, F, ny): half
+        # the floats of the n_fft lags, and an hour's record keeps one per pass for the acceleration
+        P = power(Wh @ ev.e, self.n_fft)  # (F, ny, S), of the whitened residuals
+        self.r = np.stack([P[..., self.run == g].sum(axis=2) for g in range(self.n_runs)]) / self.count
+        self.variance = np.fft.irfft(self.r, self.n_fft, axis=1)[:, :1]  # lag 0 (runs, 1, ny)
         self.k_loc = prob.p + prob.n + ny
         cov, _ = info.covariance()
         self.cov_local = info.local(cov)  # (S, k, k)
@@ -113,13 +120,15 @@ class ColouredBounds:
     # -- one pass of the fixed point ---------------------------------------------------------------
     def first_half(self, rho: np.ndarray, white: bool):
         """``B(rho)`` (local blocks, (S, k, k)) and the ``2 xcorr(J cov, T J)`` part of the
-        correction (ny, F), ``rho`` given by its spectrum (F, ny). For white ``rho`` (the first
-        pass, constant spectrum) ``T J = rho(0) J`` needs no FFT."""
-        spectrum = np.clip(rho, 0.0, None).T  # a covariance: PSD, (ny, F)
+        correction (runs, ny, F), ``rho`` given by its spectra (runs, F, ny). For white ``rho``
+        (the first pass, constant spectrum) ``T J = rho(0) J`` needs no FFT."""
+        spectra = np.clip(rho, 0.0, None).transpose(0, 2, 1)  # a covariance: PSD, (runs, ny, F)
         Bl = np.zeros((self.S, self.k_loc, self.k_loc)) if self.extra is None else self.extra.copy()
-        corr = np.zeros((self.ny, self.F))
+        corr = np.zeros((self.n_runs, self.ny, self.F))
         shared = {}
         for s, keep, J in self.segments():
+            g = self.run[s]
+            spectrum = spectra[g]
             cov_ii = self.cov_local[s][np.ix_(keep, keep)]
             block = np.zeros((J.q, J.q))
             for c in self.chunks(J.q):
@@ -131,13 +140,13 @@ class ColouredBounds:
                 n_own = int(keep[:self.prob.p].sum()) if shared_x0 else len(FJ)
                 parts = [(slice(0, n_own), self._toeplitz_times(FJ, J, c, slice(0, n_own), spectrum, rho, white))]
                 if n_own < len(FJ):
-                    key = (J.length, keep.tobytes())
+                    key = (g, J.length, keep.tobytes())
                     if key not in shared:
                         shared[key] = self._toeplitz_times(FJ, J, c, slice(n_own, None), spectrum, rho, white)
                     parts.append((slice(n_own, None), shared[key]))
                 for cols, (TJ, FTJ) in parts:
                     block[:, c][:, cols] = J.gram(TJ)
-                    corr += 2 * _real_inner(FG[cols], FTJ)
+                    corr[g] += 2 * _real_inner(FG[cols], FTJ)
                 del FJ, FG, parts, TJ, FTJ  # before the next chunk's arrays exist
             Bl[s][np.ix_(keep, keep)] += block
         return 0.5 * (Bl + Bl.transpose(0, 2, 1)), corr
@@ -151,7 +160,7 @@ class ColouredBounds:
         return TJ, scipy.fft.rfft(TJ, self.n_fft, axis=-1)
 
     def second_half(self, cov_c: BlockCovariance, corr: np.ndarray) -> np.ndarray:
-        """The spectrum (F, ny) of ``g(rho)``: ``r`` plus the correction ``corr`` less
+        """The spectra (runs, F, ny) of ``g(rho)``: ``r`` plus the correction ``corr`` less
         ``xcorr(J cov B cov, J)``, ``cov_c = cov B cov``."""
         cov_c = self.info.local(cov_c)
         for s, keep, J in self.segments():
@@ -160,17 +169,18 @@ class ColouredBounds:
                 FJ = self.spectra(s, c, J, self.cov_local[s][np.ix_(keep, keep)] if self.cache_ok else None)[0]
                 FC = _over_columns(cc, FJ) if c == slice(None) else \
                     scipy.fft.rfft(J.times(cc[:, c]), self.n_fft, axis=-1)
-                corr -= _real_inner(FC, FJ)
+                corr[self.run[s]] -= _real_inner(FC, FJ)
                 del FJ, FC
-        return self.r + corr.T / self.count
+        return self.r + corr.transpose(0, 2, 1) / self.count
 
     # -- the fixed point -------------------------------------------------------------------------
     def solve(self, max_iter: int = COLOUR_MAX_ITER, tol: float = COLOUR_TOL):
-        """The covariance (:class:`BlockCovariance`), ``rho`` (L, ny) and the number of passes."""
+        """The covariance (:class:`BlockCovariance`), ``rho`` (L, ny) (the runs' pooled, weighted
+        by their samples) and the number of passes."""
         r, info = self.r, self.info
         # Parseval: inner products of spectra weighted as the lags' (rfft bins 1.. count twice)
-        weight = np.full((self.F, 1), 2.0)
-        weight[0] = weight[-1 if self.n_fft % 2 == 0 else 0] = 1.0
+        weight = np.full((1, self.F, 1), 2.0)
+        weight[:, 0] = weight[:, -1 if self.n_fft % 2 == 0 else 0] = 1.0
         xs, fs, Bs = [], [], []
         gram = np.zeros((max_iter, max_iter))  # of the residuals fs: no copies of them
         rho = np.broadcast_to(self.variance, r.shape)  # start: white noise of the residuals' variance
@@ -195,7 +205,8 @@ class ColouredBounds:
             std_old = std
             rho = sum(a * (x + f) for a, x, f in zip(alpha, xs, fs))
         rho_bar = sum(a * x for a, x in zip(alpha, xs))
-        return cov_c, np.fft.irfft(rho_bar, self.n_fft, axis=0)[:self.L], passes
+        pooled = (rho_bar * self.count).sum(axis=0) / self.count.sum()
+        return cov_c, np.fft.irfft(pooled, self.n_fft, axis=0)[:self.L], passes
 
 
 def _over_columns(A: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -212,9 +223,9 @@ def _real_inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def _preconditioner(correction: np.ndarray, variance: np.ndarray) -> np.ndarray:
-    """``1 / (1 - K(f))`` (F, ny), K the share of the noise spectrum the fit removes at each
-    frequency, read from the spectrum (F, ny) of the first pass's ``correction`` at white noise of
-    ``variance`` (ny,): the map ``rho -> r + A rho`` as a circulant (long segments) is
+    """``1 / (1 - K(f))`` (runs, F, ny), K the share of the noise spectrum the fit removes at each
+    frequency, read from the spectra (runs, F, ny) of the first pass's ``correction`` at white noise
+    of ``variance`` (runs, 1, ny): the map ``rho -> r + A rho`` as a circulant (long segments) is
     ``S -> S_r + K S``."""
     K = correction / np.maximum(variance, 1e-300)
     return 1 / np.maximum(1 - K, 0.1)

@@ -24,8 +24,11 @@ Morelli & Klein's correction for coloured residuals in output error::
     Cov = M^-1 [ sum over outputs y and segments s of J_ys^T T_y J_ys ] M^-1
 
 ``J_ys`` the whitened sensitivities of output y over segment s, ``T_y`` the Toeplitz matrix of the
-autocorrelation of output y's whitened noise, pooled over all runs and segments (segments and
-outputs taken as independent of each other), estimated from the residuals' autocorrelation with
+autocorrelation of output y's whitened noise in the run of segment s, pooled over that run's
+segments (segments and outputs taken as independent of each other; each run its own, as runs
+flown on different axes leave residuals of different size: with one pooled over an S 61 fit of
+one run per cyclic the bounds were 0.3-1.6x the spread over realisations, with one per run
+0.7-1.5x, tests/identify/estimators/test_ml_runs_noise.py), estimated from the residuals' autocorrelation with
 the part the fit itself removes added back (it matters for short segments with many unknowns;
 :meth:`identify.estimators.output_error.OutputError.coloured_information`). Computed once, after convergence, by
 FFT (:mod:`identify.estimators.colour`, as the equation-error estimators do); the iteration itself is the
@@ -96,8 +99,8 @@ class ML(Estimator):
     corrected for coloured residuals (Morelli & Klein, see the module notes; default True) or the
     plain Cramér-Rao bounds ``M^-1`` (False, which skips the correction's cost). With True both
     are in ``info["std_coloured"]`` and ``info["std_white"]`` (theta only);
-    ``info["noise_autocorrelation"]`` (L, ny) is the pooled whitened noise autocorrelation per
-    output behind the correction, lag 0 first.
+    ``info["noise_autocorrelation"]`` (L, ny) is the whitened noise autocorrelation per output
+    behind the correction (the runs' averaged, weighted by their samples), lag 0 first.
     """
 
     method = "ml"

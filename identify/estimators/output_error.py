@@ -408,8 +408,9 @@ class OutputError:
 
         ``J_ys`` is the whitened sensitivity of output y in segment s (rows of ``Wh J``, ``J`` =
         dy/dbeta) and ``T_y`` the Toeplitz matrix of the autocorrelation ``rho_y`` of output y's
-        whitened measurement noise, pooled over all segments of all runs (lag products stay within a
-        segment: segments are taken as independent of each other, as are the outputs).
+        whitened measurement noise in the run of segment s, pooled over that run's segments (lag
+        products stay within a segment: segments are taken as independent of each other, as are
+        the outputs; each run has its own: runs flown on different axes differ in residual size).
 
         ``rho_y`` comes from the residuals ``e = (I - H) w`` (H = J M^-1 J^T, whitened), not the
         noise ``w``: the fit removes from them exactly the components along the sensitivities, so

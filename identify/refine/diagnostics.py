@@ -151,6 +151,19 @@ class ScoreBase:
             start += r.size
         return cls(orthonormal_basis(J, rtol), e, w, rows)
 
+    @classmethod
+    def from_blocks(cls, residuals, shared: list[np.ndarray], per_run: list[np.ndarray],
+                    rtol: float = 1e-10) -> "ScoreBase":
+        """:meth:`build` with unit weights (residuals and columns already whitened) from the
+        columns as :func:`block_design` takes them, the basis built block by block (:func:`block_basis`)."""
+        runs = _stack(residuals)
+        e = np.concatenate([r.ravel() for r in runs])
+        rows, start = [], 0
+        for r in runs:
+            rows.append(slice(start, start + r.size))
+            start += r.size
+        return cls(block_basis(shared, per_run, rtol), e, np.ones(runs[0].shape[1]), rows)
+
     def statistic(self, J_c: np.ndarray, rtol: float = 1e-6) -> tuple[float, int]:
         """Score statistic of candidate columns ``J_c`` (rows as the stacked residual, (M, q),
         unweighted) and the rank ``q`` it adds (0: the candidate is not identifiable beside the
@@ -195,19 +208,40 @@ def residual_energy(residuals, columns, groups, sigma) -> np.ndarray:
     return np.array([float(np.sum(g[cols] ** 2 / np.maximum(norm2[cols], 1e-300))) for cols in groups])
 
 
-def orthonormal_basis(J: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+def orthonormal_basis(J: np.ndarray, rtol: float = 1e-10, norms: np.ndarray | None = None) -> np.ndarray:
     """Orthonormal basis (M, k) of the span of the columns of ``J`` (M, n), directions whose
-    singular value is below ``rtol`` times the largest (of unit-norm columns) left out.
+    singular value is below ``rtol`` times the largest (of unit-norm columns) left out; ``norms``
+    the columns' scale if not their own norms (what is left of columns once others are projected out).
 
     Cholesky-QR twice, from the Gram matrix by a symmetric eigendecomposition: matrix products
     only, four times faster than Householder QR for the tall designs of refine (50 000 x 200),
     and orthonormal to rounding after the second pass."""
-    norms = np.linalg.norm(J, axis=0)
+    norms = np.linalg.norm(J, axis=0) if norms is None else norms
     Q = J[:, norms > 0] / norms[norms > 0]
     for cut in (rtol ** 2, 1e-12):
         lam, V = np.linalg.eigh(Q.T @ Q)
         keep = lam > cut * max(lam.max(initial=0.0), 1e-300)
         Q = Q @ (V[:, keep] / np.sqrt(lam[keep]))
+    return Q
+
+
+def block_basis(shared: list[np.ndarray], per_run: list[np.ndarray], rtol: float = 1e-10) -> np.ndarray:
+    """:func:`orthonormal_basis` of ``block_design(shared, per_run)`` without the Gram matrix of the
+    whole design: each run's own columns (initial states, zero shifts: zero on the other runs' rows)
+    on that run's rows alone, then what the shared columns (the parameters) keep beside them, scaled
+    by their full norms (a direction they leave below ``rtol`` of a column's size is dropped, as
+    whole). The same span; on the BO 105 (52 800 rows, 37 parameters, 172 nuisance columns) a fifth
+    of the products."""
+    S = [s.reshape(-1, s.shape[2]) for s in shared]
+    own = [orthonormal_basis(c.reshape(-1, c.shape[2]), rtol) for c in per_run]
+    rest = np.concatenate([s - q @ (q.T @ s) for s, q in zip(S, own)])
+    kept = orthonormal_basis(rest, rtol, norms=np.sqrt(sum(np.sum(s ** 2, axis=0) for s in S)))
+    Q = np.zeros((len(rest), sum(q.shape[1] for q in own) + kept.shape[1]))
+    r0 = c0 = 0
+    for q in own:
+        Q[r0:r0 + len(q), c0:c0 + q.shape[1]] = q
+        r0, c0 = r0 + len(q), c0 + q.shape[1]
+    Q[:, c0:] = kept
     return Q
 
 

@@ -20,18 +20,30 @@ HOLD_OUT = 1 / 3  # of each run's excitation held out (to choose and judge) when
 
 
 def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance: list[np.ndarray],
-                sigma: np.ndarray) -> list[np.ndarray]:
+                sigma: np.ndarray, extra: list[list[np.ndarray]] = ((),)) -> list[list[np.ndarray]]:
     """Residuals (N_r, ny) per run minus their least-squares fit on the columns ``shared``
-    (N_r, ny, k, common to all runs) and ``nuisance`` (N_r, ny, k_r, per run), weighted 1/sigma."""
+    (N_r, ny, k, common to all runs) and ``nuisance`` (N_r, ny, k_r, per run), weighted 1/sigma,
+    and on each group of ``extra`` columns in turn (per run (N_r, ny, q)): a list of runs per group
+    (one for no extra). The common columns' Gram matrix is formed once, each group's border added."""
     w = np.tile(1.0 / sigma, sum(len(e) for e in residuals))
-    C = block_design(shared, nuisance) * w[:, None]
-    C /= np.maximum(np.linalg.norm(C, axis=0), 1e-300)
+
+    def normed(C: np.ndarray) -> np.ndarray:
+        C = C * w[:, None]
+        return C / np.maximum(np.linalg.norm(C, axis=0), 1e-300)
+
+    B = normed(block_design(shared, nuisance))
     e = np.concatenate([r.ravel() for r in residuals]) * w
-    G = C.T @ C
-    coef = np.linalg.solve(G + 1e-10 * np.trace(G) / len(G) * np.eye(len(G)), C.T @ e)
-    clean = (e - C @ coef) / w
-    parts = np.split(clean, np.cumsum([r.size for r in residuals])[:-1])
-    return [c.reshape(r.shape) for c, r in zip(parts, residuals)]
+    G, g = B.T @ B, B.T @ e
+    out = []
+    for group in extra:
+        C = normed(np.concatenate([c.reshape(-1, c.shape[2]) for c in group])) if len(group) else B[:, :0]
+        BC = B.T @ C
+        full = np.block([[G, BC], [BC.T, C.T @ C]])
+        coef = np.linalg.solve(full + 1e-10 * np.trace(full) / len(full) * np.eye(len(full)), np.r_[g, C.T @ e])
+        clean = (e - B @ coef[:len(G)] - C @ coef[len(G):]) / w
+        parts = np.split(clean, np.cumsum([r.size for r in residuals])[:-1])
+        out.append([c.reshape(r.shape) for c, r in zip(parts, residuals)])
+    return out
 
 
 def errors(evaluation: ModelFit, outputs, scale: np.ndarray) -> dict:

@@ -116,10 +116,11 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
     if coloured:
         energy = dg.residual_energy(ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in groups], sigma)
         residual_log_p = {t.candidate.name: t.log_p for t in tested}
-        for c, cols in [groups[i] for i in _explaining_most(energy, groups, residual_log_p)]:
-            keep = list(range(nb)) + [nb + k for k in cols]
-            alt = NoiseModel.fit(unexplained(ev.residuals, [d[:, :, keep] for d in dy], evj.nuisance, sigma),
-                                 fitting.dt, f_min, segment=fitting.segment, deterministic=False)
+        chosen = [groups[i] for i in _explaining_most(energy, groups, residual_log_p)]
+        each = unexplained(ev.residuals, [d[:, :, :nb] for d in dy], evj.nuisance, sigma,
+                           [[d[:, :, [nb + k for k in cols]] for d in dy] for _, cols in chosen])
+        for (c, cols), clean in zip(chosen, each):
+            alt = NoiseModel.fit(clean, fitting.dt, f_min, segment=fitting.segment, deterministic=False)
             tested += _tests(alt, design, [(c, cols)], "alternative")
     # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
     n_tests = sum(t.candidate.n_tests for t in tested)
@@ -161,8 +162,8 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
     used = sorted({k for _, cols in groups for k in cols})  # whiten only the columns tested
     where = {k: i for i, k in enumerate(used)}
     dyw = [noise.whiten(d[:, :, list(range(nb)) + [nb + k for k in used]]) for d in dy]
-    base_w = dg.block_design([d[:, :, :nb] for d in dyw], [noise.whiten(x) for x in nuisance])
-    sb = dg.ScoreBase.build([noise.whiten(e) for e in residuals], base_w, sigma=np.ones(len(noise.sigma)))
+    nuisance_w = [noise.whiten(x) for x in nuisance]
+    sb = dg.ScoreBase.from_blocks([noise.whiten(e) for e in residuals], [d[:, :, :nb] for d in dyw], nuisance_w)
     J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
     out = []
     base = None  # the model's and nuisance columns unwhitened and their whitened ones in sb's basis (built once)
@@ -172,7 +173,8 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
         q = max(q, c.null_dof or 0)
         nu = math.inf
         if metric == "alternative" or c.removed_by_noise_fit:
-            base = (dg.block_design([d[:, :, :nb] for d in dy], nuisance), sb.Q.T @ base_w) if base is None else base
+            base = (dg.block_design([d[:, :, :nb] for d in dy], nuisance),
+                    sb.Q.T @ dg.block_design([d[:, :, :nb] for d in dyw], nuisance_w)) if base is None else base
             nu = _noise_dof(noise, sb, *base, [d[:, :, [nb + k for k in cols]] for d in dy])
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))

@@ -97,3 +97,16 @@ def test_turbulence_table_errors_are_one_line(table, match):
     text = load_profile("s61_hover_8state").to_toml() + f"\n[turbulence]\n{table}\n"
     with pytest.raises(ProfileError, match=match):
         parse_profile(text)
+
+
+def test_a_corner_fitted_below_zero_leaves_a_profile_that_still_holds():
+    # the S 61 hover's v corner came out at -0.004 rad/s in a prior benchmark fit: writing it
+    # back as the next start raised ProfileError after a converged fit (a traceback)
+    p = with_turbulence(load_profile("navion_cruise_long"), "u,w")
+    gm = augment(p)
+    theta = np.array(list(gm.augmented.free.values()), dtype=float)
+    theta[gm.augmented.free_names.index("corner_w_g")] = -0.004
+    theta[gm.augmented.free_names.index("corner_u_g")] = 0.7
+    table = gm.fitted_table(theta, {"u_g": 0.3, "w_g": 0.2})
+    assert table["corner_start"] == {"u": 0.7, "w": gm.held_start("w")}
+    replace(p, turbulence=table)  # valid: no ProfileError

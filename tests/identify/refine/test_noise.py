@@ -160,7 +160,7 @@ def test_alternative_metric_score_size_with_the_f_reference():
     for _ in range(600):
         e = signal.lfilter([1.0], [1.0, -1.6, 0.64], rng.standard_normal((n + 500, ny)), axis=0)[500:]
         e[:, 1] += 0.5 * e[:, 0]
-        alt = NoiseModel.fit(unexplained([e], [z], [nuis], np.sqrt(np.mean(e ** 2, axis=0))), DT, deterministic=False)
+        alt = NoiseModel.fit(unexplained([e], [z], [nuis], np.sqrt(np.mean(e ** 2, axis=0)))[0], DT, deterministic=False)
         [t] = _tests(alt, ([e], [z], [nuis], 1), [(Derivative("M_u"), [0])], "alternative")
         p_f.append(t.p_value)
         p_chi2.append(stats.chi2.sf(t.statistic, t.dof))
