@@ -214,13 +214,10 @@ def _controls(p: Profile) -> list[str]:
     return [u for u in p.inputs if u not in pseudo and f"{u}_lag" not in p.states]
 
 
-def _measured_states(p: Profile, runs: list[Run], through_sensor: bool = True) -> list[str]:
-    """States measured as an output of their own name (``through_sensor``: also through a sensor
-    lag refine added, ``y = y_sensor``)."""
-    def as_itself(s: str) -> bool:
-        return p.output_terms(s) == {s: 1.0} or (through_sensor and p.output_terms(s) == {f"{s}_sensor": 1.0})
-
-    return [s for s in p.states if s in p.outputs and as_itself(s) and all(s in r.channels for r in runs)]
+def _measured_states(p: Profile, runs: list[Run]) -> list[str]:
+    """States measured as an output of their own name (also through a sensor lag refine added)."""
+    return [s for s in p.states if s in p.outputs and p.output_terms(s) in ({s: 1.0}, {f"{s}_sensor": 1.0})
+            and all(s in r.channels for r in runs)]
 
 
 class Derivative(Candidate):
