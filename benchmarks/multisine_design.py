@@ -197,8 +197,8 @@ def multi_axis(key: str, trials: int, truth_scale: float, quick: bool, shared: b
     for label in [k for k in out if k.startswith("one run,")]:
         sj, tj, cj = out[label]
         need = tj * (sj / ss) ** 2  # std falls as 1/sqrt(flight time): runs of the joint design to match
-        print(f"{'DONE-WHEN' if 'designed for' in label else '         '} multi-axis ({model.profile.name.split(',')[0]}, "
-              f"{label[9:]}): one simultaneous run reaches one-run-per-axis' median std in {need:.1f} s = "
+        tag = "DONE-WHEN" if "designed for" in label else "         "
+        print(f"{tag} multi-axis ({model.profile.name.split(',')[0]}, {label[9:]}): one simultaneous run reaches one-run-per-axis' median std in {need:.1f} s = "
               f"{100 * need / ts:.0f}% of their {ts:.0f} s (<= 60%: {'PASS' if need <= 0.6 * ts else 'FAIL'}); "
               f"predicted (CRB) {100 * tj * (cj / cs) ** 2 / ts:.0f}%")
     return out

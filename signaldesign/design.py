@@ -73,14 +73,14 @@ class SequenceDesign:
     ``extreme_draws`` size the design set (:func:`~signaldesign.robust.design_set`). The search:
     ``restarts`` annealing runs of ``n_iter`` proposals, each polished, then ``kicks`` rounds of
     iterated local search from the best restarts (:func:`~signaldesign.search.anneal`);
-    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search. ``spread_efficiency_``:
-    the worst restart's D-efficiency over the best's; the summary says whether the restarts agree
-    within ``agreement`` (a D-efficiency fraction) or not.
-    ``peak``: with several inputs, ``shared`` (the run's whole response within the limits, one
-    amplitude) or ``per-input`` (each input as large as its own response, alone, allows, as in a
-    run of its own; the responses add; :class:`~signaldesign.quadform.PerInputObjective`). ``jobs`` worker processes
-    run the restarts (default: the available CPUs, at most ``restarts``); the design is the same
-    for any number. ``certify``: the upper bound's effort, ``quick`` (default: valid, looser,
+    ``nominal_kicks`` rounds in the robust criterion's nominal pre-search; the summary says whether
+    the restarts agree within ``agreement`` (a D-efficiency fraction; ``spread_efficiency_`` after
+    ``fit``). ``peak``: with several inputs, ``shared`` (the run's whole response within the
+    limits, one amplitude) or ``per-input`` (each input as large as its own response, alone,
+    allows, as in a run of its own; the responses add; the robust yardsticks are the 3211 flown the
+    same way; :class:`~signaldesign.quadform.PerInputObjective`). ``jobs`` worker processes run
+    the restarts (default: the available CPUs, at most ``restarts``); the design is the same for
+    any number. ``certify``: the upper bound's effort, ``quick`` (default: valid, looser,
     seconds) or ``full`` (``signaldesign design``'s default: a few log det units from the
     relaxation's value, 10-40 s per model; :data:`~signaldesign.bound.EFFORTS`).
 
@@ -143,7 +143,8 @@ class SequenceDesign:
         if self.peak not in PEAKS:
             raise DesignError(f"unknown peak rule '{self.peak}' ({', '.join(PEAKS)})")
         if self.peak == "per-input" and self.amplitude is not None:
-            raise DesignError("per-input peak response makes every input's amplitude an outcome: leave the amplitude free")
+            raise DesignError("per-input peak response makes every input's amplitude an outcome: "
+                              "leave the amplitude free")
         if self.certify not in EFFORTS:
             raise DesignError(f"unknown certificate effort '{self.certify}' ({', '.join(EFFORTS)})")
         if self.amplitude is not None:

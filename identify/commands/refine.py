@@ -12,7 +12,7 @@ def add_parser(sub) -> None:
     options.add_fit(p, "run files to fit", default_method="ml")
     p.add_argument("--validate", nargs="+", metavar="RUN", help="held-out runs every added effect is checked on")
     p.add_argument("--kinds", metavar="LIST", help="comma-separated effect kinds to try (default: all; "
-                   "derivative, delay, lag, bias, drift, scale, nonlinear, periodic)")
+                   "derivative, delay, lag, sensor_lag, bias, drift, scale, nonlinear, periodic)")
     p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level (default 0.01)")
     p.add_argument("--max-steps", type=nonnegative_int, default=6, help="effects added at most (default 6)")
     p.add_argument("--no-zero-shifts", action="store_true",

@@ -27,6 +27,9 @@ derivative     ``M_p``         a structurally zero A or B entry of a dynamic equ
 delay          input           ``tau_<input>`` (s): the input shifted in time (``meta.delays``)
 lag            input           state ``<input>_lag``, ``dx/dt = k (u - x)``, the input's B
                                entries moved onto it; ``k_<input>_lag`` (1/s) = 1/tau
+sensor_lag     output          state ``<y>_sensor``, ``dx/dt = k (y - x)``, measured ``y`` = x
+                               (a first-order filter on the measurement: gyro, vane, data
+                               system); ``k_<y>_sensor`` (1/s) = 1/tau
 bias           output          pseudo-input ``one``; ``bias_<y>`` on ``"<y>:one"``
 drift          output          pseudo-input ``t`` (s from run start); ``drift_<y>`` on ``"<y>:t"``
 scale          output          ``sf_<y>`` on ``"<y>:<y>"``: measured = (1 + sf) x
@@ -48,12 +51,18 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError, ProfileError, PseudostepError, SimulationError
 from ..model import pseudo_inputs as pi
+from ..model.linear import LinearModel
 from ..model.profile import Profile
 from ..model.pseudo_inputs import delay_run
 from .diagnostics import block_design, orthonormal_basis
 from .noise import line_frequency
 
 
+# a sensor's own filter (a rate gyro, a vane, an anti-aliasing filter) is fast beside the aircraft:
+# a fitted "sensor lag" slower than this stands in for missing dynamics of the aircraft
+MAX_SENSOR_LAG = 0.5  # s
+# states refine adds as filters (an input's lag, a sensor's): no derivative or nonlinear term of theirs
+FILTER_STATES = ("_lag", "_sensor")
 # a calibrated sensor's scale-factor error is a few per cent; beyond this a fitted "scale factor" is
 # absorbing missing dynamics (seen: -50 % on a rotor-tilt output standing in for a control delay)
 MAX_SCALE_ERROR = 0.3
@@ -85,6 +94,9 @@ class Candidate:
     # its column is what the residual noise model's fit removes from each run first (a mean, a
     # trend): in that model's metric too it is tested as in a model fitted without its own fit
     removed_by_noise_fit = False
+    # kinds that explain the same residual to first order (an input's lag, a sensor's lag): when
+    # this one is chosen, the most significant of them is fitted too and the likelier kept
+    rivals = ()
 
     target: str
     params: list[str]
@@ -99,6 +111,10 @@ class Candidate:
     @classmethod
     def propose(cls, p: Profile, context: Context) -> list["Candidate"]:
         return []
+
+    def as_rival(self) -> "Candidate":
+        """The candidate fitted when this one is another's rival (by default itself)."""
+        return self
 
     def null_values(self) -> dict[str, float]:
         return {k: 0.0 for k in self.params}
@@ -189,7 +205,7 @@ def _dynamic_rows(p: Profile, held=()) -> list[int]:
     only because the estimator cannot determine it (FR's gates: X_u of the pitch case) still makes
     its equation dynamics: held out of the catalogue, an undeclared X_eta there went untested."""
     rows = {e.row for name in [*p.free, *held] for e, _ in p.parameter_entries(name) if e.matrix in "AB"}
-    return [i for i in sorted(rows) if not p.state_names[i].endswith("_lag")]
+    return [i for i in sorted(rows) if not p.state_names[i].endswith(FILTER_STATES)]
 
 
 def _controls(p: Profile) -> list[str]:
@@ -199,7 +215,8 @@ def _controls(p: Profile) -> list[str]:
 
 
 def _measured_states(p: Profile, runs: list[Run]) -> list[str]:
-    return [s for s in p.states if s in p.outputs and p.output_terms(s) == {s: 1.0}
+    """States measured as an output of their own name (also through a sensor lag refine added)."""
+    return [s for s in p.states if s in p.outputs and p.output_terms(s) in ({s: 1.0}, {f"{s}_sensor": 1.0})
             and all(s in r.channels for r in runs)]
 
 
@@ -214,7 +231,7 @@ class Derivative(Candidate):
     @classmethod
     def propose(cls, p, context):
         taken = {(e.matrix, e.row, e.col) for name in p.parameters for e, _ in p.parameter_entries(name)}
-        states = [j for j, s in enumerate(p.state_names) if not s.endswith("_lag")]
+        states = [j for j, s in enumerate(p.state_names) if not s.endswith(FILTER_STATES)]
         inputs = [p.input_names.index(u) for u in _controls(p)]
         return [cls(p.entry_name(m, i, j)) for i in _dynamic_rows(p, context.held)
                 for m, cols in (("A", states), ("B", inputs)) for j in cols if (m, i, j) not in taken]
@@ -233,6 +250,7 @@ class Delay(Candidate):
 
     kind = "delay"
     linear = False
+    rivals = ("sensor_lag",)
 
     def __init__(self, input_name: str, tau: float = 0.0, lag: bool = True, search: bool = True):
         super().__init__(input_name, [f"tau_{input_name}"], spec={"tau": tau, "_lag": lag, "_search": search})
@@ -246,6 +264,11 @@ class Delay(Candidate):
     def profile(self, p, values=None):
         tau = (values or {}).get(self.params[0], self.spec["tau"])
         return _add(p, meta={"delays": {**dict(p.meta.get("delays", {})), self.target: float(tau)}})
+
+    def as_rival(self):
+        """Beside a sensor's lag, the input's lag: the same first-order shape, one re-fit instead of
+        the delay's search (the delay itself where lags are not in the catalogue)."""
+        return Delay(self.target, lag=True, search=False) if self.spec["_lag"] else self
 
     def runs(self, runs, tau: float | None = None):
         tau = self.spec["tau"] if tau is None else tau
@@ -472,6 +495,110 @@ class Lag(Candidate):
         return replace(new_p, free=free, fixed=fixed, ties=ties)
 
 
+class SensorLag(Candidate):
+    """First-order lag of a measurement, ``tau dy_m/dt = y - y_m``: the dynamics of the sensor
+    and its data system (a rate gyro's or a vane's filter, an anti-aliasing filter, a time skew
+    between channels, which a lag matches to first order). New state ``<y>_sensor`` (``k`` =
+    1/tau, 1/s) driven by the state ``y``; the output ``y`` becomes that state.
+
+    Flight-test data-compatibility practice treats each measured channel's lag as its own
+    effect. Without it a sensor's lag is explained where the catalogue can, as a lag or delay on
+    the input (``benchmarks/refine_reallike.py``: a 0.08 s lag on the q gyro was taken for a lag
+    on eta in 32 of 40 realisations). The two differ in which outputs they move: an input lag
+    delays every output's response to that input, a sensor lag only its own output's.
+
+    Not linear in k (the null is k = infinity): its score column is ``dy_m/dtau`` at tau = 0,
+    ``-dy/dt`` on its own output (zero on the others), through the estimator's own prediction
+    (:func:`_first_order_sensor_columns`). Proposed for an output that is a state measured as
+    itself and no output-equation parameter of its own yet (a scale factor)."""
+
+    kind = "sensor_lag"
+    linear = False
+    rivals = ("delay",)
+
+    def __init__(self, output: str, k: float = 20.0):
+        self.state = f"{output}_sensor"
+        super().__init__(output, [f"k_{self.state}"], spec={"k": k})
+
+    @classmethod
+    def propose(cls, p, context):
+        return [cls(y) for y in _sensor_outputs(p) if all(y in r.channels for r in context.runs)]
+
+    def null_values(self):
+        return {self.params[0]: self.spec["k"]}
+
+    def profile(self, p, values=None):
+        y, x = self.target, self.state
+        if y not in p.states or y not in p.outputs or p.output_terms(y) != {y: 1.0}:
+            raise ProfileError(f"sensor lag: '{y}' is not a state measured as itself")
+        k = self.params[0]
+        return replace(p, states={**p.states, x: p.states[y]}, output_defs={**p.output_defs, y: {x: 1.0}},
+                       free={**p.free, k: float(_values(self, values)[k])},
+                       ties={**p.ties, k: {f"{x}_{x}": -1.0, f"{x}_{y}": 1.0}})
+
+    def score_columns(self, fitting, p):
+        return _first_order_sensor_columns(fitting, p)[self.target]
+
+    def estimate(self, fitting, p, noise, hint=None):
+        # the score's linearised tau starts the fit (a few samples at least: k of a vanishing lag is
+        # far out on a flat likelihood)
+        tau0 = float(np.ravel(hint)[0]) if hint is not None and np.size(hint) else 0.0
+        tau0 = min(max(tau0, 2 * fitting.dt), MAX_SENSOR_LAG) if math.isfinite(tau0) else 2 * fitting.dt
+        start = SensorLag(self.target, k=1.0 / tau0)
+        new_p, result = fitting.refit(start.profile(p), p)
+        return [(new_p, result, parameters_of(result, self.params), self.kind)]
+
+    def implausible(self, params):
+        k = params[self.params[0]]["value"]
+        if not k > 1.0 / MAX_SENSOR_LAG:
+            what = "negative" if k <= 0 else f"{1.0 / k:.3g} s"
+            return (f"a sensor lag of {what} on '{self.target}' (k = {k:.3g} 1/s) is no sensor's filter (limit "
+                    f"{MAX_SENSOR_LAG:g} s): it stands in for dynamics the model lacks")
+        return ""
+
+
+def _sensor_outputs(p: Profile) -> list[str]:
+    """Outputs a sensor lag can be added to: states measured as themselves, no lag yet and no
+    parameter on their output equation (its entries would clash with the score's surrogate)."""
+    taken = {e.row for name in p.parameters for e, _ in p.parameter_entries(name) if e.matrix in "CD"}
+    return [y for j, y in enumerate(p.outputs) if y in p.states and p.output_terms(y) == {y: 1.0}
+            and f"{y}_sensor" not in p.states and j not in taken]
+
+
+def _first_order_sensor_columns(fitting, p: Profile) -> dict[str, list[np.ndarray]]:
+    """Per output of :func:`_sensor_outputs`, per fit run (N_r, ny, 1): ``dy_m/dtau`` of a sensor
+    lag at tau = 0 as the loop's estimator predicts it. To first order the lag measures
+    ``y - tau dy/dt`` and ``dy/dt = A_y x + B_y u`` (the state's own equation at the current fit):
+    a surrogate profile with, per output, a parameter ``tau`` tied to ``"<y>:<term>" = -A_y, -B_y``
+    (linear, zero at the null) gives that column from the estimator's own sensitivities, the
+    model's states as it predicts them (a simulation, or a filter's, whose innovations the
+    derivative of the measured output would not describe). One computation for every output,
+    cached per fitted profile."""
+    key = ("sensor_lag columns", p.to_toml())
+    if key not in fitting.cache:
+        model = LinearModel(p)
+        outputs = _sensor_outputs(p)
+        ties = {}
+        for y in outputs:
+            i = p.state_names.index(y)
+            row = [(s, model.A[i, c]) for c, s in enumerate(p.state_names)] + \
+                  [(u, model.B[i, c]) for c, u in enumerate(p.input_names)]
+            ties[f"tau1_{y}_sensor"] = {f"{y}:{term}": -float(v) for term, v in row if v != 0.0}
+        ties = {k: v for k, v in ties.items() if v}
+        columns = {}
+        if ties:
+            ext = replace(p, free={**p.free, **{k: 0.0 for k in ties}}, ties={**p.ties, **ties})
+            ev = fitting.prediction(p)
+            dy = fitting.sensitivities(ext, ev.runs, ev).dy
+            first = len(p.free)
+            for c, name in enumerate(ties):
+                y = name[len("tau1_"):-len("_sensor")]
+                columns[y] = [d[:, :, first + c:first + c + 1] for d in dy]
+        fitting.cache[key] = {y: columns.get(y, [np.zeros((len(r), len(p.outputs), 1)) for r in fitting.data["fit"]])
+                              for y in outputs}
+    return fitting.cache[key]
+
+
 class OutputTerm(Candidate):
     """An output-equation entry ``"<y>:<term>"`` through a tie parameter, with an optional
     pseudo-input ``term`` described by ``channel`` (see :mod:`identify.model.pseudo_inputs`)."""
@@ -661,8 +788,8 @@ class Periodic(Candidate):
 
 
 # the catalogue: kind -> class (a lag is proposed through Delay: they share one score test)
-KIND_CLASSES = {"derivative": Derivative, "delay": Delay, "lag": Lag, "bias": Bias, "drift": Drift,
-                "scale": Scale, "nonlinear": Nonlinear, "periodic": Periodic}
+KIND_CLASSES = {"derivative": Derivative, "delay": Delay, "lag": Lag, "sensor_lag": SensorLag, "bias": Bias,
+                "drift": Drift, "scale": Scale, "nonlinear": Nonlinear, "periodic": Periodic}
 KINDS = tuple(KIND_CLASSES)
 
 
@@ -673,8 +800,8 @@ def catalogue(p: Profile, context: Context, kinds=KINDS) -> list[Candidate]:
     return [c for cls in classes for c in cls.propose(p, context)]
 
 
-__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Derivative", "Delay", "Lag", "OutputTerm", "Bias",
-           "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
+__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Derivative", "Delay", "Lag", "SensorLag", "OutputTerm",
+           "Bias", "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
            "prepare_runs", "extend_all"]
 
 

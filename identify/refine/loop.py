@@ -33,6 +33,7 @@ import math
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -297,38 +298,58 @@ class Refine:
         it minimised, e.g. FR's J); else that of the residuals in the test's noise-model metric
         (the likelihood output and filter error maximise).
 
-        A delay-type candidate yields two fits, delay and lag, tried in order of likelihood."""
-        cand, noise, fitting = best.candidate, best.noise, self.fitting_
+        A candidate may yield several fits (a delay: delay and lag), and a candidate whose
+        ``rivals`` explain the same residual to first order (a lag on an input, a lag on one
+        sensor) brings the most significant rival's fits too: all are tried in order of their
+        likelihood in the test's metric (non-nested explanations with as many parameters: the
+        likelier first), so that the score, which sees only the first order, does not decide
+        between them."""
+        fitting = self.fitting_
         before = self._errors(p)
-        runner_up = [{"effect": t.candidate.kind, "target": t.candidate.target,
-                      "statistic": t.statistic, "threshold": t.threshold}
-                     for t in sorted(tested, key=ScoreTest.rank)[1:4]]
-        common = dict(statistic=best.statistic, threshold=best.threshold, dof=best.dof,
-                      p_value=best.p_value, tested=len(tested), runner_up=runner_up,
-                      why=cand.spec.get("why", ""), metric=best.metric,
-                      nu=best.nu if math.isfinite(best.nu) else None)
         held_data = [d for d in ("choosing", "validation") if fitting.data[d]]
         try:
-            options = cand.estimate(fitting, p, noise, best.hint)
-            # a term that makes the model diverge on some data set is refused here
-            [fitting.prediction(o[0], d) for o in options for d in ["fit"] + held_data]
+            options = self._options(p, best, held_data)
         except PseudostepError as exc:  # e.g. an equation-error method and an output-only effect
-            step = Step(cand.kind, cand.target, {}, lr_statistic=float("nan"), error_before=before,
-                        error_after=before, accepted=False, reason=f"could not be estimated: {exc}", **common)
+            step = Step(best.candidate.kind, best.candidate.target, {}, lr_statistic=float("nan"),
+                        error_before=before, error_after=before, accepted=False,
+                        reason=f"could not be estimated: {exc}", **_common(best, tested))
             return step, p, None
-        first = None
-        for new_p, result, params, kind in options:
-            step, new_p, result, changes = self._evidence(p, null_result, best, (new_p, result, params, kind),
-                                                          before, held_data, common)
-            reason = step.reason or cand.implausible(step.parameters) or self._refusal(step, best, changes)
+        first = None  # the refusal recorded: the chosen candidate's own first fit's (a rival's if it has none)
+        for test, (new_p, result, params, kind) in options:
+            step, new_p, result, changes = self._evidence(p, null_result, test, (new_p, result, params, kind),
+                                                          before, held_data, _common(test, tested))
+            reason = step.reason or test.candidate.implausible(step.parameters) or self._refusal(step, test, changes)
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
-                reason = self._confirmation(step, changes, best.noise)
+                reason = self._confirmation(step, changes, test.noise)
                 step.accepted, step.reason = not reason, reason
                 return step, new_p, result
             step.accepted, step.reason = False, reason
-            first = first or (step, new_p, result)
-        return first
+            if first is None or (test is best and first[3] is not best):
+                first = (step, new_p, result, test)
+        return first[:3]
+
+    def _options(self, p: Profile, best: ScoreTest, held_data: list):
+        """``[(test, (profile, result, parameters, kind))]``: the fits of ``best`` and of its most
+        significant rival (:meth:`Candidate.as_rival`, tested in ``best``'s metric), the likeliest
+        first; a fit that diverges on some data set is dropped (the rival's), or refuses the
+        candidate (its own)."""
+        fitting = self.fitting_
+        own = best.candidate.estimate(fitting, p, best.noise, best.hint)
+        [fitting.prediction(o[0], d) for o in own for d in ["fit"] + held_data]
+        options = [(best, o) for o in own]
+        rivals = [t for t in sorted(self.last_scores_, key=ScoreTest.rank)
+                  if t.significant and t.candidate.kind in best.candidate.rivals][:1]
+        for t in rivals:
+            rival = replace(t, noise=best.noise)  # one metric for every option's likelihood
+            try:
+                fits = t.candidate.as_rival().estimate(fitting, p, best.noise, t.hint)
+                [fitting.prediction(o[0], d) for o in fits for d in ["fit"] + held_data]
+            except PseudostepError:
+                continue  # a rival that cannot be fitted is no better explanation
+            self._say(f"  also fitted: its rival {t.candidate.name} (score {t.statistic:.3g})")
+            options += [(rival, o) for o in fits]
+        return sorted(options, key=lambda to: best.noise.cost(fitting.residuals(to[1][0])))
 
     def _evidence(self, p: Profile, null_result, best: ScoreTest, option: tuple, before: dict, held_data: list,
                   common: dict) -> tuple:
@@ -394,6 +415,15 @@ class Refine:
             return ("no held-out data to confirm it, and the tests are outside their validity (the residual noise "
                     "model reached its order cap with innovations still not white): nothing is accepted on them alone")
         return ""
+
+
+def _common(test: ScoreTest, tested: list[ScoreTest]) -> dict:
+    """A step's score-test record: its statistic, threshold, the next three candidates."""
+    runner_up = [{"effect": t.candidate.kind, "target": t.candidate.target, "statistic": t.statistic,
+                  "threshold": t.threshold} for t in sorted(tested, key=ScoreTest.rank) if t is not test][:3]
+    return dict(statistic=test.statistic, threshold=test.threshold, dof=test.dof, p_value=test.p_value,
+                tested=len(tested), runner_up=runner_up, why=test.candidate.spec.get("why", ""),
+                metric=test.metric, nu=test.nu if math.isfinite(test.nu) else None)
 
 
 __all__ = ["Refine", "Step", "ScoreTest"]

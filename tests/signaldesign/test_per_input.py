@@ -50,9 +50,9 @@ def test_low_rank_updates_match_the_information_from_scratch(s61m):
 
 def test_bound_exceeds_every_two_axis_sequence(s61m):
     ev = Evaluator(s61m, INPUTS, record=8.0, dt=0.05, params=[0, 3, 5, 7])
-    basis = StepBasis(ev, 0.5, 4)
+    basis = StepBasis(ev, 0.5, 3)
     obj = PerInputObjective(basis, "nominal")
-    one = [np.array(s, float) for s in itertools.product((-1, 0, 1), repeat=4) if any(s)]
+    one = [np.array(s, float) for s in itertools.product((-1, 0, 1), repeat=3) if any(s)]
     values = np.array([obj(np.concatenate([a, b])) for a in one for b in one])
     best = np.argmax(values)
     bound = objective_bound(obj, np.concatenate([one[best // len(one)], one[best % len(one)]]))

@@ -49,7 +49,14 @@ class FEM(Estimator):
     never. Both are then in ``info["std_coloured"]`` and ``info["std_white"]`` (theta only), the
     choice in one line (``info["bounds_choice"]``). A degenerate fit (R on its floor on every
     output, or a filter that copies the data) has its derivatives' bounds marked not meaningful
-    (NaN, ``info["degenerate"]`` says why).
+    (NaN, ``info["degenerate"]`` says why). ``diffuse``: each run's initial states and zero shifts
+    integrated out of the likelihood that fits the derivatives and the noise (de Jong's diffuse
+    likelihood, :meth:`FilterProblem.diffuse_term`), then estimated given them; with
+    ``stationary_start`` (states with process noise and a first-order equation, the gusts) those
+    states' starts are instead draws from their stationary distribution (variance F^2 / (2 omega)).
+    Both on by themselves for a profile's ``[turbulence]``: estimated alongside, the nuisance takes
+    up the gusts' slow part (corners too high, intensities too low on short runs), and integrated
+    flat, a gust's start lets its corner run to zero (a random walk).
 
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.
@@ -68,8 +75,9 @@ class FEM(Estimator):
     def __init__(self, profile: Profile | str | Path, *, process_noise: dict | None = None, x0: dict | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True, estimate_bias: bool = True,
                  progress=None, verbose: bool = False, coloured: bool | None = None,
-                 formulation: str = "measurement"):
+                 formulation: str = "measurement", diffuse: bool = False, stationary_start: tuple = ()):
         super().__init__(profile)
+        self.diffuse, self.stationary_start = diffuse, tuple(stationary_start)
         self.process_noise, self.x0, self.coloured = process_noise, x0, coloured
         self.formulation = formulation
         self.max_iter, self.tol = max_iter, tol

@@ -32,7 +32,7 @@ class Filtered:
 
     def __init__(self, beta, model, nu, x, S, P, K, cost):
         self.beta, self.model, self.nu, self.x, self.S, self.P, self.K, self.cost = beta, model, nu, x, S, P, K, cost
-        self.dnu = self.dS = None
+        self.dnu = self.dS = self.diffuse_grad = None
 
 
 class FilterProblem:
@@ -43,6 +43,8 @@ class FilterProblem:
     Unknowns ``beta = [theta (p), F (nf), R diag (ny), x0 per run (R, n), zero shifts per run (R, ny)]``;
     each run's local unknowns are ``[theta, F, R, x0 of the run, its zero shifts]`` (k columns).
     """
+
+    diffuse_supported = True  # the extended filter and the textbook's formulation: the profile likelihood only
 
     def __init__(self, profile: Profile, u, z, dt: float, noise_states: list[str], hold: str = "held"):
         self.profile, self.dt, self.hold = profile, float(dt), hold
@@ -67,6 +69,12 @@ class FilterProblem:
         self.k = self.G + n + ny
         self.local_index = np.hstack([np.tile(np.arange(self.G), (R, 1)), self.index["x0"], self.index["b"]])
         self.prior = None  # a PriorTerm (identify.estimators.prior): its residuals join the cost
+        # the diffuse likelihood (:meth:`diffuse_term`): per run (R, n + ny), the initial states and
+        # zero shifts integrated out; None: the profile likelihood (them estimated with the rest)
+        self.diffuse = None
+        # states (indices) whose start is a draw from their stationary distribution (a gust:
+        # variance F^2 / (2 omega), omega = -A[j, j]): that prior joins the diffuse likelihood
+        self.stationary: list[int] = []
 
     def unpack(self, beta):
         """``theta`` (p,), ``F`` (nf,), ``x0`` (n, R), ``b`` (ny, R), ``R`` diag (ny,)."""
@@ -149,6 +157,11 @@ class FilterProblem:
         cost = 0.5 * float(np.einsum("kir,ij,kjr->", nu, Sinv, nu)) + 0.5 * self.N * np.linalg.slogdet(S)[1]
         if self.prior is not None:
             cost += self.prior.cost(beta[:self.p])
+        if self.diffuse is not None:
+            s2, _ = self._stationary(model, f)
+            cost += self.diffuse_term(Abar, Kp, C, Sinv, s2)
+            on = np.isfinite(s2)
+            cost += 0.5 * float(np.sum(x0[on] ** 2 / s2[on, None])) + 0.5 * self.n_runs * float(np.sum(np.log(s2[on])))
         K = np.linalg.solve(Phi, Kp) if np.linalg.cond(Phi) < 1e12 else P @ np.linalg.solve(S, C).T
         ev = Filtered(beta, model, nu, x, S, P, K, cost)
         ev.Kp = Kp
@@ -183,6 +196,10 @@ class FilterProblem:
         if not (np.all(np.isfinite(dnu)) and np.all(np.isfinite(dS))):
             raise np.linalg.LinAlgError("the filter's sensitivities are not finite")
         ev.dnu, ev.dS = dnu, dS
+        if self.diffuse is not None:
+            s2, ds2 = self._stationary(model, f)
+            ev.diffuse_grad = self._diffuse_gradient_exact(Phi - Kp @ C, Kp, C, np.linalg.inv(ev.S), dAbar, dKp,
+                                                           dC_g, dS, s2, ds2, x0)
 
     def _gain_derivatives(self, ev: Filtered, Phi, Kp, dPhi, noise: bool):
         """``dKp`` (G, n, ny) and ``dS`` (G, ny, ny) (zero for R unless ``noise``), analytic: at the
@@ -218,6 +235,93 @@ class FilterProblem:
         dKp = (dPhi_g @ P @ C.T + Phi @ dP @ C.T + Phi @ (dC_g @ P).transpose(0, 2, 1) - Kp @ dS) @ np.linalg.inv(S)
         return dKp, dS
 
+    # -- the diffuse likelihood ----------------------------------------------------------------------
+    def _stationary(self, model, f):
+        """The stationary variances ``s2`` (n,) of the ``stationary`` states' starts (NaN for the
+        others, and for a state without process noise) and their derivatives ``ds2`` (G, n)."""
+        n, p = self.n, self.p
+        s2, ds2 = np.full(n, np.nan), np.zeros((self.G, n))
+        for j in self.stationary:
+            i = self.w_idx.index(j)
+            omega, F = -model.A[j, j], f[i]
+            if not omega > 0:
+                raise np.linalg.LinAlgError(f"the gust state {self.profile.state_names[j]} is not stable")
+            if F == 0:
+                continue
+            s2[j] = F ** 2 / (2 * omega)
+            ds2[:p, j] = s2[j] / omega * model.dA[:, j, j]  # d omega = -dA[j, j]
+            ds2[p + i, j] = 2 * s2[j] / F
+        return s2, ds2
+
+    def diffuse_term(self, Abar, Kp, C, Sinv, s2=None) -> float:
+        """``0.5 sum_r log det(H_r^T S^-1 H_r + Lambda)``: what the negative log-likelihood gains when
+        each run's initial states and zero shifts (the columns ``diffuse`` (R, n + ny) lists) are
+        integrated out instead of estimated (de Jong's diffuse likelihood, REML for a state-space
+        model): with a flat prior, but a ``stationary`` state's start with its stationary one
+        (precision ``Lambda = 1 / s2``; its own ``0.5 x0^2 / s2 + 0.5 log s2`` per run is added by
+        :meth:`evaluate`, the estimated x0 being the mode). ``H_r`` = d(innovations)/d(those
+        unknowns) of run r; they enter the innovations linearly, so the integral is exact.
+        Estimated with the rest (the profile likelihood), they take up part of the slow
+        disturbances and the noise's parameters follow (a gust's corner too high and its intensity
+        too low on short runs); integrated flat, a gust's start lets its corner run to zero."""
+        return self._diffuse_parts(Abar, Kp, C, Sinv, s2)[0]
+
+    def _diffuse_parts(self, Abar, Kp, C, Sinv, s2=None):
+        """The term, the sensitivities ``sens`` (L, n, k, R) of the states to the nuisance, ``H``
+        (L, ny, k, R) and each run's inverse Gram matrix on its integrated columns (R, k, k; zero
+        elsewhere)."""
+        n, ny, R = self.n, self.ny, self.n_runs
+        L, k = self.Z.shape[0], n + ny
+        start = np.zeros((n, k, R))
+        start[:, :n] = np.eye(n)[:, :, None]
+        forcing = np.zeros((L, n, k, R))
+        forcing[:, :, n:] = -Kp[:, :, None]
+        sens = propagate(Abar, forcing.reshape(L, n, -1), start.reshape(n, -1)).reshape(L, n, k, R)
+        H = -(C @ sens.reshape(L, n, -1)).reshape(L, ny, k, R)
+        H[:, :, n:] -= np.eye(ny)[:, :, None]
+        H *= self.mask[:, None, None, :]
+        Wh = np.linalg.cholesky(Sinv).T  # Wh^T Wh = S^-1
+        Hw = (Wh @ H.reshape(L, ny, -1)).reshape(L, ny, k, R).transpose(3, 0, 1, 2).reshape(R, L * ny, k)
+        gram = Hw.transpose(0, 2, 1) @ Hw  # (R, k, k)
+        if s2 is not None:  # a stationary start's prior precision
+            idx = np.flatnonzero(np.isfinite(s2))
+            gram[:, idx, idx] += 1 / s2[idx]
+        total, inv = 0.0, np.zeros((R, k, k))
+        for r in range(R):
+            keep = self.diffuse[r]
+            if keep.any():
+                w, V = np.linalg.eigh(gram[r][np.ix_(keep, keep)])
+                w = np.maximum(w, 1e-12 * max(w.max(), 1e-300))
+                total += 0.5 * float(np.sum(np.log(w)))
+                inv[r][np.ix_(keep, keep)] = (V / w) @ V.T
+        return total, sens, H, inv
+
+    def _diffuse_gradient_exact(self, Abar, Kp, C, Sinv, dAbar, dKp, dC, dS, s2, ds2, x0) -> np.ndarray:
+        """d(:meth:`diffuse_term`)/d(globals) (G,) from the globals' derivatives of the filter
+        (``dAbar`` (G, n, n), ``dKp`` (G, n, ny), ``dC`` (G, ny, n), ``dS`` (G, ny, ny)): with
+        ``E = S^-1 H Gram^-1``, ``d(0.5 log det Gram) = sum_l <E_l, dH_l> - 0.5 <dS, T>``,
+        ``T = sum_l S^-1 H_l Gram^-1 H_l^T S^-1``; the sensitivities' own derivatives enter through
+        one backward (adjoint) recursion, ``lam_j = Abar^T lam_{j+1} + C^T E_{j+1}``."""
+        _, sens, H, inv = self._diffuse_parts(Abar, Kp, C, Sinv, s2)
+        L, ny, k, R = H.shape
+        n = self.n
+        E = np.einsum("ij,ljbr,rbc->licr", Sinv, H, inv, optimize=True)  # (L, ny, k, R)
+        Ef, Hf = E.reshape(L, ny, k * R), H.reshape(L, ny, k * R)
+        T = np.einsum("lac,lbc->ab", Ef, Hf, optimize=True) @ Sinv  # sum_l E_l H_l^T S^-1
+        B = (C.T @ Ef)  # (L, n, k R)
+        mu = propagate(Abar.T, np.concatenate([B[:0:-1], np.zeros((1, n, k * R))]), np.zeros((n, k * R)))
+        lam = mu[::-1]  # lam_j = sum_{l > j} (Abar^T)^(l-1-j) B_l
+        sf = sens.reshape(L, n, k * R)
+        lam_sens = np.einsum("lac,lbc->ab", lam, sf, optimize=True)  # (n, n)
+        lam_b = lam.reshape(L, n, k, R)[:, :, n:].sum(axis=(0, 3))  # (n, ny)
+        E_sens = np.einsum("lac,lbc->ab", Ef, sf, optimize=True)  # (ny, n)
+        grad = (-np.einsum("gab,ab->g", dC, E_sens) - np.einsum("gab,ab->g", dAbar, lam_sens)
+                + np.einsum("gab,ab->g", dKp, lam_b) - 0.5 * np.einsum("gab,ab->g", dS, T))
+        on = np.flatnonzero(np.isfinite(s2))  # the stationary starts: prior and its precision in the Gram
+        d_s2 = (-0.5 * np.sum(x0[on] ** 2, axis=1) / s2[on] ** 2 + 0.5 * R / s2[on]
+                - 0.5 * inv[:, on, on].sum(axis=0) / s2[on] ** 2)
+        return grad + ds2[:, on] @ d_s2
+
     # -- Fisher information ------------------------------------------------------------------------
     def information(self, ev: Filtered):
         """Fisher information ``M`` (n_beta, n_beta) and ``g = -dJ/dbeta`` (n_beta,)."""
@@ -242,6 +346,13 @@ class FilterProblem:
             p = self.p
             M[np.arange(p), np.arange(p)] += self.prior.precision
             g[:p] += self.prior.gradient(ev.beta[:p])
+        if self.diffuse is not None:
+            g[:G] -= ev.diffuse_grad
+            s2, _ = self._stationary(ev.model, ev.beta[self.index["f"]])
+            on = np.flatnonzero(np.isfinite(s2))
+            cols = self.index["x0"][:, on]  # (R, len(on)): the stationary starts' prior
+            g[cols] -= ev.beta[cols] / s2[on]
+            M[cols, cols] += 1 / s2[on]
         return M, g
 
     def coloured(self, ev: Filtered, active: np.ndarray):
@@ -264,5 +375,7 @@ def _stacked(mats: np.ndarray, series: np.ndarray) -> np.ndarray:
 class NonlinearFilterProblem(StateTerms, FilterProblem):
     """:class:`FilterProblem` of a profile with state-built terms: the extended Kalman filter
     (:mod:`.nonlinear`)."""
+
+    diffuse_supported = False
 
     Filtered = Filtered

@@ -37,6 +37,8 @@ class InnovationFilterProblem(FilterProblem):
     innovation covariance ``S_relaxed`` (set by :class:`InnovationSolver`; the beta's R entries
     unused, their sensitivities zero)."""
 
+    diffuse_supported = False
+
     S_relaxed: np.ndarray | None = None
 
     def _gain(self, A, C, f, r):

@@ -60,6 +60,11 @@ class FilterSolver(LevenbergMarquardt):
         if not nuisance_only and not self.active[:prob.p].any():
             raise EstimationError("FEM: no free parameter influences the outputs of these runs "
                                   "(are the inputs all zero?)")
+        if fem.diffuse and prob.diffuse_supported:  # the globals' cost: the diffuse likelihood
+            prob.diffuse = np.array([self.active[prob.local_index[r][prob.G:]] for r in range(prob.n_runs)])
+            prob.stationary = [prob.profile.state_names.index(s) for s in fem.stationary_start
+                               if s in prob.noise_states and self.active[prob.index["x0"][0, prob.profile.state_names.index(s)]]]
+            self.ev = self._evaluate(self.beta, jacobian=True)
         ix = prob.index
         self._nuisance_step(M, prob)
         self.scale0 = np.abs(beta)

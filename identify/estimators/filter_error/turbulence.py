@@ -30,7 +30,7 @@ def fit(fem, runs) -> IdentificationResult:
     if gm.corners:
         t = {k: v for k, v in p.turbulence.items() if k != "corner_start"}
         held = augment(replace(p, turbulence={**t, "corner": {s: gm.held_start(s) for s in gm.corners}}), runs)
-        first, _ = _fit_augmented(fem, held, runs)
+        first, _ = _fit_augmented(fem, held, runs, diffuse=False)  # the derivatives' start alone
         # the gusts' F and R start afresh: from the first fit's F the start of R fell below its
         # floor (FEM's three starts, five times the time, the same optimum)
         start = replace(p, free=dict(zip(p.free, map(float, first.theta[:gm.n_derivatives]))))
@@ -44,12 +44,13 @@ def augmented_estimator(fem, runs, gm: GustModel | None = None, **changes):
     default built from ``fem.profile_`` and ``runs``), the gust states' process noise with the
     option's."""
     gm = gm or augment(fem.profile_, runs)
-    return fem.clone(gm.augmented, process_noise={**gm.noise_states(), **(fem.process_noise or {})}, **changes)
+    return fem.clone(gm.augmented, process_noise={**gm.noise_states(), **(fem.process_noise or {})},
+                     **{"diffuse": True, "stationary_start": tuple(gm.gusts.values()), **changes})
 
 
-def _fit_augmented(fem, gm: GustModel, runs):
-    """FEM (with ``fem``'s options) on the augmented profile: its result and the fitted FEM."""
-    inner = augmented_estimator(fem, runs, gm).fit(runs)
+def _fit_augmented(fem, gm: GustModel, runs, **changes):
+    """FEM (with ``fem``'s options and ``changes``) on the augmented profile: its result and the fitted FEM."""
+    inner = augmented_estimator(fem, runs, gm, **changes).fit(runs)
     res = inner.result_
     fem.problem_, fem.beta_, fem.gusts_ = inner.problem_, inner.beta_, gm
     return res, inner

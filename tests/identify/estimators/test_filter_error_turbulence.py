@@ -131,3 +131,38 @@ def test_refine_fem_carries_the_declaration(navion, fitted):
     assert r.result_.info["turbulence"]["gusts"]["w"]["corner_estimated"]
     assert r.profile_.turbulence["states"] == ["w"]
     assert math.isfinite(r.result_.info["turbulence"]["gusts"]["w"]["corner"])
+
+
+def test_diffuse_likelihood_term_and_its_exact_gradient(navion):
+    """The turbulence fits integrate each run's initial states and zero shifts out (de Jong's
+    diffuse likelihood): the cost gains 0.5 sum_r log det(H_r^T S^-1 H_r), and the gradient the
+    solver steps on is that term's (central differences of the cost with and without it)."""
+    from identify.estimators.filter_error import turbulence as seam
+
+    runs = gusty_runs(navion, (5, 6), duration=8.0)
+    fem = FEM(with_turbulence(navion, "w"))
+    fem._validate()
+    est = seam.augmented_estimator(fem, fem.check_runs(runs))
+    assert est.diffuse
+    est._validate()
+    prob, beta, active = est._problem(runs)
+    on = np.array([active[prob.local_index[r][prob.G:]] for r in range(prob.n_runs)])
+    prob.stationary = [prob.profile.state_names.index("w_g")]  # the gust's start: a stationary draw
+    beta[prob.index["x0"][:, -1]] = [0.3, -0.2]
+
+    def term(b):
+        prob.diffuse = None
+        plain = prob.evaluate(b).cost
+        prob.diffuse = on
+        return prob.evaluate(b).cost - plain
+
+    prob.diffuse = on
+    exact = prob.evaluate(beta, jacobian=True, noise=True).diffuse_grad
+    assert abs(term(beta)) > 1  # a term that moves the fit
+    for i in range(prob.G):
+        h = 1e-4 * max(abs(beta[i]), 1e-3)
+        up, down = beta.copy(), beta.copy()
+        up[i] += h
+        down[i] -= h
+        fd = (term(up) - term(down)) / (2 * h)
+        assert exact[i] == pytest.approx(fd, rel=2e-3, abs=1e-6 * np.abs(exact).max()), (i, exact[i], fd)

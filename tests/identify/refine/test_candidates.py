@@ -89,7 +89,7 @@ def test_catalogue_lists_every_structurally_zero_entry_once():
     # the dynamic equations X and M only (theta_dot = q is kinematics, all fixed): A: X_q, M_u; B: X_eta
     assert names == sorted(["X_q", "M_u", "X_eta"])
     kinds = {c.kind for c in catalogue(PROFILE, ctx)}
-    assert kinds == {"derivative", "delay", "bias", "drift", "scale", "nonlinear", "periodic"}
+    assert kinds == {"derivative", "delay", "sensor_lag", "bias", "drift", "scale", "nonlinear", "periodic"}
     p = Derivative("M_u").profile(PROFILE)
     assert "M_u" not in [c.target for c in catalogue(p, ctx, kinds=("derivative",))]
 

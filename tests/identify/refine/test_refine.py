@@ -11,7 +11,7 @@ import pytest
 from scipy import signal
 
 from identify import EstimationError, LinearModel, Run, discretize, parse_profile, simulate_run
-from identify.refine.candidates import Lag
+from identify.refine.candidates import Lag, SensorLag
 from identify.refine import Refine
 
 TOML = """
@@ -526,3 +526,22 @@ def test_feedback_bounds_match_the_fixed_point_of_the_fits():
     assert widened.std[i] > 1.2 * held.std[i]
     assert "feedback" in widened.info["standard_errors"]
     assert np.allclose(feedback_bounds(held, fitted, runs).std, widened.std, rtol=0.05)
+
+
+def test_sensor_lag_found_on_its_output_not_taken_for_an_input_lag():
+    """The q gyro lags 0.08 s (a first-order filter on the measurement): with the whole catalogue
+    refine names it on q; an input lag on eta, which the catalogue held before the sensor lag and
+    took for it, would delay u and theta as well."""
+    k = 1 / 0.08
+    r = refine(*make_runs(SensorLag("q", k=k).profile(PROFILE)))
+    check_first_step(r, "sensor_lag", "q", "k_q_sensor", k, halve=False)
+    assert r.error_after_["validation"]["q"] < 0.5 * r.error_before_["validation"]["q"]
+    assert not [s for s in r.steps_ if s.effect in ("delay", "lag")], [s.to_dict() for s in r.steps_]
+
+
+def test_input_lag_not_taken_for_a_sensor_lag():
+    """Conversely an actuator lag on eta, with sensor lags in the catalogue: found on the input."""
+    k = 1 / 0.15
+    r = refine(*make_runs(Lag("eta", k=k).profile(PROFILE)))
+    check_first_step(r, "lag", "eta", "k_eta_lag", k)
+    assert not [s for s in r.steps_ if s.effect == "sensor_lag"], [s.to_dict() for s in r.steps_]
