@@ -30,7 +30,7 @@ alternating signs. Printed per case and method: median relative derivative error
 corners and intensities (mean, Monte-Carlo std, mean bound), failures and wall time.
 Done-when of issue 33 (FEM with --turbulence): median error <= 2 %, RMS z in 0.7..1.3, none beyond 3 std.
 
-``python benchmarks/filter_error.py [--n 50] [--baselines 50] [--cases hover12,...] [--save results.jsonl]``:
+``python benchmarks/filter_error.py [--n 50] [--baselines 50] [--cases hover12,...] [--likelihood diffuse] [--save results.jsonl]``:
 results are appended per realisation to ``--save`` and a rerun resumes. BLAS is set single-threaded here.
 """
 import os
@@ -45,6 +45,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -221,11 +222,13 @@ class Case:
 METHODS = {"fem_turb": ["--method", "fem", "--turbulence"], "fem_white": ["--method", "fem"], "ml": ["--method", "ml"]}
 
 
-def fit_cli(method: str, case: Case, runs: list[Run], profile) -> dict:
+def fit_cli(method: str, case: Case, runs: list[Run], profile, likelihood: str = "profile") -> dict:
     """``identify estimate`` on the runs and profile written to files: its result.json."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         paths = [str(r.to_csv(tmp / f"run{k + 1}.csv")) for k, r in enumerate(runs)]
+        if method == "fem_turb" and likelihood != "profile":  # the profile's [turbulence] likelihood key
+            profile = replace(profile, turbulence={"states": case.spec["turbulence"].split(","), "likelihood": likelihood})
         profile.save(tmp / "profile.toml")
         argv = ["estimate", *paths, "--profile", str(tmp / "profile.toml"), "--out", str(tmp / "out"), *METHODS[method]]
         if method == "fem_turb":
@@ -249,11 +252,11 @@ def fit_cli(method: str, case: Case, runs: list[Run], profile) -> dict:
     return rec
 
 
-def realisation(case: Case, seed: int, baselines: bool) -> dict:
+def realisation(case: Case, seed: int, baselines: bool, likelihood: str = "profile") -> dict:
     runs, prof = case.runs(seed), case.apriori()
     rec = {"case": case.name, "seed": seed}
     for m in METHODS if baselines else ["fem_turb"]:
-        rec[m] = fit_cli(m, case, runs, prof)
+        rec[m] = fit_cli(m, case, runs, prof, likelihood)
     return rec
 
 
@@ -327,6 +330,9 @@ def parser():
     ap.add_argument("--baselines", type=count, default=50,
                     help="of these, the first N also fitted by the white-model FEM and ML")
     ap.add_argument("--cases", type=_cases, default=",".join(CASES), help="the cases, comma-separated")
+    ap.add_argument("--likelihood", choices=("profile", "diffuse"), default="profile",
+                    help="the turbulence fit's [turbulence] likelihood (profile: the default; diffuse: the runs' "
+                         "initial states and zero shifts integrated out)")
     ap.add_argument("--save", default=str(OUTPUT / "filter_error_turbulence.jsonl"),
                     help="results file (appended; a rerun resumes)")
     return ap
@@ -342,14 +348,14 @@ def main(argv=None):
           f"({min(args.baselines, args.n)} with the baselines), {DT * 1000:.0f} ms samples, 2 % measurement noise")
     for name in args.cases:
         case = Case(name)
-        design = repr((CASES[name], case.sigma.round(12).tolist()))
+        design = repr((CASES[name], case.sigma.round(12).tolist(), args.likelihood))
         done = [r for r in done if r["case"] != name or r.get("design") == design]
         have = {r["seed"]: r for r in done if r["case"] == name}
         for seed in range(args.n):
             base = seed < args.baselines
             if seed in have and (not base or all(m in have[seed] for m in METHODS)):
                 continue
-            rec = {**realisation(case, seed, base), "design": design}
+            rec = {**realisation(case, seed, base, args.likelihood), "design": design}
             done = [r for r in done if not (r["case"] == name and r["seed"] == seed)] + [rec]
             with path.open("a") as f:
                 f.write(json.dumps(rec) + "\n")

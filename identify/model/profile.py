@@ -299,7 +299,9 @@ def parse_profile(text: str, source: str = "<profile>") -> Profile:
     )
 
 
-TURBULENCE_KEYS = ("states", "corner", "scale_length", "airspeed", "corner_start", "intensity", "kinematic")
+TURBULENCE_KEYS = ("states", "corner", "scale_length", "airspeed", "corner_start", "intensity", "kinematic",
+                   "likelihood")
+TURBULENCE_LIKELIHOODS = ("profile", "diffuse")  # x0 and zero shifts estimated with the rest, or integrated out
 FLOW_ANGLES = {"w": "alpha", "v": "beta", "u": "V"}  # a profile in alpha/beta form: the state a gust moves
 
 
@@ -314,7 +316,8 @@ def gust_velocity(name: str, states) -> str:
 def parse_turbulence(table, states, source: str) -> dict:
     """The ``[turbulence]`` table, normalised: ``states`` (list, flow-angle form mapped),
     per-state ``corner`` (held, rad/s), ``corner_start``, ``intensity`` (F starts), a positive
-    ``scale_length`` (m) and ``airspeed`` (m/s), ``kinematic`` entries; {} when not declared."""
+    ``scale_length`` (m) and ``airspeed`` (m/s), ``kinematic`` entries, ``likelihood`` ("profile",
+    the default, or "diffuse": :mod:`identify.model.turbulence`); {} when not declared."""
     table = _require(dict, table, "turbulence", source)
     if not table:
         return {}
@@ -357,6 +360,11 @@ def parse_turbulence(table, states, source: str) -> dict:
         if not isinstance(kin, list) or not all(isinstance(k, str) for k in kin):
             raise ProfileError(f"{source}: [turbulence] kinematic must list entries (for example [\"h_w\"])")
         out["kinematic"] = list(kin)
+    if "likelihood" in table:
+        if table["likelihood"] not in TURBULENCE_LIKELIHOODS:
+            raise ProfileError(f"{source}: [turbulence] likelihood must be one of {', '.join(TURBULENCE_LIKELIHOODS)}, "
+                               f"got {table['likelihood']!r}")
+        out["likelihood"] = table["likelihood"]
     return out
 
 

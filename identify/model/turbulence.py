@@ -12,10 +12,11 @@ on ``A[:, u]`` gets the entry ``A[:, u_g]`` with the opposite coefficient (a tie
 free parameters stay the profile's). Each run's initial gusts are estimated with its initial
 state (held at 0, a 12 s run's start in a gust is misfitted: over 8 realisations of the S 61
 hover with a SAS, benchmarks/filter_error.py, RMS z 1.18 and 2 derivatives beyond 3 std, against
-1.10 and none estimated); the derivatives, corners and intensities are fitted with those initial
-states and the zero shifts integrated out (the diffuse likelihood, FEM's ``diffuse``: estimated
-alongside, they take up the slow part of the gusts, and on 12 s runs the corners came out 40 %
-high, the intensities 20 % low and the velocity derivatives biased by 0.8 std),
+1.10 and none estimated). With ``likelihood = "diffuse"`` the derivatives, corners and
+intensities are fitted with the initial states and zero shifts integrated out and each gust's
+start a stationary draw (FEM's ``diffuse`` and ``stationary_start``; docs/filter_error.md: on 12
+s hover runs it removes the corners' and intensities' bias, with a SAS it lets the u gust's
+intensity run up along X_u -> 0, so it is not the default),
 the gusts' white forcing is the model's process noise, and the profile's own ``[process_noise]``
 (when it declares one) is added to it.
 
@@ -87,6 +88,11 @@ class GustModel:
     airspeed: float | None
 
     @property
+    def diffuse(self) -> bool:
+        """The diffuse likelihood declared (``likelihood = "diffuse"``)."""
+        return self.profile.turbulence.get("likelihood") == "diffuse"
+
+    @property
     def n_derivatives(self) -> int:
         return len(self.profile.free)
 
@@ -98,8 +104,8 @@ class GustModel:
         own = f"; and white process noise on {', '.join(p.process_noise)}" if p.process_noise else ""
         return (f"process noise: turbulence, first-order gust states {', '.join(self.gusts.values())} (corner {how}), "
                 f"process noise on them, every derivative on {', '.join(self.gusts)} acting on the "
-                f"air-relative velocity{own}; the corners and intensities fitted with each run's initial "
-                f"states and zero shifts integrated out (the diffuse likelihood)")
+                f"air-relative velocity{own}" + ("; the corners and intensities fitted with each run's initial "
+                f"states and zero shifts integrated out (the diffuse likelihood)" if self.diffuse else ""))
 
     def held_start(self, s: str) -> float:
         """The start value of velocity ``s``'s estimated corner (rad/s)."""

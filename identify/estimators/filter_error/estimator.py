@@ -54,9 +54,9 @@ class FEM(Estimator):
     likelihood, :meth:`FilterProblem.diffuse_term`), then estimated given them; with
     ``stationary_start`` (states with process noise and a first-order equation, the gusts) those
     states' starts are instead draws from their stationary distribution (variance F^2 / (2 omega)).
-    Both on by themselves for a profile's ``[turbulence]``: estimated alongside, the nuisance takes
-    up the gusts' slow part (corners too high, intensities too low on short runs), and integrated
-    flat, a gust's start lets its corner run to zero (a random walk).
+    Both on for a profile's ``[turbulence]`` with ``likelihood = "diffuse"``: estimated alongside,
+    the nuisance takes up the gusts' slow part (corners too high, intensities too low on short
+    runs); integrated flat, a gust's start lets its corner run to zero (a random walk).
 
     After ``fit(runs)``: ``result_`` (``modelled`` = the filter's one-step predictions, so the
     residuals are the innovations), ``covariance_`` (p, p), ``beta_`` (all unknowns), ``problem_``.

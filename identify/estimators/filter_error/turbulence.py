@@ -45,7 +45,8 @@ def augmented_estimator(fem, runs, gm: GustModel | None = None, **changes):
     option's."""
     gm = gm or augment(fem.profile_, runs)
     return fem.clone(gm.augmented, process_noise={**gm.noise_states(), **(fem.process_noise or {})},
-                     **{"diffuse": True, "stationary_start": tuple(gm.gusts.values()), **changes})
+                     **{"diffuse": gm.diffuse, "stationary_start": tuple(gm.gusts.values()) if gm.diffuse else (),
+                        **changes})
 
 
 def _fit_augmented(fem, gm: GustModel, runs, **changes):

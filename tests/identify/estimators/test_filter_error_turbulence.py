@@ -140,7 +140,11 @@ def test_diffuse_likelihood_term_and_its_exact_gradient(navion):
     from identify.estimators.filter_error import turbulence as seam
 
     runs = gusty_runs(navion, (5, 6), duration=8.0)
-    fem = FEM(with_turbulence(navion, "w"))
+    declared = parse_profile(navion.to_toml() + '\n[turbulence]\nstates = ["w"]\nlikelihood = "diffuse"\n')
+    plain = FEM(with_turbulence(navion, "w"))
+    plain._validate()
+    assert not seam.augmented_estimator(plain, runs).diffuse  # not the default
+    fem = FEM(declared)
     fem._validate()
     est = seam.augmented_estimator(fem, fem.check_runs(runs))
     assert est.diffuse
