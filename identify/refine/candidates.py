@@ -540,9 +540,14 @@ class SensorLag(Candidate):
         return _first_order_sensor_columns(fitting, p)[self.target]
 
     def estimate(self, fitting, p, noise, hint=None):
+        tau0 = float(np.ravel(hint)[0]) if hint is not None and np.size(hint) else 0.0
+        if tau0 < 0:
+            # the score is two-sided; a lag is not: the output leads the model (seen: theta beside a
+            # lagging q gyro, the attitude then looks early), and no filter makes a measurement early
+            raise EstimationError(f"the residual asks for '{self.target}' to lead the model (linearised tau "
+                                  f"{tau0:.3g} s < 0): no sensor lag")
         # the score's linearised tau starts the fit (a few samples at least: k of a vanishing lag is
         # far out on a flat likelihood)
-        tau0 = float(np.ravel(hint)[0]) if hint is not None and np.size(hint) else 0.0
         tau0 = min(max(tau0, 2 * fitting.dt), MAX_SENSOR_LAG) if math.isfinite(tau0) else 2 * fitting.dt
         start = SensorLag(self.target, k=1.0 / tau0)
         new_p, result = fitting.refit(start.profile(p), p)
