@@ -145,11 +145,7 @@ class ScoreBase:
         w = 1.0 / sigma
         e = np.concatenate([(r * w).ravel() for r in runs])
         J = base_columns * np.tile(w, len(e) // len(w))[:, None]
-        rows, start = [], 0
-        for r in runs:
-            rows.append(slice(start, start + r.size))
-            start += r.size
-        return cls(orthonormal_basis(J, rtol), e, w, rows)
+        return cls(orthonormal_basis(J, rtol), e, w, _row_slices(runs))
 
     @classmethod
     def from_blocks(cls, residuals, shared: list[np.ndarray], per_run: list[np.ndarray],
@@ -158,11 +154,7 @@ class ScoreBase:
         columns as :func:`block_design` takes them, the basis built block by block (:func:`block_basis`)."""
         runs = _stack(residuals)
         e = np.concatenate([r.ravel() for r in runs])
-        rows, start = [], 0
-        for r in runs:
-            rows.append(slice(start, start + r.size))
-            start += r.size
-        return cls(block_basis(shared, per_run, rtol), e, np.ones(runs[0].shape[1]), rows)
+        return cls(block_basis(shared, per_run, rtol), e, np.ones(runs[0].shape[1]), _row_slices(runs))
 
     def statistic(self, J_c: np.ndarray, rtol: float = 1e-6) -> tuple[float, int]:
         """Score statistic of candidate columns ``J_c`` (rows as the stacked residual, (M, q),
@@ -223,6 +215,12 @@ def orthonormal_basis(J: np.ndarray, rtol: float = 1e-10, norms: np.ndarray | No
         keep = lam > cut * max(lam.max(initial=0.0), 1e-300)
         Q = Q @ (V[:, keep] / np.sqrt(lam[keep]))
     return Q
+
+
+def _row_slices(runs: list[np.ndarray]) -> list[slice]:
+    """Each run's rows in the stacked residual (runs (N_r, ny), flattened in turn)."""
+    ends = np.cumsum([r.size for r in runs])
+    return [slice(int(b - r.size), int(b)) for r, b in zip(runs, ends)]
 
 
 def block_basis(shared: list[np.ndarray], per_run: list[np.ndarray], rtol: float = 1e-10) -> np.ndarray:
