@@ -203,6 +203,7 @@ class ML(Estimator):
         lay = prob.layout
         measured = [zr.copy() for zr in prob.per_run(prob.Z)]
         modelled = prob.per_run(sv.ev.y)
+        residuals = [z - y for z, y in zip(measured, modelled)]
         segments = [{"run": int(lay.run[s]), "t_start": float(runs[lay.run[s]].time[lay.start[s]]),
                      "samples": int(lay.length[s]),
                      "x0": dict(zip(p.state_names, map(float, x0[:, s]))),
@@ -242,10 +243,10 @@ class ML(Estimator):
             "std_coloured": None if std_col is None else std_col[:P],
             "noise_autocorrelation": acf,
             "colour_passes": passes,
-            "whiteness": whiteness([z - y for z, y in zip(measured, modelled)], list(p.outputs)),
+            "whiteness": whiteness(residuals, list(p.outputs)),
             "estimator_advice": None if not self.advice else colour_advice(
                 std_white[:P], None if std_col is None else std_col[:P],
-                lambda: follows_inputs([z - y for z, y in zip(measured, modelled)], u, prob.dt, list(p.outputs))),
+                lambda: follows_inputs(residuals, u, prob.dt, list(p.outputs))),
             "wall_time": wall,
         }
         if prior is not None:
