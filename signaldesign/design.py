@@ -183,8 +183,10 @@ class SequenceDesign:
             raise DesignError("a fixed amplitude must be the same on every axis (scale the inputs' units)")
         starts, classic = self._starts(ev, basis)
         kind = PerInputObjective if self._per_input() else Objective
-        if self._per_input():  # the classic inputs scored as the design is: each input at its own peak
-            classic = [float(kind(basis, "nominal", stride=1)(s)) for s in starts]
+        # per input, the classic inputs and the design are scored alike: each input at its own peak
+        per_input_nominal = kind(basis, "nominal", stride=1) if self._per_input() else None
+        if per_input_nominal is not None:
+            classic = [float(per_input_nominal(s)) for s in starts]
             if self.criterion in ("worst", "robust"):  # each model's yardstick: the 3211 flown by that rule
                 if not starts:
                     raise DesignError(f"duration {self.duration:g} s is too short for the 3211 yardstick of "
@@ -237,7 +239,7 @@ class SequenceDesign:
             warnings.warn(line, stacklevel=2)
         self.result_, self.basis_, self.evaluator_, self._objective_ = result, basis, ev, objective
         # D-efficiency on the a priori against the best tuned 3211 or doublet (the floor's reference)
-        nominal_ld = (kind(basis, "nominal", stride=1)(result.levels) if self._per_input()
+        nominal_ld = (per_input_nominal(result.levels) if per_input_nominal is not None
                       else ev.equal_peak_log_det(basis.signals(result.levels, amplitude)))
         self.nominal_gain_ = float(np.exp((nominal_ld - max(classic)) / ev.p)) if classic else float("nan")
         self.models_, self.model_labels_ = models, labels
