@@ -44,6 +44,11 @@ class Fitting:
         self.evaluations = 0
         self.unconverged: list[str] = []
 
+    def forget(self, kind: str) -> None:
+        """Drop the cached entries of one ``kind`` (the first element of their key)."""
+        for key in [k for k in self.cache if k[0] == kind]:
+            del self.cache[key]
+
     @property
     def dt(self) -> float:
         return self.data["fit"][0].dt

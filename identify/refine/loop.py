@@ -190,6 +190,7 @@ class Refine:
                 self.rejected_.append(step)
                 excluded.add(best.candidate.name)
                 deferred |= {best.candidate.name} if step.reason.startswith(ERROR_REFUSALS) else set()
+        self.fitting_.forget("score tests")  # every candidate's columns: not needed after the loop
         for kind in dict.fromkeys(KIND_CLASSES[s.effect] for s in self.steps_):
             current, result = kind.revisit(self.fitting_, current, result, noise, self.steps_)
         return current, result
