@@ -318,10 +318,12 @@ class Delay(Candidate):
                 tau = float(np.clip(round(tau / dt, 3) * dt, 0.0, fitting.tau_max))
                 key = round(tau, 9)
                 if key not in fits:
-                    # warm start from the nearest delay fitted so far: a few iterations, not twenty
-                    start = fits[min(fits, key=lambda k: abs(k - key))][1] if fits else p
+                    # warm start from the nearest delay fitted so far, its noise estimate too: a few
+                    # iterations, not twenty
+                    _, start, near = fits[min(fits, key=lambda k: abs(k - key))] if fits else (0, p, None)
                     try:
-                        prof, res = fitting.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
+                        prof, res = fitting.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False,
+                                                  start=near)
                         fits[key] = (0.5 * noise.cost(fitting.residuals(prof)), prof, res)
                     except (EstimationError, SimulationError):  # a delay whose fit diverges is not the likeliest one
                         fits[key] = (math.inf, start, None)
@@ -334,7 +336,8 @@ class Delay(Candidate):
             tau = _search_delay(lambda t: at(t)[0], min(starts, key=lambda t: at(t)[0]), dt, fitting.tau_max)
             if not math.isfinite(at(tau)[0]):
                 raise EstimationError(f"delay on '{self.target}': the fit diverged at every delay tried")
-            prof, res = fitting.refit(at(tau)[1], p)  # the same fit, with its bounds
+            # the same fit converged fully, with its bounds
+            prof, res = fitting.refit(at(tau)[1], p, start=at(tau)[2])
             # the bound from the curvature (central difference, shifted off the bound tau = 0)
             h = max(dt / 2, 0.05 * tau)
             c = tau if tau >= h else h
