@@ -210,16 +210,17 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
     sb = dg.ScoreBase.from_blocks([noise.whiten(e) for e in residuals], [d[:, :, :nb] for d in dyw], nuisance_w)
     J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
     out = []
-    base = None  # the model's and nuisance columns unwhitened and their whitened ones in sb's basis (built once)
+    base_q = None  # the model's and nuisance columns whitened, in the coordinates of sb's basis (once)
     for (c, cols), (stat, q) in zip(groups, sb.statistics(J, [[where[k] for k in cols] for _, cols in groups])):
         if q == 0:
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
         nu = math.inf
         if metric == "alternative" or c.removed_by_noise_fit:
-            base = (dg.block_design([d[:, :, :nb] for d in dy], nuisance),
-                    sb.Q.T @ dg.block_design([d[:, :, :nb] for d in dyw], nuisance_w)) if base is None else base
-            nu = _noise_dof(noise, sb, *base, [d[:, :, [nb + k for k in cols]] for d in dy])
+            if base_q is None:
+                base_q = _block_product(sb.Q.T, [d[:, :, :nb] for d in dyw], nuisance_w)
+            nu = _noise_dof(noise, sb, ([d[:, :, :nb] for d in dy], nuisance), base_q,
+                            [d[:, :, [nb + k for k in cols]] for d in dy])
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
@@ -245,15 +246,27 @@ def _threshold(level: float, q: int, nu: float) -> float:
     return float(q * (d + q) / d * stats.f.isf(level, q, d))
 
 
-def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: np.ndarray, base_q: np.ndarray,
+def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: tuple, base_q: np.ndarray,
                columns: list[np.ndarray]) -> float:
     """Degrees of freedom of ``noise``'s level along a candidate's ``columns`` (per run (N_r, ny, q))
-    less their fit, in that metric, on the model's and nuisance columns (``base``; ``base_q`` the
-    whitened ones in the coordinates of their basis ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
+    less their fit, in that metric, on the model's and nuisance columns (``base``: per run, the
+    shared and the run's own, as :func:`block_design` takes them; ``base_q`` the whitened ones in
+    the coordinates of their basis ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
     Jw = np.concatenate([noise.whiten(c).reshape(-1, c.shape[2]) for c in columns])
     coef = np.linalg.lstsq(base_q, sb.Q.T @ Jw, rcond=None)[0]
-    rest = np.concatenate([c.reshape(-1, c.shape[2]) for c in columns]) - base @ coef
-    parts = np.split(rest, np.cumsum([c.shape[0] * c.shape[1] for c in columns])[:-1])
-    return noise.effective_dof([r.reshape(c.shape) for r, c in zip(parts, columns)])
+    shared, per_run = base
+    nb, first = shared[0].shape[2], np.cumsum([0] + [x.shape[2] for x in per_run])
+    rest = [c - s @ coef[:nb] - x @ coef[nb + a:nb + b]
+            for c, s, x, a, b in zip(columns, shared, per_run, first[:-1], first[1:])]
+    return noise.effective_dof(rest)
+
+
+def _block_product(A: np.ndarray, shared: list[np.ndarray], per_run: list[np.ndarray]) -> np.ndarray:
+    """``A @ block_design(shared, per_run)`` without the design: each run's own columns meet only
+    that run's columns of ``A`` (its rows of the stacked design)."""
+    ends = np.cumsum([s.shape[0] * s.shape[1] for s in shared])
+    rows = [slice(int(e - s.shape[0] * s.shape[1]), int(e)) for s, e in zip(shared, ends)]
+    stacked = np.concatenate([s.reshape(-1, s.shape[2]) for s in shared])
+    return np.hstack([A @ stacked] + [A[:, r] @ x.reshape(-1, x.shape[2]) for r, x in zip(rows, per_run)])
 
 __all__ = ["ScoreTest", "ScoreRound", "score_candidates", "SIMPLER_FIRST", "TOP_ALTERNATIVE"]
