@@ -28,7 +28,7 @@ from scipy import stats
 from ..model.profile import Profile
 from . import diagnostics as dg
 from .candidates import Candidate, Context, catalogue, extend_all
-from .evaluation import unexplained
+from .evaluation import unexplaining
 from .fitting import Fitting
 from .noise import NoiseModel
 
@@ -151,6 +151,7 @@ class _Tests:
         self.energy = dict(zip([c.name for c, _ in self.groups], dg.residual_energy(
             ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in self.groups], self.sigma))) if coloured else {}
         self.alternative: dict[str, list[ScoreTest]] = {}
+        self.unexplained = None  # the residual's least-squares fit with a candidate's columns added (once built)
 
     @classmethod
     def at(cls, fitting: Fitting, p: Profile, kinds, excluded: set[str], *options) -> "_Tests":
@@ -170,8 +171,9 @@ class _Tests:
         new = [g for g in chosen if g[0].name not in self.alternative]
         if new:
             residuals, dy, nuisance, nb = self.design
-            each = unexplained(residuals, [d[:, :, :nb] for d in dy], nuisance, self.sigma,
-                               [[d[:, :, [nb + k for k in cols]] for d in dy] for _, cols in new])
+            if self.unexplained is None:
+                self.unexplained = unexplaining(residuals, [d[:, :, :nb] for d in dy], nuisance, self.sigma)
+            each = self.unexplained([[d[:, :, [nb + k for k in cols]] for d in dy] for _, cols in new])
             for (c, cols), clean in zip(new, each):
                 alt = NoiseModel.fit(clean, self.fitting.dt, self.f_min, segment=self.fitting.segment,
                                      deterministic=False)
