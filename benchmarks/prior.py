@@ -15,7 +15,8 @@ Reported (over all realisations):
 * derivatives the fit without the prior flags as poorly identified (relative std > 20 %): the
   median absolute error without and with the prior, and their ratio (done when <= 0.5);
 * well-identified ones (relative std < 5 % without the prior): how far the prior moved them,
-  |with - without| / std without (median, 95th percentile, max; done when none moves > 0.5);
+  |with - without| / std without (median, 95th percentile, max, the share over 0.5 beside what theory gives
+  an honest prior, and per derivative its RMS and median move over the realisations);
 * the posterior RMS of (estimate - truth) / std over every derivative (done when 0.8-1.2), and
   without the prior for comparison;
 * the prior-data conflict: false alarms with the honest prior; then with one derivative's prior
@@ -157,6 +158,19 @@ def report(prof, truth, declared, results, wrong, wall) -> dict:
     # the well-identified estimates the prior moved by over half a std: toward the truth or away
     far = good & (moved > 0.5)
     g = out["well_identified"]
+    # per derivative over realisations. A derivative under the 5 % bar in only some realisations passes it
+    # when its estimate is large in magnitude (rel. std = std / |estimate|): selected by its own error, and
+    # the prior pulls those back further than theory's unconditional figure
+    g["per_derivative"] = {}
+    for j, m in enumerate(names):
+        sel = good[:, j]
+        if sel.any():
+            g["per_derivative"][m] = {
+                "share_well_identified": float(sel.mean()), "rms_move": float(np.sqrt(np.mean(moved[sel, j] ** 2))),
+                "rms_move_theory": float(np.sqrt(np.mean((shift_pred / sd0)[sel, j] ** 2))),
+                "median_move": float(np.median(moved[sel, j])), "share_over_half": float(np.mean(moved[sel, j] > 0.5)),
+                "rms_error_without_std": float(np.sqrt(np.mean(z0[sel, j] ** 2))),
+                "rms_error_with_std": float(np.sqrt(np.mean(((th1 - true) / sd0)[sel, j] ** 2)))}
     g["moved_over_half"] = {m: int(c) for m, c in zip(names, far.sum(0)) if c}
     if far.any():
         g["moved_error_without_std"] = float(np.sqrt(np.mean(((th0 - true) / sd0)[far] ** 2)))
@@ -198,6 +212,17 @@ def main(realisations: int, wrong: list[str], gust: float = 0.0) -> dict:
     print(f"well identified (rel. std < {GOOD:.0%}): {g['count']} estimates moved by the prior "
           f"|with - without| / std: median {g['moved_median']:.3f}, 95 % {g['moved_p95']:.3f}, max {g['moved_max']:.3f}, "
           f"share > 0.5: {g['share_over_half']:.3f} (theory for an honest prior: {g['share_over_half_theory']:.3f})")
+    print("  per derivative (well identified in: share of realisations | RMS move, theory | median move | share "
+          "moved > 0.5 | RMS (estimate - truth) / std without -> with the prior):")
+    for m, v in g["per_derivative"].items():
+        print(f"    {m:12s} {v['share_well_identified']:5.0%} | {v['rms_move']:.3f}, {v['rms_move_theory']:.3f} | "
+              f"{v['median_move']:.3f} | {v['share_over_half']:5.1%} | {v['rms_error_without_std']:.2f} -> "
+              f"{v['rms_error_with_std']:.2f}")
+    steady = {m: v for m, v in g["per_derivative"].items() if v["share_well_identified"] >= 0.9}
+    if steady:
+        worst = max(steady, key=lambda m: steady[m]["rms_move"])
+        print(f"  well identified in >= 90 % of realisations ({len(steady)} derivatives): largest RMS move "
+              f"{steady[worst]['rms_move']:.3f} std ({worst}; theory {steady[worst]['rms_move_theory']:.3f})")
     for m, v in p.get("by_derivative", {}).items():
         print(f"  {m}: error ratio {v['ratio']:.2f} (median rel. std without the prior {v['median_rel_std_without']:.0%}, "
               f"prior {v['prior_rel_std']:.0%})")

@@ -49,7 +49,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import eigh
+from scipy.linalg import eigh, qr
 from scipy.optimize import minimize, minimize_scalar
 from scipy.special import logsumexp, softmax
 
@@ -234,7 +234,8 @@ def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, start=None, rank: 
     start = np.linalg.svd(A)[2][0] if start is None else np.asarray(start, float)
     W, E, relaxed = relaxed_primal(G, A, start, rank, effort=effort)
     m = max(int(effort.row_work / K ** 2), 4 * K)  # (Effort.row_work): the most pressed, and a spread
-    keep = np.unique(np.concatenate([np.argsort(E)[::-1][:m // 2], np.linspace(0, n - 1, m - m // 2).astype(int)]))
+    keep = np.unique(np.concatenate([np.argsort(E)[::-1][:m // 2], np.linspace(0, n - 1, m - m // 2).astype(int),
+                                     _spanning_rows(A)]))
     A, E = A[keep], E[keep]
     mu0 = 0.5 * softmax(300.0 * E) + 0.5 / keep.size
     best, mu = best_weights(G, A, W, mu0, effort)
@@ -243,6 +244,16 @@ def model_bound(G: np.ndarray, A: np.ndarray, W0: np.ndarray, start=None, rank: 
     b, W = frank_wolfe(G, A, W, mu, effort.fw_steps)
     best = min(best, b, best_weights(G, A, W, mu, effort)[0])
     return ModelBound(float(best), float(relaxed))
+
+
+def _spanning_rows(A: np.ndarray) -> np.ndarray:
+    """K rows of A (n, K) of full column rank (QR with column pivoting of A^T): a subset of rows
+    that misses some level's direction leaves H_mu singular and the bound infinite (the pressed rows
+    of a four-input run spanned 244 of its 280 levels)."""
+    n, K = A.shape
+    if n <= K:
+        return np.arange(n)
+    return np.sort(qr(A.T, mode="r", pivoting=True)[1][:K])
 
 
 def objective_bound(objective, levels, jobs: int = 1, effort: str = "full") -> Bound:
@@ -256,7 +267,10 @@ def objective_bound(objective, levels, jobs: int = 1, effort: str = "full") -> B
     per = np.array([b.value for b in found])
     relaxed = np.array([b.relaxed for b in found])
     shift = 2 * objective.p * np.log(objective.amplitude) if objective.amplitude is not None else 0.0
-    return Bound(objective.combine(per + shift - objective.offsets, floor=False), per + shift, relaxed + shift)
+    # an infinite model bound bounds nothing (the combination would read it as -inf: a "bound" below
+    # the design, certifying 1)
+    value = objective.combine(per + shift - objective.offsets, floor=False) if np.all(per < np.inf) else np.inf
+    return Bound(value, per + shift, relaxed + shift)
 
 
 def _model_term(objective, _, m: int, levels: np.ndarray, effort: Effort) -> ModelBound:

@@ -374,7 +374,8 @@ class PerInputObjective(Objective):
             if idx.size:
                 c = int(idx[0]) // self.K
                 m = V.shape[0]
-                dV = np.matmul(d, self.G[:, idx].reshape(m, idx.size, -1)).reshape(V[:, c].shape)
+                sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
+                dV = np.matmul(d, self.G[:, sl].reshape(m, idx.size, -1)).reshape(V[:, c].shape)
                 V[:, c] += dV.transpose(0, 1, 3, 2)
         self._base = (levels, V, B, y)
 
@@ -389,16 +390,18 @@ class PerInputObjective(Objective):
             if int(idx[-1]) // self.K == c and idx.size <= max(2, self.K // 3):
                 d = (levels - l0)[idx]
                 m, p = B0.shape[0], B0.shape[-1]
+                # proposals change one contiguous run of steps: slices are views, not copies
+                sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
                 # row c of the blocks: d . V^b over the changed steps, for every axis b
-                Vi = np.matmul(d, V[:, :, idx].reshape(m, self.axes, idx.size, p * p)).reshape(m, self.axes, p, p)
-                Gii = self.G[:, idx[:, None], idx[None, :]]
+                Vi = np.matmul(d, V[:, :, sl].reshape(m, self.axes, idx.size, p * p)).reshape(m, self.axes, p, p)
+                Gii = self.G[:, sl, sl] if isinstance(sl, slice) else self.G[:, idx[:, None], idx[None, :]]
                 dGd = np.matmul(d, np.matmul(d, Gii.reshape(m, idx.size, idx.size, p * p))).reshape(m, p, p)
                 B = B0.copy()
                 B[:, c] += Vi
                 B[:, :, c] += Vi.transpose(0, 1, 3, 2)
                 B[:, c, c] += dGd
                 y = y0.copy()
-                y[:, c] += np.matmul(d, self.Yk[:, idx])
+                y[:, c] += np.matmul(d, self.Yk[:, sl])
                 self._last = (levels.copy(), idx, d, B, y, None)
                 return B, y
         _, V, B, y = self._state(levels)
