@@ -840,8 +840,8 @@ def catalogue(p: Profile, context: Context, kinds=KINDS) -> list[Candidate]:
 
 
 __all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Fitted", "refitted", "Derivative", "Delay", "Lag",
-           "SensorLag", "OutputTerm", "Bias", "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
-           "prepare_runs", "extend_all"]
+           "SensorLag", "OutputTerm", "Bias", "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale",
+           "catalogue", "delay_run", "prepare_runs", "extend_all"]
 
 
 def parameters_of(result, names) -> dict:
