@@ -37,7 +37,6 @@ BENCH_ARGS_demo_under_load := --estimate
 BENCH_ARGS_filter_error := --n 3 --baselines 2
 BENCH_ARGS_filter_error_nonlinear := 10
 BENCH_ARGS_filter_error_starts := 5
-BENCH_ARGS_filter_error_bounds := --n 3
 BENCH_ARGS_frequency := --quick
 BENCH_ARGS_frequency_fit := --realisations 10
 BENCH_ARGS_ml_long_record := 0.25

@@ -40,7 +40,8 @@ def estimator_options(args) -> dict:
     return dict(max_iter=getattr(args, "max_iter", None), diff_cutoff_hz=getattr(args, "diff_cutoff", None),
                 delays=options.names(getattr(args, "fr_delays", None)) or None,
                 prune=getattr(args, "prune", None) or None, x0=getattr(args, "x0", None),
-                n_draws=getattr(args, "n_draws", None), formulation=getattr(args, "fem_formulation", None))
+                n_draws=getattr(args, "n_draws", None), formulation=getattr(args, "fem_formulation", None),
+                process_noise=dict.fromkeys(options.names(getattr(args, "process_noise", None))) or None)
 
 
 def progress(method: str):

@@ -12,7 +12,8 @@ MAP_HELP = ('{"channels": {channel: column, variable, matrix column or expressio
             '(required for .mat data matrices)')
 # estimator parameter -> the flag that sets it, for the one error line of an option a method does not take
 FLAGS = {"max_iter": "--max-iter", "diff_cutoff_hz": "--diff-cutoff", "delays": "--fr-delays", "prune": "--prune",
-         "x0": "--x0", "n_draws": "--n-draws", "formulation": "--fem-formulation"}
+         "x0": "--x0", "n_draws": "--n-draws", "formulation": "--fem-formulation",
+         "process_noise": "--process-noise"}
 
 
 def add_reading(p, window: bool = True, trim: bool = True) -> None:
@@ -45,7 +46,10 @@ def add_fit(p, runs_help: str, default_method: str) -> None:
     p.add_argument("--outputs", metavar="LIST", help="fit these outputs only (comma-separated; default all)")
     p.add_argument("--turbulence", metavar="LIST", help="fem: gust states on these velocities (u,v,w; in a "
                    "flow-angle profile w and v act on alpha and beta), corners and intensities estimated; "
-                   "sets the profile's [turbulence] states")
+                   "sets the profile's [turbulence] states (fem's default where neither this nor [process_noise] "
+                   "is declared: the profile's velocities)")
+    p.add_argument("--process-noise", metavar="LIST", help="fem: white process noise on these states' equations "
+                   "(F started from the data) instead of the default gust states (as the profile's [process_noise])")
     p.add_argument("--prior-relative", type=positive_float, metavar="PCT",
                    help="a priori weighting: every free parameter's a priori value is a prior with std PCT %% of "
                         "it (at least PCT %% of a tenth of the largest of its equation's parameters of the same unit)")

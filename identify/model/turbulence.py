@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import EstimationError, ProfileError
-from .profile import FLOW_ANGLES, Profile, parse_turbulence
+from .profile import FLOW_ANGLES, VELOCITY_STATES, Profile, gust_velocity, parse_turbulence
 
 GUST_SUFFIX = "_g"
 CORNER_START = 1.0  # rad/s: the estimated corner's default start (correlation time 1 s)
@@ -56,6 +56,33 @@ def with_turbulence(profile: Profile, states: str | list[str]) -> Profile:
     listed = [s.strip() for s in states.split(",")] if isinstance(states, str) else list(states)
     table = {**profile.turbulence, "states": [s for s in listed if s]}
     return replace(profile, turbulence=parse_turbulence(table, profile.states, f"{profile.source} (--turbulence)"))
+
+
+def default_states(profile: Profile) -> list[str]:
+    """The velocities FEM gives gust states when nothing is declared (no ``[process_noise]``, no
+    ``[turbulence]``): the profile's u, v, w (in flow-angle form alpha for w, beta for v) on whose
+    column of A a parameter acts, free or fixed (a gust on a velocity no derivative sees would move
+    nothing the data show). Empty: no such velocity."""
+    p = profile
+    named = set(p.free) | set(p.fixed)
+    cols = {en.col for name in named for en, _ in p.parameter_entries(name) if en.matrix == "A"}
+    out = []
+    for s in VELOCITY_STATES:
+        v = gust_velocity(s, p.states)
+        if v in p.states and p.state_names.index(v) in cols:
+            out.append(v)
+    return out
+
+
+def without(profile: Profile, states) -> Profile:
+    """``profile`` with the gusts on ``states`` taken out of its ``[turbulence]`` (and their
+    per-state entries); none left: no ``[turbulence]``."""
+    t = profile.turbulence
+    kept = [s for s in t["states"] if s not in states]
+    if not kept:
+        return replace(profile, turbulence={})
+    table = {k: ({s: x for s, x in v.items() if s in kept} if isinstance(v, dict) else v) for k, v in t.items()}
+    return replace(profile, turbulence={**table, "states": kept})
 
 
 def run_airspeed(runs) -> float | None:

@@ -147,8 +147,9 @@ COLOURED = "coloured-innovation correction (Morelli & Klein) of the Cramér-Rao 
 
 
 TURBULENCE_ADVICE = ("; a process-noise model that leaves them coloured can also bias the estimates beyond any "
-                     "bound (measured: the Navion in gusts with white process noise, benchmarks/filter_error_bounds.py): "
-                     "declare the gusts as turbulence ([turbulence], --turbulence)")
+                     "bound (measured: the Navion in gusts with white process noise on u and alpha, "
+                     "benchmarks/filter_error.py): model the gusts as turbulence ([turbulence], --turbulence, "
+                     "FEM's default where no process noise is declared)")
 
 
 def fit_bounds(prob, ev, bounded: np.ndarray, coloured: bool | None, white: dict, stop: str,

@@ -31,6 +31,10 @@ class FilterSolver(LevenbergMarquardt):
         self.fem, self.prob, self.beta = fem, prob, beta.copy()
         self.max_iter, self.tol, self.progress, self.verbose = fem.max_iter, fem.tol, fem.progress, fem.verbose
         self.p = prob.p
+        # parameters stepped in their logarithm (a gust's corner stays positive): the scaled system
+        # is the same in either coordinate, only the step's map differs (_try) and its trust radius
+        names = prob.model0.names
+        self.log_idx = np.array([names.index(n) for n in fem.positive if n in names], int)
         self.hold_noise, self.start_noise, self.r_start = hold_noise, start_noise, r_start
         self.floor_bound: list[str] = []  # the outputs where F compensation fell below the floor (_relax)
         self.starts = None  # identify.estimators.filter_error.starts' record when it fitted from several starts
@@ -149,15 +153,19 @@ class FilterSolver(LevenbergMarquardt):
     def _scale(self, M) -> np.ndarray:
         cov, _ = inverse_information(M, self.active)
         sigma = np.sqrt(np.clip(np.nan_to_num(np.diag(cov)), 0, None))  # not formed: the values' scale alone
-        return np.maximum(np.maximum(np.abs(self.beta), self.scale0), sigma)
+        scale = np.maximum(np.maximum(np.abs(self.beta), self.scale0), sigma)
+        scale[self.log_idx] = self.beta[self.log_idx]  # the radius in the logarithm: a factor e^0.5 at most
+        return scale
 
     @property
     def bounded(self):
         return self.moving & self.active
 
     def _try(self, beta):
-        r = self.prob.index["r"]
+        r, c = self.prob.index["r"], self.log_idx
         beta = beta.copy()
+        # the step d(log b) = step / b, taken in the logarithm: b exp(step / b) > 0
+        beta[c] = self.beta[c] * np.exp((beta[c] - self.beta[c]) / self.beta[c])
         beta[r] = np.maximum(beta[r], self.r_floor)  # a variance stays positive
         ev = self._evaluate(beta, jacobian=False)
         return ev, (ev.cost if ev is not None else np.inf)

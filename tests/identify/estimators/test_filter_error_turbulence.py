@@ -98,7 +98,7 @@ def test_white_process_noise_is_said_too(navion):
     runs = gusty_runs(navion, (3,), duration=10.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = FEM(navion, max_iter=3).fit(runs).result_
+        res = FEM(navion, max_iter=3, process_noise={"u": None, "w": None}).fit(runs).result_
     assert res.info["process_noise_model"].startswith("process noise: white, on the equations of u (F")
     assert "turbulence" not in res.info
 
@@ -170,3 +170,35 @@ def test_diffuse_likelihood_term_and_its_exact_gradient(navion):
         down[i] -= h
         fd = (term(up) - term(down)) / (2 * h)
         assert exact[i] == pytest.approx(fd, rel=2e-3, abs=1e-6 * np.abs(exact).max()), (i, exact[i], fd)
+
+
+def test_nothing_declared_fits_gust_states_on_the_velocities(fitted, navion):
+    # FEM's default (no [process_noise], no [turbulence]): gust states on the profile's u and w, said
+    # and recorded as the default; the truth has no u gust, whose F goes to 0 with the corner held:
+    # left out, so the fit is the declared w gust's
+    fem, runs = fitted
+    start = navion.with_values({k: v * 1.15 for k, v in navion.free.items()})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = FEM(start).fit(runs).result_
+    info = res.info["turbulence"]
+    assert info["declared"] is False and info["not_found"] == ["u"] and set(info["gusts"]) == {"w"}
+    assert "the default (neither [turbulence] nor [process_noise] declared" in res.info["process_noise_model"]
+    # the same optimum (the second fit started from another first fit's derivatives)
+    np.testing.assert_array_less(np.abs(res.theta - fem.result_.theta), 0.01 * fem.result_.std)
+    np.testing.assert_allclose(res.std, fem.result_.std, rtol=0.01)
+    assert res.identified_profile().turbulence["states"] == ["w"]  # the next fit starts there
+
+
+def test_an_estimated_corner_stays_positive_in_the_fit(navion):
+    # white process noise on u and w (no gust in the truth's sense): the w gust's corner has little
+    # to go on and, stepped as it stood, came out at -0.0034 rad/s (no stationary gust); stepped in
+    # its logarithm it stays positive
+    from tests.identify.estimators.test_filter_error import F_TRUE, _off, _runs
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = FEM(with_turbulence(_off(navion), "u,w")).fit(_runs(LinearModel(navion), F_TRUE, (0, 1))).result_
+    corners = {s: g["corner"] for s, g in res.info["turbulence"]["gusts"].items()}
+    assert all(c > 0 for c in corners.values()), corners
+    assert not any(k.startswith("corner of") for k in res.info["not_determined"]), res.info["not_determined"]
