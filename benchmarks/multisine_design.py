@@ -26,6 +26,8 @@ axes in one run against one run per axis. Every figure is measured in this run, 
     python benchmarks/multisine_design.py                 # default designs, 50 realisations
     python benchmarks/multisine_design.py --quick-design  # smaller searches (say so when quoting)
     python benchmarks/multisine_design.py --cases "" --multi s61 --mc 200   # part 2 only
+    python benchmarks/multisine_design.py --cases "" --multi hover4 --multi-quick --mc 1 --designs d/  # design...
+    python benchmarks/multisine_design.py --cases "" --multi hover4 --multi-quick --mc 50 --designs d/ # ...then MC
 """
 from __future__ import annotations
 
@@ -51,6 +53,7 @@ from signaldesign.compare import reference_of, tuned_baselines  # noqa: E402
 from signaldesign.design import SequenceDesign  # noqa: E402
 from signaldesign.evaluate import Evaluator, record_inputs  # noqa: E402
 from signaldesign.robust import frequency_scaled  # noqa: E402
+from signaldesign.signal import load_signals, save_signals  # noqa: E402
 from signal_design import DT, DURATION, RECORD, _information_x0_estimated, _robust_std  # noqa: E402
 from _cli import count, parser as cli_parser, positive  # noqa: E402
 
@@ -68,6 +71,25 @@ def _design(model, inputs, quick: bool, peak: str = "shared", certify: str = "fu
           f"best {d.result_.objective:.2f}")
     print(d.certificate())
     return d
+
+
+DESIGNS: Path | None = None  # --designs: a folder the designs are kept in and read back from
+
+
+def _designed(model, inputs, quick: bool, peak: str = "shared", certify: str = "full") -> list:
+    """The design's signals: read from ``DESIGNS`` when this profile, inputs, peak rule and search
+    were designed before (so the Monte Carlo can run apart from a long design), else designed (and kept)."""
+    names = [inputs] if isinstance(inputs, str) else list(inputs)
+    path = None if DESIGNS is None else DESIGNS / (
+        f"{Path(model.profile.source).stem}_{'-'.join(names)}_{peak}_{'quick' if quick else 'default'}.json")
+    if path is not None and path.exists():
+        print(f"design on {', '.join(names)}: read from {path} (designed by an earlier run of this benchmark)")
+        return load_signals(path)
+    sigs = _design(model, inputs, quick, peak=peak, certify=certify).signals_
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_signals(sigs, path)
+    return sigs
 
 
 def _excited(model: LinearModel, inputs) -> LinearModel:
@@ -127,7 +149,7 @@ def one_axis(name: str, inp: str, trials: int, truth_scale: float, quick: bool):
     label_ms = next(k for k in base if "optimised phases" in k)
     # the multisine over the whole record too: a 7 s one starts at 0.9 rad/s, above many required bands
     whole = multisine(RECORD, (0.0, max(2 * band.high, 3.05 * 2 * np.pi / RECORD)), 1.0, inp, DT)
-    signals = {"design": _design(model, inp, quick).signals_, "optimised multisine": base[label_ms],
+    signals = {"design": _designed(model, inp, quick), "optimised multisine": base[label_ms],
                "optimised multisine 20 s": [whole], "best 3211": reference_of(base.items())}
     print(f"  ({label_ms}; over the whole {RECORD:g} s record: {len(whole.params['harmonics'])} harmonics, RPF "
           f"{whole.params['relative_peak_factor']:.2f}; {next(k for k in base if k.startswith('3211'))})")
@@ -168,18 +190,18 @@ def multi_axis(key: str, trials: int, truth_scale: float, quick: bool, shared: b
     model = LinearModel(load_profile(name))
     print(f"\n=== {model.profile.name}: {', '.join(inputs)} in one {RECORD:g} s run vs one run per axis; truth "
           f"frequencies x{truth_scale:g}; {trials} realisations ===")
-    joint = _design(model, inputs, quick, peak="per-input", certify="quick")
-    singles = [_design(model, i, quick, certify="quick") for i in inputs]
+    joint = _designed(model, inputs, quick, peak="per-input", certify="quick")
+    singles = [_designed(model, i, quick, certify="quick") for i in inputs]
     ev = Evaluator(model, inputs, RECORD, DT)
     base = dict(tuned_baselines(ev, DURATION, 1.0, max(required_band(model, i).high for i in inputs)))
     label_ms = next(k for k in base if "optimised phases" in k)
     apriori = _excited(model, inputs)
     truth = apriori if truth_scale == 1 else frequency_scaled(apriori, truth_scale)
-    cases = {"one run, designed for equal per-input peak": [joint.signals_],
-             "one run per axis, each axis' design": [s.signals_ for s in singles],
+    cases = {"one run, designed for equal per-input peak": [joint],
+             "one run per axis, each axis' design": singles,
              f"one run, {label_ms}": [base[label_ms]]}
     if shared:
-        cases["one run, designed with the limits shared"] = [_design(model, inputs, quick, certify="quick").signals_]
+        cases["one run, designed with the limits shared"] = [_designed(model, inputs, quick, certify="quick")]
     out = {}
     for label, runs in cases.items():
         us = []
@@ -215,11 +237,15 @@ def parser():
     ap.add_argument("--multi-mc", type=count, help="part 2's realisations (default --mc)")
     ap.add_argument("--multi-quick", action="store_true", help="part 2 with the smaller design searches")
     ap.add_argument("--shared", action="store_true", help="part 2 also with the design made with the limits shared")
+    ap.add_argument("--designs", metavar="DIR", help="keep every design's signals in DIR and read them back when "
+                                                     "present (a long design and its Monte Carlo in separate runs)")
     return ap
 
 
 def main(argv=None):
+    global DESIGNS
     args = parser().parse_args(argv)
+    DESIGNS = Path(args.designs) if args.designs else None
     t0 = time.perf_counter()
     for name, inp in CASES:
         if name in args.cases.split(","):

@@ -8,6 +8,8 @@ find, each by a profile-likelihood search; issue 29's target: under 2 minutes on
 
 Prints each case's steps, the wall time of each (with the machine's load average: the machine may
 be shared), the delays found against the truth, and the progress lines refine writes to stderr.
+``--method fem`` runs refine with the filter-error method, as ``identify refine --method fem`` does
+(its default options; the default is ML, the command line's default).
 ``--baseline REF`` runs the same cases with the code of a git revision (exported to a temporary
 directory) right after, in the same process's run, and prints the ratio of the wall times.
 
@@ -28,6 +30,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from identify import LinearModel, load_profile, simulate_run  # noqa: E402
+from identify.estimators.registry import build  # noqa: E402
 from identify.refine import Refine  # noqa: E402
 from _cli import add_parts, parser as cli_parser  # noqa: E402
 
@@ -56,7 +59,7 @@ def runs(turbulence: bool, vibration: bool = True, delays: dict | None = None) -
     return out
 
 
-def main(cases: str = "1234") -> dict:
+def main(cases: str = "1234", method: str = "ml") -> dict:
     walls = {}
     for case, turbulence, vibration, delays in (("1", False, True, None), ("2", True, True, None),
                                                 ("3", True, False, None), ("4", False, False, DELAYS)):
@@ -64,12 +67,13 @@ def main(cases: str = "1234") -> dict:
             continue
         data = runs(turbulence, vibration, delays)
         started = time.perf_counter()
-        r = Refine(load_profile("bo105_70kt"), progress=True).fit(data[:4], validate=data[4:])
+        profile = load_profile("bo105_70kt")
+        r = Refine(profile, estimator=build(method, profile), progress=True).fit(data[:4], validate=data[4:])
         wall = time.perf_counter() - started
         print(f"case {case}: BO 105, 8 states, 4 inputs, 4 fit runs + 1 validation run of {LENGTH:g} s at "
               f"{1 / DT:g} Hz{', 7 Hz vibration on q' if vibration else ''}{', turbulence' if turbulence else ''}"
               f"{', delays ' + str(delays) if delays else ''}; "
-              f"full catalogue")
+              f"full catalogue, {method.upper()}")
         print(f"  added {[f'{s.effect}:{s.target}' for s in r.steps_]}; rejected "
               f"{[f'{s.effect}:{s.target}' for s in r.rejected_]}; {r.tries_} tried; stopped: {r.stopped_}")
         for s in r.steps_:
@@ -82,13 +86,14 @@ def main(cases: str = "1234") -> dict:
     return walls
 
 
-def baseline(ref: str, cases: str) -> dict:
+def baseline(ref: str, cases: str, method: str = "ml") -> dict:
     """Wall time per case of the same cases with the code of git revision ``ref``."""
     with tempfile.TemporaryDirectory() as where:
         archive = subprocess.run(["git", "archive", ref], cwd=ROOT, capture_output=True, check=True).stdout
         subprocess.run(["tar", "-x", "-C", where], input=archive, check=True)
         env = dict(os.environ, PYTHONPATH=where)
-        proc = subprocess.run([sys.executable, "benchmarks/refine_speed.py", cases], cwd=where, env=env,
+        extra = ["--method", method] if method != "ml" else []  # older revisions had ML alone
+        proc = subprocess.run([sys.executable, "benchmarks/refine_speed.py", cases, *extra], cwd=where, env=env,
                               capture_output=True, text=True)
     print(f"baseline {ref}:\n{proc.stdout}", flush=True)
     return {c: float(w) for c, w in re.findall(r"^case (\d):.*?wall time ([0-9.]+) s", proc.stdout, re.S | re.M)}
@@ -99,14 +104,15 @@ def parser():
     add_parts(ap, "cases", "1234", "the cases to run (1: vibration, 2: with turbulence, 3: turbulence alone, "
               "4: a delay on every input)")
     ap.add_argument("--baseline", default="", help="a git revision whose code runs the same cases after, for the ratio")
+    ap.add_argument("--method", default="ml", choices=("ml", "fem"), help="refine's estimator (ml: the default)")
     return ap
 
 
 if __name__ == "__main__":
     args = parser().parse_args()
-    walls = main(args.cases)
+    walls = main(args.cases, args.method)
     if args.baseline:
-        old = baseline(args.baseline, args.cases)
+        old = baseline(args.baseline, args.cases, args.method)
         for case, wall in walls.items():
             print(f"case {case}: {wall:.1f} s, baseline {args.baseline} {old.get(case, float('nan')):.1f} s: "
                   f"{old.get(case, float('nan')) / wall:.2f} times faster", flush=True)

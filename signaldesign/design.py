@@ -381,6 +381,9 @@ class SequenceDesign:
         if self.bound_ is None:
             return ("certified D-efficiency: none (no upper bound with the prior's information: the relaxation's "
                     "bound needs log det's scale invariance, which the prior breaks)")
+        if not np.isfinite(self.bound_.value):
+            return ("certified D-efficiency: none (the semidefinite relaxation's upper bound could not be made finite: "
+                    "some model's bound is infinite)")
         w = self._weight()
         relaxed = self.relaxed_value_
         slack = "" if not np.isfinite(relaxed) else (

@@ -340,13 +340,17 @@ class PerInputObjective(Objective):
     ``s_a = 1 / r_ma(l_a)`` and the information ``sum_ab s_a s_b M_ab(l)``, with ``M_ab`` the
     block of the quadratic form between axes a and b. Free amplitude only (a fixed amplitude is
     already one per input). The low-rank update keeps the blocks and, per axis b, ``V^b_k = sum_{j
-    in b} G_kj l_j``: a proposal changes one axis c, so it moves the blocks of row and column c."""
+    in b} G_kj l_j``: a proposal changes one axis c, so it moves the blocks of row and column c and
+    c's scale; with the information split by axis once per committed base (:meth:`_split`), a
+    proposal costs about the single-axis update (1.4-1.6x faster than updating every block, four
+    inputs)."""
 
     def __init__(self, basis: StepBasis, criterion: str = "mean", **kw):
         if kw.get("amplitude") is not None:
             raise DesignError("per-input peak response needs a free amplitude (a fixed one is the same on every input)")
         super().__init__(basis, criterion, **kw)
         self.axes, self.K = len(basis.inputs), basis.n_steps
+        self._rest = None  # the committed base's split by axis (_split)
 
     def _axis_y(self, levels):
         """Outputs over limits per axis (m, axes, X)."""
@@ -363,6 +367,10 @@ class PerInputObjective(Objective):
                       for a in range(self.axes)], axis=1)
         return levels.copy(), V, B, self._axis_y(levels)
 
+    def reset(self, levels=None) -> None:
+        super().reset(levels)
+        self._rest = None
+
     def commit(self) -> None:
         if self._last is None:
             return
@@ -374,36 +382,78 @@ class PerInputObjective(Objective):
             if idx.size:
                 c = int(idx[0]) // self.K
                 m = V.shape[0]
-                dV = np.matmul(d, self.G[:, idx].reshape(m, idx.size, -1)).reshape(V[:, c].shape)
+                sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
+                dV = np.matmul(d, self.G[:, sl].reshape(m, idx.size, -1)).reshape(V[:, c].shape)
                 V[:, c] += dV.transpose(0, 1, 3, 2)
-        self._base = (levels, V, B, y)
+        if callable(B):  # a low-rank candidate keeps its blocks and outputs as a recipe until committed
+            B, y = B()
+        self._base, self._rest = (levels, V, B, y), None
+
+    def _split(self):
+        """Of the committed base: the scales s (m, axes), the information M (m, p, p) and per axis c
+        the information without axis c, ``sum_{a,b != c} s_a s_b B_ab``, and axis c's row
+        ``R_c = sum_{b != c} s_b B_cb``, each (m, axes, p, p) and summed directly (no differences of
+        large terms): a proposal on axis c changes only its row, its block and its scale."""
+        if self._rest is None:
+            B, y = self._base[2], self._base[3]
+            s = self.scales(y)
+            ss = s[:, :, None] * s[:, None, :]
+            rest, R = np.empty((2, B.shape[0], self.axes) + B.shape[-2:])
+            for c in range(self.axes):
+                w = ss.copy()
+                w[:, c, :] = w[:, :, c] = 0
+                rest[:, c] = np.einsum("mab,mabxy->mxy", w, B)
+                sb = s.copy()
+                sb[:, c] = 0
+                R[:, c] = np.einsum("mb,mbxy->mxy", sb, B[:, c])
+            self._rest = (s, np.einsum("mab,mabxy->mxy", ss, B), rest, R)
+        return self._rest
 
     def _candidate(self, levels):
+        """The scaled information M (m, p, p) of ``levels``; from the committed base by a low-rank
+        update of axis c's row, block and scale when the changed steps are few and on one axis."""
         if self._base is not None:
             l0, V, B0, y0 = self._base
             idx = np.flatnonzero(levels != l0)
             if idx.size == 0:
                 self._last = (levels.copy(), idx, idx.astype(float), B0, y0, None)
-                return B0, y0
+                return self._split()[1]
             c = int(idx[0]) // self.K
             if int(idx[-1]) // self.K == c and idx.size <= max(2, self.K // 3):
                 d = (levels - l0)[idx]
                 m, p = B0.shape[0], B0.shape[-1]
+                # proposals change one contiguous run of steps: slices are views, not copies
+                sl = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
                 # row c of the blocks: d . V^b over the changed steps, for every axis b
-                Vi = np.matmul(d, V[:, :, idx].reshape(m, self.axes, idx.size, p * p)).reshape(m, self.axes, p, p)
-                Gii = self.G[:, idx[:, None], idx[None, :]]
+                Vi = np.matmul(d, V[:, :, sl].reshape(m, self.axes, idx.size, p * p)).reshape(m, self.axes, p, p)
+                Gii = self.G[:, sl, sl] if isinstance(sl, slice) else self.G[:, idx[:, None], idx[None, :]]
                 dGd = np.matmul(d, np.matmul(d, Gii.reshape(m, idx.size, idx.size, p * p))).reshape(m, p, p)
-                B = B0.copy()
-                B[:, c] += Vi
-                B[:, :, c] += Vi.transpose(0, 1, 3, 2)
-                B[:, c, c] += dGd
-                y = y0.copy()
-                y[:, c] += np.matmul(d, self.Yk[:, idx])
-                self._last = (levels.copy(), idx, d, B, y, None)
-                return B, y
+                yc = y0[:, c] + np.matmul(d, self.Yk[:, sl])
+                s, _, rest, R = self._split()
+                r = np.abs(yc).max(axis=1)
+                with np.errstate(divide="ignore"):
+                    sc = np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
+                sb = s.copy()
+                sb[:, c] = 0
+                row = R[:, c] + np.einsum("mb,mbxy->mxy", sb, Vi)  # the other axes' scales are unchanged
+                block = B0[:, c, c] + _sym(Vi[:, c]) + dGd
+                M = rest[:, c] + sc[:, None, None] * _sym(row) + (sc ** 2)[:, None, None] * block
+
+                def blocks(B0=B0, y0=y0, Vi=Vi, dGd=dGd, yc=yc, c=c):
+                    B = B0.copy()
+                    B[:, c] += Vi
+                    B[:, :, c] += Vi.transpose(0, 1, 3, 2)
+                    B[:, c, c] += dGd
+                    y = y0.copy()
+                    y[:, c] = yc
+                    return B, y
+
+                self._last = (levels.copy(), idx, d, blocks, None, None)
+                return M
         _, V, B, y = self._state(levels)
         self._last = (levels.copy(), None, None, B, y, V)
-        return B, y
+        s = self.scales(y)
+        return np.einsum("ma,mb,mabxy->mxy", s, s, B)
 
     def scales(self, y) -> np.ndarray:
         """1 / each axis' own largest peak over limit (m, axes); 0 for an axis at rest."""
@@ -411,23 +461,16 @@ class PerInputObjective(Objective):
         with np.errstate(divide="ignore"):
             return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
 
-    def _value(self, B, y) -> float:
-        return self.combine(self._terms(B, y))
-
-    def _terms(self, B, y) -> np.ndarray:
-        s = self.scales(y)
-        M = np.einsum("ma,mb,mabxy->mxy", s, s, B)
-        return self.per_model(M, np.ones(M.shape[0]))
-
     def terms(self, levels) -> np.ndarray:
         B, y = self._state(np.asarray(levels, float))[2:]
-        return self._terms(B, y)
+        s = self.scales(y)
+        return self.per_model(np.einsum("ma,mb,mabxy->mxy", s, s, B), np.ones(B.shape[0]))
 
     def __call__(self, levels) -> float:
         levels = np.asarray(levels, dtype=float)
         self.evaluations += 1
-        B, y = self._candidate(levels)
-        return self._value(B, y)
+        M = self._candidate(levels)
+        return self.combine(self.per_model(M, np.ones(M.shape[0])))
 
     def batch(self, L: np.ndarray, chunk: int = 2048) -> np.ndarray:
         saved = self._base
@@ -444,3 +487,8 @@ class PerInputObjective(Objective):
         r = np.array([(np.abs(self.Y[0][:, :, a * K:(a + 1) * K] @ levels[a * K:(a + 1) * K]).max(axis=0)
                        * self.inv_limits).max() for a in range(self.axes)])
         return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0), float(r.min())
+
+
+def _sym(X) -> np.ndarray:
+    """X + X^T over the last two axes."""
+    return X + np.swapaxes(X, -1, -2)

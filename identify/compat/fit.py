@@ -34,7 +34,7 @@ import numpy as np
 from ..data.runs import Run
 from ..errors import EstimationError, SimulationError
 from ..estimators.colour import toeplitz_apply
-from ..estimators.ml import OutputErrorSolver
+from ..estimators.ml import R_CHANGE_TOL, OutputErrorSolver
 from ..estimators.output_error import Layout, OutputError, Response
 from . import kinematics as K
 from .sensors import ANGULAR, SensorError, by_name, catalogue
@@ -71,6 +71,8 @@ class _Settings:
     max_iter: int
     tol: float = STEP_TOL
     noise_cov_: None = None  # relaxation
+    relax_from_: None = None  # from the a priori residuals
+    tol_se: float = R_CHANGE_TOL
     progress: None = None
     verbose: bool = False
 

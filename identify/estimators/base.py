@@ -15,11 +15,13 @@ subclassing :class:`Estimator` and overriding what differs:
 ``get_params()`` / ``clone(profile, **changes)``
     scikit-learn's: the constructor arguments, and a new unfitted estimator with the same ones for
     another (an extended) profile. Refine holds one estimator instance and clones it per fit.
-``nested(profile, *, zero_shifts, segment, bounds)``
+``nested(profile, *, zero_shifts, segment, bounds, advice, start)``
     the estimator for one of refine's nested fits: ``clone(profile)`` adjusted so that the
     likelihoods of fits before and after an added effect compare (the same nuisance: per-run zero
     shifts or not; the same multiple-shooting ``segment``); ``bounds=False`` when only the estimate
-    and its likelihood are used (may skip costly standard errors). Default: ``clone(profile)``.
+    and its likelihood are used (may skip costly standard errors, and stop once the likelihood is
+    far inside one unit of its optimum); ``start`` the result of a neighbouring model's fit (a
+    search's), whose noise estimate may start this one's. Default: ``clone(profile)``.
 ``prediction_segment(model, duration)``
     the segment length (s) the estimator's predictions restart at (``inf``: whole runs).
 ``prediction(profile, runs, *, zero_shifts, segment, start)``
@@ -213,7 +215,7 @@ class Estimator:
         return type(self)(**params)
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True, advice: bool = True) -> "Estimator":
+               bounds: bool = True, advice: bool = True, start=None) -> "Estimator":
         return self.clone(profile)
 
     def prediction_segment(self, model, duration: float) -> float:

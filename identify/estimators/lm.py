@@ -13,8 +13,9 @@ tried: on a noise-free S 61 case with one derivative 60 x off it took 8-fold ste
 basin and did not converge in 200 iterations; capped, 31.)
 
 Convergence is judged on the undamped Gauss-Newton step: it must move no unknown by more than
-``STEP_TOL_SE`` of its standard error (its length in the information metric bounds every
-unknown's move, ``|step_i| / sigma_i <= sqrt(step^T M step)``, Cauchy-Schwarz), or no parameter
+``tol_se`` (``STEP_TOL_SE`` unless the problem sets its own) of its standard error (its length
+in the information metric bounds every unknown's move, ``|step_i| / sigma_i <= sqrt(step^T M
+step)``, Cauchy-Schwarz), or no parameter
 by more than ``tol`` relative. A problem may add its own test (ML: the relaxed noise covariance
 settled first; FEM: a flat valley). Anything else is not convergence: ``max_iter`` reached, no
 step lowering the cost while the gradient still predicts a decrease ("stalled"), or a point
@@ -56,6 +57,7 @@ class LevenbergMarquardt:
 
     name = "LM"
     max_iter, tol, progress, verbose = 100, 1e-8, None, False
+    tol_se = STEP_TOL_SE  # converged: the next step under this many standard errors
 
     def _init_iteration(self) -> None:
         self.history, self.step_history = [], []
@@ -120,7 +122,7 @@ class LevenbergMarquardt:
         th = self.active[:self.p]  # none (a fit of the nuisance alone): in_se decides
         rel = float(np.max(np.abs(step[:self.p][th]) / (np.abs(self.beta[:self.p][th]) + 1e-6))) if th.any() \
             else np.inf
-        if in_se < STEP_TOL_SE:
+        if in_se < self.tol_se:
             return f"gradient: the next step is {in_se:.1e} standard errors"
         if rel < self.tol:
             return f"step: the next step is {rel:.1e} of the parameters"

@@ -64,6 +64,11 @@ from .result import IdentificationResult, fit_metrics
 from .whiteness import whiteness
 
 R_CHANGE_TOL = 1e-3  # relaxation has settled when no variance moves by more than this (relative)
+# a fit whose estimate and likelihood alone are used (refine's delay search): the next step under
+# this many standard errors (the likelihood then within 1e-4 of its optimum) and R settled to this
+# (relative); the full tolerances cost as many iterations again (steps and R converge together,
+# linearly, by about a third per iteration where model errors dominate the residuals)
+SEARCH_TOL = 1e-2
 RELAX_FLOOR = 1e-20  # smallest relaxed variance, relative to the output's mean square
 
 
@@ -80,7 +85,12 @@ class ML(Estimator):
     (with the profile's ``[initial_state]``; later multiple-shooting segments keep theirs free),
     and the profile's ``[zero_shifts]`` say which outputs have none or a known one. ``noise_cov``:
     ``"relax"`` (estimate R) or the measurement-noise
-    covariance, (ny,) variances or (ny, ny), in output units squared.
+    covariance, (ny,) variances or (ny, ny), in output units squared; ``relax_from`` (ny,)
+    variances R's relaxation starts from (a neighbouring model's fit: refine's searches), else
+    from the residuals of the a priori model. ``tol_se``: converged once the relaxed variances
+    move by less than ``tol_se`` (relative) and the next step is under ``tol_se`` standard errors
+    (default ``R_CHANGE_TOL``; ``SEARCH_TOL`` in refine's nested fits without bounds, whose
+    estimate and likelihood alone are used).
     ``advice``: the colour note ``info["estimator_advice"]`` when the residuals are strongly
     coloured (its cause test fits ~100 least-squares FIRs; refine skips it for its candidates' fits).
     ``progress``: callable ``(iteration, cost, theta)`` called after each iteration with the
@@ -111,21 +121,26 @@ class ML(Estimator):
     def __init__(self, profile: Profile | str | Path, *, segment: float | str | None = None,
                  max_iter: int = 100, tol: float = 1e-8, estimate_x0: bool = True,
                  estimate_bias: bool = True, noise_cov="relax", coloured: bool = True, progress=None,
-                 verbose: bool = False, x0: dict | None = None, advice: bool = True):
+                 verbose: bool = False, x0: dict | None = None, advice: bool = True, relax_from=None,
+                 tol_se: float = R_CHANGE_TOL):
         super().__init__(profile)
-        self.segment, self.max_iter, self.tol = segment, max_iter, tol
+        self.segment, self.max_iter, self.tol, self.tol_se, self.relax_from = segment, max_iter, tol, tol_se, relax_from
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.noise_cov, self.coloured = noise_cov, coloured
         self.progress, self.verbose, self.x0, self.advice = progress, verbose, x0, advice
         self.covariance_ = self.problem_ = self.beta_ = None
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf,
-               bounds: bool = True, advice: bool = True) -> "ML":
+               bounds: bool = True, advice: bool = True, start=None) -> "ML":
         """Refine's nested fit: the loop's zero shifts and segments (so that likelihoods before and
         after an added effect compare); without ``bounds`` the coloured-residual correction is
-        skipped, without ``advice`` the colour note (a candidate's fit needs neither)."""
+        skipped and the fit converges to ``SEARCH_TOL`` (only its estimate and likelihood are
+        used), without ``advice`` the colour note (a candidate's fit needs neither); ``start`` the
+        result of a neighbouring model's fit (a search's), whose relaxed R starts this one's."""
+        noise = (start.info.get("noise_cov") if start is not None and isinstance(self.noise_cov, str) else None)
         return self.clone(profile, estimate_bias=zero_shifts, segment=segment, coloured=self.coloured and bounds,
-                          advice=self.advice and advice)
+                          advice=self.advice and advice, tol_se=self.tol_se if bounds else max(self.tol_se, SEARCH_TOL),
+                          relax_from=self.relax_from if noise is None else np.diag(noise).copy())
 
     def prediction_segment(self, model: LinearModel, duration: float) -> float:
         """Its own ``segment`` if given, else the automatic choice for ``model`` (multiple shooting
@@ -138,8 +153,14 @@ class ML(Estimator):
         self.segment_ = _check_segment(self.segment)
         if not (isinstance(self.max_iter, (int, np.integer)) and self.max_iter >= 1):
             raise EstimationError(f"ML: max_iter must be a positive integer, got {self.max_iter!r}")
-        if not (np.isfinite(self.tol) and self.tol > 0):
-            raise EstimationError(f"ML: tol must be positive, got {self.tol!r}")
+        for name in ("tol", "tol_se"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise EstimationError(f"ML: {name} must be positive, got {getattr(self, name)!r}")
+        self.relax_from_ = None if self.relax_from is None else np.asarray(self.relax_from, float).ravel()
+        if self.relax_from_ is not None and (len(self.relax_from_) != len(self.profile_.outputs)
+                                             or not np.all(np.isfinite(self.relax_from_) & (self.relax_from_ > 0))):
+            raise EstimationError(f"ML: relax_from must be {len(self.profile_.outputs)} positive variances, one per "
+                                  f"output")
         self.noise_cov_ = _check_noise_cov(self.noise_cov, len(self.profile_.outputs))
 
     # -- fitting ---------------------------------------------------------------------------------
@@ -262,10 +283,10 @@ class OutputErrorSolver(LevenbergMarquardt):
     """The output-error problem on the one Levenberg-Marquardt solver (:mod:`.lm`: trust region,
     convergence test, stop reasons), with noise-covariance relaxation: after each step R =
     diag(mean residual^2); converged only once R has settled (no variance moving by more than
-    ``R_CHANGE_TOL``, relative) and the undamped step is under ``STEP_TOL_SE`` standard errors.
+    ``tol_se``, relative) and the undamped step is under ``tol_se`` standard errors.
 
-    ``ml`` supplies the settings (``noise_cov_``, ``max_iter``, ``tol``, ``progress``,
-    ``verbose``); ``prob`` any problem on the engine's seam (:mod:`.output_error`; compat's
+    ``ml`` supplies the settings (``noise_cov_``, ``relax_from_``, ``max_iter``, ``tol``,
+    ``tol_se``, ``progress``, ``verbose``); ``prob`` any problem on the engine's seam (:mod:`.output_error`; compat's
     kinematics too).
     """
 
@@ -275,10 +296,11 @@ class OutputErrorSolver(LevenbergMarquardt):
     def __init__(self, ml: ML, prob: OutputError, ev, z):
         self.ml, self.prob, self.ev, self.beta = ml, prob, ev, ev.beta.copy()
         self.max_iter, self.tol, self.progress, self.verbose = ml.max_iter, ml.tol, ml.progress, ml.verbose
-        self.p = prob.p
+        self.p, self.tol_se = prob.p, ml.tol_se
         self.relax = ml.noise_cov_ is None
         self.ms = np.array([np.mean(zr ** 2, axis=0) for zr in z]).mean(axis=0)
-        self.Wh = self._relaxed_weighting() if self.relax else _whitening(ml.noise_cov_)
+        self.warm = ml.relax_from_ if self.relax else None  # R to start from, not the a priori residuals'
+        self.Wh = self._relaxed_weighting(self.warm) if self.relax else _whitening(ml.noise_cov_)
         self._init_iteration()
         self.wls_history, self.log_det_history = [], []
         self.r_change = np.inf
@@ -291,8 +313,9 @@ class OutputErrorSolver(LevenbergMarquardt):
         self.M = M
         self.theta0 = np.abs(ev.beta[:prob.p])
 
-    def _relaxed_weighting(self) -> np.ndarray:
-        r = np.sum(self.ev.e ** 2, axis=(0, 2)) / self.prob.mask.sum()
+    def _relaxed_weighting(self, r=None) -> np.ndarray:
+        """The weighting of R = diag(mean residual^2) (or of the variances ``r``)."""
+        r = np.sum(self.ev.e ** 2, axis=(0, 2)) / self.prob.mask.sum() if r is None else r
         r = np.maximum(r, RELAX_FLOOR * np.maximum(self.ms, 1e-300))
         self._r = r
         return np.diag(1 / np.sqrt(r))
@@ -343,13 +366,13 @@ class OutputErrorSolver(LevenbergMarquardt):
             ev, c = self._try(self.beta + M.solve(g, 0.0, nuisance))
             if ev is not None and c < self._cost(self.ev):
                 self._move(ev)
-            if self.relax:
+            if self.relax and self.warm is None:
                 self.Wh = self._relaxed_weighting()
         self.cost = self._cost(self.ev)
         self._record(self.cost)
 
     def _settled(self) -> bool:
-        return not (self.relax and self.r_change >= R_CHANGE_TOL)
+        return not (self.relax and self.r_change >= self.tol_se)
 
     def _accept(self, ev) -> bool:
         self._move(ev)

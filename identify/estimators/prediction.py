@@ -139,6 +139,9 @@ def simulated_terms(p: Profile, runs: list[Run], ev: ModelFit, terms: dict[str, 
     lay = cut([len(r) for r in runs], dt, segment)
     col = {n: p.input_names.index(n) for n in terms}
     state = {s: i for i, s in enumerate(p.state_names)}
+    # terms whose every coefficient is zero (a candidate at its null value: the score test's
+    # columns) do not act on the states: the linear simulation gives them all at once
+    fed_back = bool(np.any(Gamma[:, list(col.values())] != 0))
     out = []
     for r, run in enumerate(runs):
         u = run.matrix(p.input_names)
@@ -146,15 +149,28 @@ def simulated_terms(p: Profile, runs: list[Run], ev: ModelFit, terms: dict[str, 
         with np.errstate(over="ignore", invalid="ignore"):  # divergence is reported by the caller
             for i, s in enumerate(np.flatnonzero(lay.run == r)):
                 x = np.array(ev.x0[r][i], float)
-                for k in range(lay.start[s], lay.start[s] + lay.length[s]):
+                k0, k1 = lay.start[s], lay.start[s] + lay.length[s]
+                if not fed_back:
+                    forcing, X = u[k0:k1] @ Gamma.T, np.empty((k1 - k0, len(x)))
+                    for k in range(k1 - k0):
+                        X[k], x = x, Phi @ x + forcing[k]
                     for n, spec in terms.items():
-                        u[k, col[n]] = math.prod(
-                            (abs(v) if a else v) for v, a in
-                            zip((x[state[f]] if f in state else chans[f][k] for f in spec["product"]),
-                                spec.get("abs", [False] * len(spec["product"]))))
+                        u[k0:k1, col[n]] = _term([X[:, state[f]] if f in state else chans[f][k0:k1]
+                                                  for f in spec["product"]], spec)
+                    continue
+                for k in range(k0, k1):
+                    for n, spec in terms.items():
+                        u[k, col[n]] = _term([x[state[f]] if f in state else chans[f][k] for f in spec["product"]],
+                                             spec)
                     x = Phi @ x + Gamma @ u[k]
         out.append(run.with_channels({n: u[:, col[n]] for n in terms}))
     return out
+
+
+def _term(factors: list, spec: dict):
+    """A state-built pseudo-input from its factors' values (numbers or arrays): their product, the
+    ones ``spec["abs"]`` marks taken as magnitudes."""
+    return math.prod(abs(v) if a else v for v, a in zip(factors, spec.get("abs", [False] * len(factors))))
 
 
 def predict(profile: Profile, runs: list[Run], zero_shifts: bool = True, segment: float = math.inf,

@@ -10,8 +10,9 @@ Each class owns everything about its effect:
   measured runs with every command); ``runs(runs)`` adds them (a delay shifts its input instead);
 * ``score_columns(fitting, p)``: its score-test columns when they are not the output sensitivities
   of its parameters (``linear = False``: the delay's response to ``-du/dt``);
-* ``estimate(fitting, p, noise, hint)``: its fit(s), by default one re-fit with the loop's
-  estimator (the delay searches tau by profile likelihood and also fits a lag);
+* ``estimate(fitting, p, noise, hint, bounds)``: its fit(s) as :class:`Fitted`, by default one
+  re-fit with the loop's estimator (the delay searches tau by profile likelihood and also fits a
+  lag); ``bounds=False``: fits to rank, whose standard errors come when asked (:meth:`Fitted.bounded`);
 * ``revisit(fitting, p, result, noise, steps)`` (class method): a last look at the final model
   once the loop has ended (the delay searches each of its delays again among the later effects).
 
@@ -67,6 +68,33 @@ FILTER_STATES = ("_lag", "_sensor")
 # absorbing missing dynamics (seen: -50 % on a rotor-tilt output standing in for a control delay)
 MAX_SCALE_ERROR = 0.3
 SCREENED = 2  # local minima of a delay's linearised profile re-fitted before its search
+
+
+@dataclass
+class Fitted:
+    """One fit of a candidate: the fitted ``profile``, the estimator's ``result``, the new
+    ``parameters`` ({name: {"value", "std"}}) and the ``kind`` fitted. ``finish``: where the fit was
+    made to rank options (the likelihood to the search's precision, no coloured-residual bounds),
+    how to complete it; :meth:`bounded` does, once (the loop asks only for the options it checks:
+    the likeliest passes first, and the rest's bounds cost a sandwich each for nothing)."""
+
+    profile: Profile
+    result: object
+    parameters: dict
+    kind: str
+    finish: object = None  # () -> Fitted with its bounds; None: it has them
+
+    def bounded(self) -> "Fitted":
+        return self if self.finish is None else self.finish()
+
+
+def refitted(fitting, ext_p: Profile, p: Profile, names, kind: str, bounds: bool = True, start=None) -> Fitted:
+    """One re-fit of ``ext_p`` (``fitting.refit``) as a :class:`Fitted` with ``names``' parameters:
+    with its bounds, or (``bounds=False``) a search fit completed when asked (a re-fit from it,
+    its noise estimate too, converged fully, with bounds)."""
+    new_p, result = fitting.refit(ext_p, p, bounds=bounds, start=start)
+    return Fitted(new_p, result, parameters_of(result, names), kind,
+                  None if bounds else lambda: refitted(fitting, new_p, p, names, kind, start=result))
 
 @dataclass
 class Context:
@@ -138,11 +166,10 @@ class Candidate:
         """Per fit run (N_r, ny, q) columns for a candidate that is not ``linear``."""
         return None
 
-    def estimate(self, fitting, p: Profile, noise, hint=None) -> list[tuple]:
-        """Fits as ``(profile, result, parameters, kind)``, the more likely first: one re-fit of the
-        extended profile (``fitting.refit``), the parameters with the estimator's bounds."""
-        new_p, result = fitting.refit(self.profile(p), p)
-        return [(new_p, result, parameters_of(result, self.params), self.kind)]
+    def estimate(self, fitting, p: Profile, noise, hint=None, bounds: bool = True) -> list[Fitted]:
+        """Its fits, the more likely first: one re-fit of the extended profile (:func:`refitted`),
+        the parameters with the estimator's bounds (``bounds=False``: when asked)."""
+        return [refitted(fitting, self.profile(p), p, self.params, self.kind, bounds)]
 
     @classmethod
     def revisit(cls, fitting, p: Profile, result, noise, steps: list) -> tuple:
@@ -296,14 +323,14 @@ class Delay(Candidate):
             without = replace(p, meta={**p.meta, "delays": delays})
             again = cls(step.target, lag=False)
             again.spec["_local"] = True  # near its first estimate: no screening of [0, tau_max] again
-            new_p, new_result, params, _ = again.estimate(fitting, without, noise, hint=tau)[0]
-            if noise.cost(fitting.residuals(new_p)) <= noise.cost(fitting.residuals(p)):
-                p, result, step.parameters = new_p, new_result, params
+            found = again.estimate(fitting, without, noise, hint=tau)[0]
+            if noise.cost(fitting.residuals(found.profile)) <= noise.cost(fitting.residuals(p)):
+                p, result, step.parameters = found.profile, found.result, found.parameters
             fitting.say(f"delay on {step.target} searched again in the final model: {tau:.4g} -> "
                         f"{step.parameters[f'tau_{step.target}']['value']:.4g} s")
         return p, result
 
-    def estimate(self, fitting, p, noise, hint=None):
+    def estimate(self, fitting, p, noise, hint=None, bounds=True):
         options = []
         dt = fitting.dt
         if self.spec["_search"]:
@@ -318,10 +345,12 @@ class Delay(Candidate):
                 tau = float(np.clip(round(tau / dt, 3) * dt, 0.0, fitting.tau_max))
                 key = round(tau, 9)
                 if key not in fits:
-                    # warm start from the nearest delay fitted so far: a few iterations, not twenty
-                    start = fits[min(fits, key=lambda k: abs(k - key))][1] if fits else p
+                    # warm start from the nearest delay fitted so far, its noise estimate too: a few
+                    # iterations, not twenty
+                    _, start, near = fits[min(fits, key=lambda k: abs(k - key))] if fits else (0, p, None)
                     try:
-                        prof, res = fitting.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False)
+                        prof, res = fitting.refit(self.profile(start, {self.params[0]: tau}), p, bounds=False,
+                                                  start=near)
                         fits[key] = (0.5 * noise.cost(fitting.residuals(prof)), prof, res)
                     except (EstimationError, SimulationError):  # a delay whose fit diverges is not the likeliest one
                         fits[key] = (math.inf, start, None)
@@ -334,27 +363,33 @@ class Delay(Candidate):
             tau = _search_delay(lambda t: at(t)[0], min(starts, key=lambda t: at(t)[0]), dt, fitting.tau_max)
             if not math.isfinite(at(tau)[0]):
                 raise EstimationError(f"delay on '{self.target}': the fit diverged at every delay tried")
-            prof, res = fitting.refit(at(tau)[1], p)  # the same fit, with its bounds
             # the bound from the curvature (central difference, shifted off the bound tau = 0)
             h = max(dt / 2, 0.05 * tau)
             c = tau if tau >= h else h
             curv = (at(c + h)[0] - 2 * at(c)[0] + at(c - h)[0]) / h ** 2
             # a neighbour whose fit diverged leaves the curvature undetermined: no bound, not zero
             std = 1 / math.sqrt(curv) if math.isfinite(curv) and curv > 0 else math.inf
-            # the standard error includes the other parameters' errors; the step's significance
-            # (Wald) stays judged by the curvature, in the metric of the test that chose it
-            total = std if not math.isfinite(std) else \
-                _with_estimate_error(fitting, noise, prof, res, at(c + h)[1], at(c - h)[1], 2 * h, curv)
-            options.append((prof, res, {self.params[0]: {"value": tau, "std": total, "std_profile": std}}, "delay"))
+
+            def finish(tau=tau, h=h, c=c, curv=curv, std=std) -> Fitted:
+                # the search's fit converged fully, with its bounds; the standard error includes the
+                # other parameters' errors, the step's significance (Wald) stays judged by the
+                # curvature, in the metric of the test that chose it
+                prof, res = fitting.refit(at(tau)[1], p, start=at(tau)[2])
+                total = std if not math.isfinite(std) else \
+                    _with_estimate_error(fitting, noise, prof, res, at(c + h)[1], at(c - h)[1], 2 * h, curv)
+                return Fitted(prof, res, {self.params[0]: {"value": tau, "std": total, "std_profile": std}}, "delay")
+
+            options.append(finish() if bounds else Fitted(at(tau)[1], at(tau)[2], {self.params[0]: {
+                "value": tau, "std": std, "std_profile": std}}, "delay", finish))
         if self.spec["_lag"]:
-            tau0 = options[0][2][self.params[0]]["value"] if options else 0.1
+            tau0 = options[0].parameters[self.params[0]]["value"] if options else 0.1
             try:
-                options += Lag(self.target, k=1.0 / max(tau0, 2 * dt)).estimate(fitting, p, noise)
+                options += Lag(self.target, k=1.0 / max(tau0, 2 * dt)).estimate(fitting, p, noise, bounds=bounds)
             except PseudostepError:
                 pass  # a lag that diverges or cannot be fitted is not the effect
         if not options:
             raise EstimationError(f"neither a delay nor a lag on '{self.target}' could be fitted")
-        return sorted(options, key=lambda o: noise.cost(fitting.residuals(o[0])))
+        return sorted(options, key=lambda o: noise.cost(fitting.residuals(o.profile)))
 
 
 def _with_estimate_error(fitting, noise, prof, res, plus, minus, step: float, curv: float) -> float:
@@ -539,7 +574,7 @@ class SensorLag(Candidate):
     def score_columns(self, fitting, p):
         return _first_order_sensor_columns(fitting, p)[self.target]
 
-    def estimate(self, fitting, p, noise, hint=None):
+    def estimate(self, fitting, p, noise, hint=None, bounds=True):
         tau0 = float(np.ravel(hint)[0]) if hint is not None and np.size(hint) else 0.0
         if tau0 < 0:
             # the score is two-sided; a lag is not: the output leads the model (seen: theta beside a
@@ -550,8 +585,7 @@ class SensorLag(Candidate):
         # far out on a flat likelihood)
         tau0 = min(max(tau0, 2 * fitting.dt), MAX_SENSOR_LAG) if math.isfinite(tau0) else 2 * fitting.dt
         start = SensorLag(self.target, k=1.0 / tau0)
-        new_p, result = fitting.refit(start.profile(p), p)
-        return [(new_p, result, parameters_of(result, self.params), self.kind)]
+        return [refitted(fitting, start.profile(p), p, self.params, self.kind, bounds)]
 
     def implausible(self, params):
         k = params[self.params[0]]["value"]
@@ -805,7 +839,7 @@ def catalogue(p: Profile, context: Context, kinds=KINDS) -> list[Candidate]:
     return [c for cls in classes for c in cls.propose(p, context)]
 
 
-__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Derivative", "Delay", "Lag", "SensorLag", "OutputTerm",
+__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Fitted", "refitted", "Derivative", "Delay", "Lag", "SensorLag", "OutputTerm",
            "Bias", "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
            "prepare_runs", "extend_all"]
 

@@ -178,6 +178,8 @@ class ScoreBase:
         return out
 
     def _weighted(self, J: np.ndarray) -> np.ndarray:
+        if np.all(self.weights == 1.0):  # already whitened (from_blocks)
+            return J
         return J * np.tile(self.weights, len(self.e) // len(self.weights))[:, None]
 
     def linear_estimate(self, J_c: np.ndarray) -> float:

@@ -25,6 +25,13 @@ def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance:
     (N_r, ny, k, common to all runs) and ``nuisance`` (N_r, ny, k_r, per run), weighted 1/sigma,
     and on each group of ``extra`` columns in turn (per run (N_r, ny, q)): a list of runs per group
     (one for no extra). The common columns' Gram matrix is formed once, each group's border added."""
+    return unexplaining(residuals, shared, nuisance, sigma)(extra)
+
+
+def unexplaining(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance: list[np.ndarray],
+                 sigma: np.ndarray):
+    """:func:`unexplained` as a function of the groups ``extra`` alone: the common columns'
+    Gram matrix formed once for every call (refine's score round adds groups after rejections)."""
     w = np.tile(1.0 / sigma, sum(len(e) for e in residuals))
 
     def normed(C: np.ndarray) -> np.ndarray:
@@ -34,16 +41,21 @@ def unexplained(residuals: list[np.ndarray], shared: list[np.ndarray], nuisance:
     B = normed(block_design(shared, nuisance))
     e = np.concatenate([r.ravel() for r in residuals]) * w
     G, g = B.T @ B, B.T @ e
-    out = []
-    for group in extra:
-        C = normed(np.concatenate([c.reshape(-1, c.shape[2]) for c in group])) if len(group) else B[:, :0]
-        BC = B.T @ C
-        full = np.block([[G, BC], [BC.T, C.T @ C]])
-        coef = np.linalg.solve(full + 1e-10 * np.trace(full) / len(full) * np.eye(len(full)), np.r_[g, C.T @ e])
-        clean = (e - B @ coef[:len(G)] - C @ coef[len(G):]) / w
-        parts = np.split(clean, np.cumsum([r.size for r in residuals])[:-1])
-        out.append([c.reshape(r.shape) for c, r in zip(parts, residuals)])
-    return out
+
+    def fitted(extra: list[list[np.ndarray]] = ((),)) -> list[list[np.ndarray]]:
+        out = []
+        for group in extra:
+            C = normed(np.concatenate([c.reshape(-1, c.shape[2]) for c in group])) if len(group) else B[:, :0]
+            BC = B.T @ C
+            full = np.block([[G, BC], [BC.T, C.T @ C]])
+            coef = np.linalg.solve(full + 1e-10 * np.trace(full) / len(full) * np.eye(len(full)),
+                                   np.r_[g, C.T @ e])
+            clean = (e - B @ coef[:len(G)] - C @ coef[len(G):]) / w
+            parts = np.split(clean, np.cumsum([r.size for r in residuals])[:-1])
+            out.append([c.reshape(r.shape) for c, r in zip(parts, residuals)])
+        return out
+
+    return fitted
 
 
 def errors(evaluation: ModelFit, outputs, scale: np.ndarray) -> dict:
@@ -145,5 +157,5 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["errors", "neg_log_likelihood", "unexplained", "split_validation", "hold_out", "excitation_midpoint",
+__all__ = ["errors", "neg_log_likelihood", "unexplained", "unexplaining", "split_validation", "hold_out", "excitation_midpoint",
            "check_identifiable", "MIN_SAMPLES", "HOLD_OUT", "HELD_OUT_NOTE"]

@@ -44,6 +44,11 @@ class Fitting:
         self.evaluations = 0
         self.unconverged: list[str] = []
 
+    def forget(self, kind: str) -> None:
+        """Drop the cached entries of one ``kind`` (the first element of their key)."""
+        for key in [k for k in self.cache if k[0] == kind]:
+            del self.cache[key]
+
     @property
     def dt(self) -> float:
         return self.data["fit"][0].dt
@@ -90,12 +95,13 @@ class Fitting:
                                              **({"noise_start": start} if start else {}))
 
     def estimate(self, profile: Profile, runs: list[Run], bounds: bool = True,
-                 advice: bool = False) -> IdentificationResult:
+                 advice: bool = False, start: IdentificationResult | None = None) -> IdentificationResult:
         """Fit ``profile`` with the shared nuisance and segments; ``bounds=False`` when only the
         estimate and its likelihood are used (the fits inside a delay search); ``advice`` the
-        estimator's note on what coloured residuals point to (the declared model's fit only)."""
+        estimator's note on what coloured residuals point to (the declared model's fit only);
+        ``start`` a neighbouring model's fit (a search's) whose noise estimate starts this one's."""
         estimator = self.estimator.nested(profile, zero_shifts=self.zero_shifts, segment=self.segment, bounds=bounds,
-                                          advice=advice)
+                                          advice=advice, **({"start": start} if start is not None else {}))
         with warnings.catch_warnings():
             # recorded below, once per fit, instead of interleaved with the progress lines
             warnings.simplefilter("ignore", ConvergenceWarning)
@@ -107,10 +113,10 @@ class Fitting:
             self.say(f"  warning: {note}")
         return result
 
-    def refit(self, ext_p: Profile, p: Profile, bounds: bool = True,
-              advice: bool = False) -> tuple[Profile, IdentificationResult]:
-        """Fit of an extended profile: the fitted profile (named as ``p``) and the result (``advice``:
-        :meth:`estimate`).
+    def refit(self, ext_p: Profile, p: Profile, bounds: bool = True, advice: bool = False,
+              start: IdentificationResult | None = None) -> tuple[Profile, IdentificationResult]:
+        """Fit of an extended profile: the fitted profile (named as ``p``) and the result (``advice``,
+        ``start``: :meth:`estimate`).
         State-built terms come from the predicted states of the model being fitted (:func:`settle`),
         or from the estimator's own state estimates inside its fit (``builds_state_terms``)."""
         builds = self.estimator.builds_state_terms
@@ -118,7 +124,7 @@ class Fitting:
         def fit(prof: Profile):
             simulated = state_terms(prof) and not builds
             runs = self.prediction(prof).runs if simulated else prepare(prof, self.data["fit"])
-            result = self.estimate(prof, runs, bounds=bounds, advice=advice)
+            result = self.estimate(prof, runs, bounds=bounds, advice=advice, start=start)
             fitted = _keep_meta(result.identified_profile(p.name), ext_p)
             noise = self.estimator.fitted_noise(result)
             if noise is not None:

@@ -190,6 +190,7 @@ class Refine:
                 self.rejected_.append(step)
                 excluded.add(best.candidate.name)
                 deferred |= {best.candidate.name} if step.reason.startswith(ERROR_REFUSALS) else set()
+        self.fitting_.forget("score tests")  # every candidate's columns: not needed after the loop
         for kind in dict.fromkeys(KIND_CLASSES[s.effect] for s in self.steps_):
             current, result = kind.revisit(self.fitting_, current, result, noise, self.steps_)
         return current, result
@@ -307,17 +308,26 @@ class Refine:
         fitting = self.fitting_
         before = self._errors(p)
         held_data = [d for d in ("choosing", "validation") if fitting.data[d]]
+        def unestimated(exc) -> Step:
+            return Step(best.candidate.kind, best.candidate.target, {}, lr_statistic=float("nan"),
+                        error_before=before, error_after=before, accepted=False,
+                        reason=f"could not be estimated: {exc}", **_common(best, tested))
+
         try:
             options = self._options(p, best, held_data)
         except PseudostepError as exc:  # e.g. an equation-error method and an output-only effect
-            step = Step(best.candidate.kind, best.candidate.target, {}, lr_statistic=float("nan"),
-                        error_before=before, error_after=before, accepted=False,
-                        reason=f"could not be estimated: {exc}", **_common(best, tested))
-            return step, p, None
+            return unestimated(exc), p, None
         first = None  # the refusal recorded: the chosen candidate's own first fit's (a rival's if it has none)
-        for test, (new_p, result, params, kind) in options:
-            step, new_p, result, changes = self._evidence(p, null_result, test, (new_p, result, params, kind),
-                                                          before, held_data, _common(test, tested))
+        for test, option in options:
+            try:  # its bounds now: the options were fitted to rank them
+                option = option.bounded()
+                [fitting.prediction(option.profile, d) for d in ["fit"] + held_data]
+            except PseudostepError as exc:
+                if test is best and (first is None or first[3] is not best):
+                    first = (unestimated(exc), p, None, test)
+                continue  # a rival's: as when its fit diverges on some data set
+            step, new_p, result, changes = self._evidence(p, null_result, test, option, before, held_data,
+                                                          _common(test, tested))
             reason = step.reason or test.candidate.implausible(step.parameters) or self._refusal(step, test, changes)
             if not reason:
                 # the judging data see only the candidate the rest has chosen: once, pass or fail
@@ -330,26 +340,26 @@ class Refine:
         return first[:3]
 
     def _options(self, p: Profile, best: ScoreTest, held_data: list):
-        """``[(test, (profile, result, parameters, kind))]``: the fits of ``best`` and of its most
-        significant rival (:meth:`Candidate.as_rival`, tested in ``best``'s metric), the likeliest
-        first; a fit that diverges on some data set is dropped (the rival's), or refuses the
-        candidate (its own)."""
+        """``[(test, Fitted)]``: the fits of ``best`` and of its most significant rival
+        (:meth:`Candidate.as_rival`, tested in ``best``'s metric), the likeliest first, fitted to
+        rank them (their bounds when checked: :meth:`Fitted.bounded`); a fit that diverges on some
+        data set is dropped (the rival's), or refuses the candidate (its own)."""
         fitting = self.fitting_
-        own = best.candidate.estimate(fitting, p, best.noise, best.hint)
-        [fitting.prediction(o[0], d) for o in own for d in ["fit"] + held_data]
+        own = best.candidate.estimate(fitting, p, best.noise, best.hint, bounds=False)
+        [fitting.prediction(o.profile, d) for o in own for d in ["fit"] + held_data]
         options = [(best, o) for o in own]
         rivals = [t for t in sorted(self.last_scores_, key=ScoreTest.rank)
                   if t.significant and t.candidate.kind in best.candidate.rivals][:1]
         for t in rivals:
             rival = replace(t, noise=best.noise)  # one metric for every option's likelihood
             try:
-                fits = t.candidate.as_rival().estimate(fitting, p, best.noise, t.hint)
-                [fitting.prediction(o[0], d) for o in fits for d in ["fit"] + held_data]
+                fits = t.candidate.as_rival().estimate(fitting, p, best.noise, t.hint, bounds=False)
+                [fitting.prediction(o.profile, d) for o in fits for d in ["fit"] + held_data]
             except PseudostepError:
                 continue  # a rival that cannot be fitted is no better explanation
             self._say(f"  also fitted: its rival {t.candidate.name} (score {t.statistic:.3g})")
             options += [(rival, o) for o in fits]
-        return sorted(options, key=lambda to: best.noise.cost(fitting.residuals(to[1][0])))
+        return sorted(options, key=lambda to: best.noise.cost(fitting.residuals(to[1].profile)))
 
     def _evidence(self, p: Profile, null_result, best: ScoreTest, option: tuple, before: dict, held_data: list,
                   common: dict) -> tuple:
@@ -360,7 +370,7 @@ class Refine:
         number is not determined. ``(step, profile, result, changes)``: the fit kept (a second attempt
         may replace it) and the plain errors' changes ({data: ErrorChange})."""
         cand, noise, fitting = best.candidate, best.noise, self.fitting_
-        new_p, result, params, kind = option
+        new_p, result, params, kind = option.profile, option.result, option.parameters, option.kind
         null_cost = noise.cost(fitting.residuals(p))
         own = result.compare_lr_test(null_result) if null_result is not None else None
         lr = null_cost - noise.cost(fitting.residuals(new_p)) if own is None else own[0]

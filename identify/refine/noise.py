@@ -134,8 +134,21 @@ class NoiseModel:
         are dropped)."""
         x = np.asarray(x, float)
         if math.isfinite(self.segment) and self.order:
-            return np.concatenate([self._whiten(piece) for piece in _segments(x, self.dt, self.segment)])
+            return np.concatenate([self._whiten_live(piece) for piece in _segments(x, self.dt, self.segment)])
         return self._whiten(x)
+
+    def _whiten_live(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`_whiten` of one segment, columns that are zero there (another segment's initial
+        state) left zero without the recursion: the whitening restarts at every segment."""
+        if x.ndim != 3:
+            return self._whiten(x)
+        live = np.any(x != 0, axis=(0, 1))
+        if live.all():
+            return self._whiten(x)
+        out = np.zeros((max(len(x) - self.order, 0),) + x.shape[1:])
+        if live.any():
+            out[:, :, live] = self._whiten(x[:, :, live])
+        return out
 
     def _whiten(self, x: np.ndarray) -> np.ndarray:
         s = self.sigma.reshape((1, -1) + (1,) * (x.ndim - 2))

@@ -20,7 +20,7 @@ model's metric: each run's trend and mean are removed before it is fitted.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -28,7 +28,7 @@ from scipy import stats
 from ..model.profile import Profile
 from . import diagnostics as dg
 from .candidates import Candidate, Context, catalogue, extend_all
-from .evaluation import unexplained
+from .evaluation import unexplaining
 from .fitting import Fitting
 from .noise import NoiseModel
 
@@ -88,51 +88,97 @@ def score_candidates(fitting: Fitting, p: Profile, kinds, excluded: set[str], *,
                      coloured: bool = True, f_min: float = 0.5, frequencies=(), products: bool = True) -> ScoreRound:
     """Score statistic, threshold and p-value of every candidate of ``kinds`` (not ``excluded``)
     at the fitted profile ``p`` (see the module notes; ``f_min``, ``frequencies`` (Hz) and
-    ``products`` as :class:`~identify.refine.candidates.Context` takes them)."""
-    ev = fitting.prediction(p)
-    context = Context(ev.runs, ev.residuals, fitting.dt, f_min, tuple(frequencies), products, held=fitting.held)
-    cands = [c for c in catalogue(p, context, kinds) if c.name not in excluded]
-    ext_p, linear = extend_all(p, [c for c in cands if c.linear])
-    ext_runs = ev.runs
-    for c in linear:
-        ext_runs = c.runs(ext_runs)
-    evj = fitting.sensitivities(ext_p, ext_runs, ev)
-    # per run (N_r, ny, columns): the model's parameters, then every candidate's columns
-    own = [(c, c.score_columns(fitting, p)) for c in cands if not c.linear]
-    dy = [np.concatenate([d] + [cols[r] for _, cols in own], axis=2) for r, d in enumerate(evj.dy)]
-    nb = len(p.free)
-    col = {name: i - nb for i, name in enumerate(ext_p.free_names)}
-    groups = [(c, [col[k] for k in c.params]) for c in linear]
-    width = len(ext_p.free) - nb
-    for c, cols in own:
-        groups.append((c, list(range(width, width + cols[0].shape[2]))))
-        width += cols[0].shape[2]
-    sigma = np.sqrt(np.mean(np.vstack(ev.residuals) ** 2, axis=0))
-    sigma = np.where(sigma > 0, sigma, 1.0)
-    design = (ev.residuals, dy, evj.nuisance, nb)
-    null = NoiseModel.fit(ev.residuals, fitting.dt, f_min, segment=fitting.segment) if coloured \
-        else NoiseModel.white(sigma)
-    tested = _tests(null, design, groups, "residual")
+    ``products`` as :class:`~identify.refine.candidates.Context` takes them).
+
+    Each candidate's test depends only on the fitted model and its own columns, not on which
+    others are tested: the tests at ``p`` are kept (:class:`_Tests`, in ``fitting.cache``), and a
+    round at the same model after a rejection (one more candidate ``excluded``) computes only the
+    alternative metrics it newly selects; the Šidák correction is over the round's own family."""
+    state = _Tests.at(fitting, p, kinds, excluded, coloured, f_min, tuple(frequencies), products)
+    groups = [g for g in state.groups if g[0].name not in excluded]
+    tested = [state.residual[c.name] for c, _ in groups if state.residual[c.name] is not None]
     if coloured:
-        energy = dg.residual_energy(ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in groups], sigma)
         residual_log_p = {t.candidate.name: t.log_p for t in tested}
-        chosen = [groups[i] for i in _explaining_most(energy, groups, residual_log_p)]
-        each = unexplained(ev.residuals, [d[:, :, :nb] for d in dy], evj.nuisance, sigma,
-                           [[d[:, :, [nb + k for k in cols]] for d in dy] for _, cols in chosen])
-        for (c, cols), clean in zip(chosen, each):
-            alt = NoiseModel.fit(clean, fitting.dt, f_min, segment=fitting.segment, deterministic=False)
-            tested += _tests(alt, design, [(c, cols)], "alternative")
+        energy = np.array([state.energy[c.name] for c, _ in groups])
+        tested += state.alternatives([groups[i] for i in _explaining_most(energy, groups, residual_log_p)])
     # Šidák over every elementary hypothesis of both families (a periodic candidate: n_tests bins)
     n_tests = sum(t.candidate.n_tests for t in tested)
     level = 1.0 - (1.0 - alpha) ** (1.0 / max(n_tests, 1))
     best: dict[str, ScoreTest] = {}
     for t in tested:
-        t.n_tests, t.level = n_tests, level
-        t.threshold = _threshold(level, t.dof, t.nu)
+        t = replace(t, n_tests=n_tests, level=level, threshold=_threshold(level, t.dof, t.nu))
         name = t.candidate.name
         if name not in best or t.log_p < best[name].log_p:
             best[name] = t
-    return ScoreRound(list(best.values()), null, len(cands))
+    return ScoreRound(list(best.values()), state.null, sum(c.name not in excluded for c in state.cands))
+
+
+class _Tests:
+    """The score tests of the candidates at one fitted profile: their columns, the residual noise
+    model, each one's test in its metric (``residual``: name -> test, None where the candidate is
+    not testable) and white ``energy``, and the tests in alternative metrics computed so far;
+    ``excluded`` the candidates left out when they were computed."""
+
+    def __init__(self, fitting: Fitting, p: Profile, kinds, excluded: set[str], coloured: bool, f_min: float,
+                 frequencies: tuple, products: bool):
+        self.fitting, self.f_min = fitting, f_min
+        ev = fitting.prediction(p)
+        context = Context(ev.runs, ev.residuals, fitting.dt, f_min, frequencies, products, held=fitting.held)
+        self.excluded = set(excluded)
+        self.cands = cands = [c for c in catalogue(p, context, kinds) if c.name not in excluded]
+        ext_p, linear = extend_all(p, [c for c in cands if c.linear])
+        ext_runs = ev.runs
+        for c in linear:
+            ext_runs = c.runs(ext_runs)
+        evj = fitting.sensitivities(ext_p, ext_runs, ev)
+        # per run (N_r, ny, columns): the model's parameters, then every candidate's columns
+        own = [(c, c.score_columns(fitting, p)) for c in cands if not c.linear]
+        dy = [np.concatenate([d] + [cols[r] for _, cols in own], axis=2) for r, d in enumerate(evj.dy)]
+        nb = len(p.free)
+        col = {name: i - nb for i, name in enumerate(ext_p.free_names)}
+        self.groups = [(c, [col[k] for k in c.params]) for c in linear]
+        width = len(ext_p.free) - nb
+        for c, cols in own:
+            self.groups.append((c, list(range(width, width + cols[0].shape[2]))))
+            width += cols[0].shape[2]
+        sigma = np.sqrt(np.mean(np.vstack(ev.residuals) ** 2, axis=0))
+        self.sigma = np.where(sigma > 0, sigma, 1.0)
+        self.design = (ev.residuals, dy, evj.nuisance, nb)
+        self.null = NoiseModel.fit(ev.residuals, fitting.dt, f_min, segment=fitting.segment) if coloured \
+            else NoiseModel.white(self.sigma)
+        tests = {t.candidate.name: t for t in _tests(self.null, self.design, self.groups, "residual")}
+        self.residual = {c.name: tests.get(c.name) for c, _ in self.groups}
+        self.energy = dict(zip([c.name for c, _ in self.groups], dg.residual_energy(
+            ev.residuals, [d[:, :, nb:] for d in dy], [g for _, g in self.groups], self.sigma))) if coloured else {}
+        self.alternative: dict[str, list[ScoreTest]] = {}
+        self.unexplained = None  # the residual's least-squares fit with a candidate's columns added (once built)
+
+    @classmethod
+    def at(cls, fitting: Fitting, p: Profile, kinds, excluded: set[str], *options) -> "_Tests":
+        """The tests at ``p`` kept from an earlier round that excluded no more candidates (the
+        loop re-scores the same model after a rejection, one more excluded), else computed; only
+        the latest profile's are kept (they hold every candidate's columns)."""
+        key = ("score tests", p.to_toml(), tuple(kinds), *options)
+        state = fitting.cache.get(key)
+        if state is None or not state.excluded <= set(excluded):
+            fitting.forget("score tests")
+            state = fitting.cache[key] = cls(fitting, p, kinds, excluded, *options)
+        return state
+
+    def alternatives(self, chosen: list[tuple]) -> list[ScoreTest]:
+        """The tests of the ``chosen`` groups each in the metric of its own alternative noise model
+        (fitted to the residual with the candidate's least-squares fit removed), computed once."""
+        new = [g for g in chosen if g[0].name not in self.alternative]
+        if new:
+            residuals, dy, nuisance, nb = self.design
+            if self.unexplained is None:
+                self.unexplained = unexplaining(residuals, [d[:, :, :nb] for d in dy], nuisance, self.sigma)
+            each = self.unexplained([[d[:, :, [nb + k for k in cols]] for d in dy] for _, cols in new])
+            for (c, cols), clean in zip(new, each):
+                alt = NoiseModel.fit(clean, self.fitting.dt, self.f_min, segment=self.fitting.segment,
+                                     deterministic=False)
+                self.alternative[c.name] = _tests(alt, self.design, [(c, cols)], "alternative")
+        return [t for c, _ in chosen for t in self.alternative[c.name]]
 
 
 def _explaining_most(energy: np.ndarray, groups: list[tuple], residual_log_p: dict) -> list[int]:
@@ -166,16 +212,17 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
     sb = dg.ScoreBase.from_blocks([noise.whiten(e) for e in residuals], [d[:, :, :nb] for d in dyw], nuisance_w)
     J = np.concatenate([d[:, :, nb:].reshape(len(d) * d.shape[1], -1) for d in dyw])
     out = []
-    base = None  # the model's and nuisance columns unwhitened and their whitened ones in sb's basis (built once)
+    base_q = None  # the model's and nuisance columns whitened, in the coordinates of sb's basis (once)
     for (c, cols), (stat, q) in zip(groups, sb.statistics(J, [[where[k] for k in cols] for _, cols in groups])):
         if q == 0:
             continue  # lies in the span of the model and its nuisance parameters: not testable
         q = max(q, c.null_dof or 0)
         nu = math.inf
         if metric == "alternative" or c.removed_by_noise_fit:
-            base = (dg.block_design([d[:, :, :nb] for d in dy], nuisance),
-                    sb.Q.T @ dg.block_design([d[:, :, :nb] for d in dyw], nuisance_w)) if base is None else base
-            nu = _noise_dof(noise, sb, *base, [d[:, :, [nb + k for k in cols]] for d in dy])
+            if base_q is None:
+                base_q = _block_product(sb.Q.T, [d[:, :, :nb] for d in dyw], nuisance_w)
+            nu = _noise_dof(noise, sb, ([d[:, :, :nb] for d in dy], nuisance), base_q,
+                            [d[:, :, [nb + k for k in cols]] for d in dy])
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
                              hint=None if c.linear else sb.linear_estimate(J[:, [where[cols[0]]]])))
     return out
@@ -201,15 +248,27 @@ def _threshold(level: float, q: int, nu: float) -> float:
     return float(q * (d + q) / d * stats.f.isf(level, q, d))
 
 
-def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: np.ndarray, base_q: np.ndarray,
+def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: tuple, base_q: np.ndarray,
                columns: list[np.ndarray]) -> float:
     """Degrees of freedom of ``noise``'s level along a candidate's ``columns`` (per run (N_r, ny, q))
-    less their fit, in that metric, on the model's and nuisance columns (``base``; ``base_q`` the
-    whitened ones in the coordinates of their basis ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
+    less their fit, in that metric, on the model's and nuisance columns (``base``: per run, the
+    shared and the run's own, as :func:`block_design` takes them; ``base_q`` the whitened ones in
+    the coordinates of their basis ``sb.Q``): :meth:`NoiseModel.effective_dof`."""
     Jw = np.concatenate([noise.whiten(c).reshape(-1, c.shape[2]) for c in columns])
     coef = np.linalg.lstsq(base_q, sb.Q.T @ Jw, rcond=None)[0]
-    rest = np.concatenate([c.reshape(-1, c.shape[2]) for c in columns]) - base @ coef
-    parts = np.split(rest, np.cumsum([c.shape[0] * c.shape[1] for c in columns])[:-1])
-    return noise.effective_dof([r.reshape(c.shape) for r, c in zip(parts, columns)])
+    shared, per_run = base
+    nb, first = shared[0].shape[2], np.cumsum([0] + [x.shape[2] for x in per_run])
+    rest = [c - s @ coef[:nb] - x @ coef[nb + a:nb + b]
+            for c, s, x, a, b in zip(columns, shared, per_run, first[:-1], first[1:])]
+    return noise.effective_dof(rest)
+
+
+def _block_product(A: np.ndarray, shared: list[np.ndarray], per_run: list[np.ndarray]) -> np.ndarray:
+    """``A @ block_design(shared, per_run)`` without the design: each run's own columns meet only
+    that run's columns of ``A`` (its rows of the stacked design)."""
+    ends = np.cumsum([s.shape[0] * s.shape[1] for s in shared])
+    rows = [slice(int(e - s.shape[0] * s.shape[1]), int(e)) for s, e in zip(shared, ends)]
+    stacked = np.concatenate([s.reshape(-1, s.shape[2]) for s in shared])
+    return np.hstack([A @ stacked] + [A[:, r] @ x.reshape(-1, x.shape[2]) for r, x in zip(rows, per_run)])
 
 __all__ = ["ScoreTest", "ScoreRound", "score_candidates", "SIMPLER_FIRST", "TOP_ALTERNATIVE"]

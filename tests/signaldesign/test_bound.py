@@ -4,7 +4,7 @@ import pytest
 
 from identify import LinearModel, load_profile
 from signaldesign.baselines import doublet, m3211
-from signaldesign.bound import model_bound, objective_bound
+from signaldesign.bound import ModelBound, _spanning_rows, model_bound, objective_bound
 from signaldesign.design import Flyability, Objective, StepBasis, anneal, enumerate_sequences, prior_weights
 from signaldesign.evaluate import Evaluator
 from signaldesign.robust import design_set
@@ -82,3 +82,34 @@ def test_the_bound_meets_the_relaxation_it_bounds(s61m):
     bound = objective_bound(obj, best.levels)
     assert best.objective <= bound.relaxed[0] <= bound.value
     assert bound.value - bound.relaxed[0] < 1.5
+
+
+def test_the_rows_kept_span_every_level():
+    """On large problems the weights use a subset of the rows (the most pressed and a spread); a
+    subset that misses a level's direction leaves H singular and the bound infinite (a four-input run
+    kept rows of rank 244 of 280), so K rows spanning every level are kept too."""
+    rng = np.random.default_rng(0)
+    A = np.zeros((400, 30))
+    A[:, :25] = rng.standard_normal((400, 25))
+    A[rng.choice(400, 5, replace=False), 25:] = np.eye(5)  # five rows alone see the last five levels
+    rows = _spanning_rows(A)
+    assert rows.size == 30 and np.linalg.matrix_rank(A[rows]) == 30
+
+
+def test_an_infinite_model_bound_bounds_nothing(s61m, monkeypatch):
+    """One model's infinite bound makes the criterion's bound infinite (the combination once read it
+    as -inf, and the design printed a certified D-efficiency of 1); the certificate then says none."""
+    import signaldesign.bound as bound_module
+
+    ev = Evaluator(s61m, "theta_s", record=10.0, dt=0.05)
+    models, _ = design_set(s61m)
+    basis = StepBasis(ev, 0.5, 9, models=models[:3])
+    obj = Objective(basis, "robust", offsets=np.zeros(3), weights=prior_weights(3, 0.5))
+    real = bound_module._model_term
+
+    def one_unbounded(objective, fly, m, levels, effort):
+        return ModelBound(np.inf, np.inf) if m == 1 else real(objective, fly, m, levels, effort)
+
+    monkeypatch.setattr(bound_module, "_model_term", one_unbounded)
+    levels = m3211(0.5).levels[:9]
+    assert objective_bound(obj, np.concatenate([levels, np.zeros(9 - levels.size)]), effort="quick").value == np.inf

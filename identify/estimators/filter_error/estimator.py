@@ -179,7 +179,7 @@ class FEM(Estimator):
     progress_quantity = "cost"
 
     def nested(self, profile, *, zero_shifts: bool = True, segment: float = math.inf, bounds: bool = True,
-               advice: bool = True) -> "FEM":
+               advice: bool = True, start=None) -> "FEM":
         """Refine's nested fit: the loop's zero shifts (the filter needs no segments)."""
         return self.clone(profile, estimate_bias=zero_shifts, coloured=self.coloured if bounds else False)
 

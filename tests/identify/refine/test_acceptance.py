@@ -1,6 +1,8 @@
 """refine accepts an effect only on what the user sees (issue 29): the plain error of the held-out
 data must fall beyond its noise and rise nowhere beyond it; an undetermined bound is no
 significance; without validation runs refine says so and holds data out itself."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -102,9 +104,9 @@ def test_a_candidate_with_an_undetermined_bound_is_refused(monkeypatch):
     assert not undetermined({"a": {"value": 1.0, "std": 0.1}}, {"Wald": 100.0})
     real = cd.Candidate.estimate
 
-    def nan_bound(self, fitting, p, noise, hint=None):
-        return [(q, res, {k: {**v, "std": float("nan")} for k, v in params.items()}, kind)
-                for q, res, params, kind in real(self, fitting, p, noise, hint)]
+    def nan_bound(self, fitting, p, noise, hint=None, bounds=True):
+        return [replace(f, parameters={k: {**v, "std": float("nan")} for k, v in f.parameters.items()}, finish=None)
+                for f in (o.bounded() for o in real(self, fitting, p, noise, hint, bounds))]
 
     monkeypatch.setattr(cd.Candidate, "estimate", nan_bound)
     truth = parse_profile(TOML.replace("M_eta = 5.0", "M_eta = 5.0\nM_u = 0.05"))
