@@ -124,7 +124,8 @@ class ML(Estimator):
                  verbose: bool = False, x0: dict | None = None, advice: bool = True, relax_from=None,
                  tol_se: float = R_CHANGE_TOL):
         super().__init__(profile)
-        self.segment, self.max_iter, self.tol, self.tol_se, self.relax_from = segment, max_iter, tol, tol_se, relax_from
+        self.segment, self.max_iter, self.tol, self.tol_se = segment, max_iter, tol, tol_se
+        self.relax_from = relax_from
         self.estimate_x0, self.estimate_bias = estimate_x0, estimate_bias
         self.noise_cov, self.coloured = noise_cov, coloured
         self.progress, self.verbose, self.x0, self.advice = progress, verbose, x0, advice

@@ -75,8 +75,8 @@ class Fitted:
     """One fit of a candidate: the fitted ``profile``, the estimator's ``result``, the new
     ``parameters`` ({name: {"value", "std"}}) and the ``kind`` fitted. ``finish``: where the fit was
     made to rank options (the likelihood to the search's precision, no coloured-residual bounds),
-    how to complete it; :meth:`bounded` does, once (the loop asks only for the options it checks:
-    the likeliest passes first, and the rest's bounds cost a sandwich each for nothing)."""
+    how to complete it; :meth:`bounded` does (the loop asks only for the options it checks: the
+    likeliest that passes ends the try, and the rest's bounds would cost a sandwich each for nothing)."""
 
     profile: Profile
     result: object
@@ -839,9 +839,9 @@ def catalogue(p: Profile, context: Context, kinds=KINDS) -> list[Candidate]:
     return [c for cls in classes for c in cls.propose(p, context)]
 
 
-__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Fitted", "refitted", "Derivative", "Delay", "Lag", "SensorLag", "OutputTerm",
-           "Bias", "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale", "catalogue", "delay_run",
-           "prepare_runs", "extend_all"]
+__all__ = ["KINDS", "KIND_CLASSES", "Context", "Candidate", "Fitted", "refitted", "Derivative", "Delay", "Lag",
+           "SensorLag", "OutputTerm", "Bias", "Drift", "Scale", "Nonlinear", "Periodic", "bias", "drift", "scale",
+           "catalogue", "delay_run", "prepare_runs", "extend_all"]
 
 
 def parameters_of(result, names) -> dict:

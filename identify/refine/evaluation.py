@@ -157,5 +157,5 @@ def check_identifiable(p: Profile, runs: list[Run], zero_shifts: bool, segment: 
                                   f"fix some or add excitation")
 
 
-__all__ = ["errors", "neg_log_likelihood", "unexplained", "unexplaining", "split_validation", "hold_out", "excitation_midpoint",
-           "check_identifiable", "MIN_SAMPLES", "HOLD_OUT", "HELD_OUT_NOTE"]
+__all__ = ["errors", "neg_log_likelihood", "unexplained", "unexplaining", "split_validation", "hold_out",
+           "excitation_midpoint", "check_identifiable", "MIN_SAMPLES", "HOLD_OUT", "HELD_OUT_NOTE"]

@@ -406,8 +406,9 @@ def default_turbulence(p: Profile, process_noise: dict | None) -> tuple[Profile,
     ``[process_noise]``, no ``[turbulence]``) the profile with gust states on its velocities
     (:func:`identify.model.turbulence.default_states`), else as it is. Why: turbulence acts through
     the derivatives on the velocities (a relative wind), which white noise on the velocity equations
-    does not share; on the Navion in flow angles that white model's derivatives were 31 % off at
-    RMS z 3.1 with its coloured bounds, the gust states' 2.4 % at 0.96 (benchmarks/filter_error.py)."""
+    does not share: on the Navion in flow angles, white noise on u and alpha left the derivatives
+    26 % off (median; RMS z 2.98 with its coloured bounds, a bias of up to 4.8 Monte-Carlo std), the
+    gust states 2.2 % (RMS z 1.02; benchmarks/filter_error.py, 10 realisations, docs/filter_error.md)."""
     if process_noise is not None or p.process_noise or p.turbulence:
         return p, False
     states = default_states(p)

@@ -202,3 +202,17 @@ def test_an_estimated_corner_stays_positive_in_the_fit(navion):
     corners = {s: g["corner"] for s, g in res.info["turbulence"]["gusts"].items()}
     assert all(c > 0 for c in corners.values()), corners
     assert not any(k.startswith("corner of") for k in res.info["not_determined"]), res.info["not_determined"]
+
+
+def test_cli_process_noise_option_fits_the_white_model(navion, tmp_path, capsys):
+    runs = gusty_runs(navion, (4,), duration=10.0)
+    paths = [str(r.to_csv(tmp_path / f"run{k}.csv")) for k, r in enumerate(runs)]
+    proc = _in_process(["estimate", *paths, "--profile", "navion_cruise_long", "--method", "fem", "--max-iter", "2",
+                        "--process-noise", "u,w", "--out", tmp_path / "white"], capsys)
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads((tmp_path / "white" / "result.json").read_text())["info"]
+    assert info["process_noise_model"].startswith("process noise: white, on the equations of u (F")
+    assert set(info["process_noise"]) == {"u", "w"} and "turbulence" not in info
+    bad = _in_process(["estimate", *paths, "--profile", "navion_cruise_long", "--method", "ml",
+                       "--process-noise", "u", "--out", tmp_path / "ml"], capsys)
+    assert bad.returncode != 0 and "--process-noise does not apply to ml" in bad.stderr and "Traceback" not in bad.stderr
