@@ -406,7 +406,7 @@ class PerInputObjective(Objective):
                 sb = s.copy()
                 sb[:, c] = 0
                 R[:, c] = np.einsum("mb,mbxy->mxy", sb, B[:, c])
-            self._rest = (s, np.einsum("mab,mabxy->mxy", ss, B), rest, R)
+            self._rest = (s, _scaled(s, B), rest, R)
         return self._rest
 
     def _candidate(self, levels):
@@ -452,8 +452,7 @@ class PerInputObjective(Objective):
                 return M
         _, V, B, y = self._state(levels)
         self._last = (levels.copy(), None, None, B, y, V)
-        s = self.scales(y)
-        return np.einsum("ma,mb,mabxy->mxy", s, s, B)
+        return _scaled(self.scales(y), B)
 
     def scales(self, y) -> np.ndarray:
         """1 / each axis' own largest peak over limit (m, axes); 0 for an axis at rest."""
@@ -463,8 +462,7 @@ class PerInputObjective(Objective):
 
     def terms(self, levels) -> np.ndarray:
         B, y = self._state(np.asarray(levels, float))[2:]
-        s = self.scales(y)
-        return self.per_model(np.einsum("ma,mb,mabxy->mxy", s, s, B), np.ones(B.shape[0]))
+        return self.per_model(_scaled(self.scales(y), B), np.ones(B.shape[0]))
 
     def __call__(self, levels) -> float:
         levels = np.asarray(levels, dtype=float)
@@ -487,6 +485,11 @@ class PerInputObjective(Objective):
         r = np.array([(np.abs(self.Y[0][:, :, a * K:(a + 1) * K] @ levels[a * K:(a + 1) * K]).max(axis=0)
                        * self.inv_limits).max() for a in range(self.axes)])
         return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0), float(r.min())
+
+
+def _scaled(s, B) -> np.ndarray:
+    """The information ``sum_ab s_a s_b B_ab`` (m, p, p) from per-axis scales s (m, axes) and blocks B."""
+    return np.einsum("ma,mb,mabxy->mxy", s, s, B)
 
 
 def _sym(X) -> np.ndarray:
