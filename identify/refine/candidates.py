@@ -88,13 +88,15 @@ class Fitted:
         return self if self.finish is None else self.finish()
 
 
-def refitted(fitting, ext_p: Profile, p: Profile, names, kind: str, bounds: bool = True, start=None) -> Fitted:
+def refitted(fitting, ext_p: Profile, p: Profile, names, kind: str, bounds: bool = True) -> Fitted:
     """One re-fit of ``ext_p`` (``fitting.refit``) as a :class:`Fitted` with ``names``' parameters:
-    with its bounds, or (``bounds=False``) a search fit completed when asked (a re-fit from it,
-    its noise estimate too, converged fully, with bounds)."""
-    new_p, result = fitting.refit(ext_p, p, bounds=bounds, start=start)
+    with its bounds, or (``bounds=False``) a fit to rank options, completed when asked by the fit
+    with bounds from the same start (not from the ranking fit: a filter-error fit restarted there
+    can end at another optimum of its noise likelihood, and the fit checked must be the one the
+    estimator gives)."""
+    new_p, result = fitting.refit(ext_p, p, bounds=bounds)
     return Fitted(new_p, result, parameters_of(result, names), kind,
-                  None if bounds else lambda: refitted(fitting, new_p, p, names, kind, start=result))
+                  None if bounds else lambda: refitted(fitting, ext_p, p, names, kind))
 
 @dataclass
 class Context:

@@ -169,6 +169,9 @@ class Refine:
                 break
             self._say(f"step {len(self.steps_) + 1}: score tests")
             tested = self._score(current, excluded)
+            if tested is None:
+                self.stopped_ = "the score tests could not be computed at the current model (see the notes)"
+                break
             significant = [t for t in tested if t.significant]
             if not significant:
                 top = max(tested, key=lambda t: t.statistic / t.threshold, default=None)
@@ -274,10 +277,17 @@ class Refine:
         return {data: errors(self.fitting_.prediction(p, data), p.outputs, self._scale)
                 for data, runs in self.fitting_.data.items() if runs}
 
-    def _score(self, p: Profile, excluded: set[str]) -> list[ScoreTest]:
-        """Every candidate's score test at the fitted ``p`` (:func:`identify.refine.scoring.score_candidates`)."""
-        found = score_candidates(self.fitting_, p, self.kinds_, excluded, alpha=self.alpha, coloured=self.coloured,
-                                 f_min=self.f_min, frequencies=self.frequencies_, products=self.nonlinear_products)
+    def _score(self, p: Profile, excluded: set[str]) -> list[ScoreTest] | None:
+        """Every candidate's score test at the fitted ``p`` (:func:`identify.refine.scoring.score_candidates`);
+        None where they cannot be computed (said once, in the notes)."""
+        try:
+            found = score_candidates(self.fitting_, p, self.kinds_, excluded, alpha=self.alpha,
+                                     coloured=self.coloured, f_min=self.f_min, frequencies=self.frequencies_,
+                                     products=self.nonlinear_products)
+        except PseudostepError as exc:  # e.g. a filter with no steady state for the extended model
+            self._note(f"the score tests could not be computed at the current model: {exc}; refinement stops here")
+            self.last_scores_ = []
+            return None
         self.noise_orders_.append(found.noise.order), self.noise_white_.append(found.noise.white)
         self._say(f"  {found.n_candidates} candidates, residual noise model order {found.noise.order}"
                   + ("" if found.noise.white else " (its cap: the innovations are still not white, the tests are "

@@ -152,3 +152,18 @@ def test_nothing_accepted_on_tests_outside_their_validity(monkeypatch):
     assert not r.noise_white_[0]
     assert r.nothing_found and r.rejected_, r.stopped_
     assert "outside their validity" in r.rejected_[0].reason
+
+
+def test_score_tests_that_cannot_be_computed_stop_the_loop_with_a_note(monkeypatch):
+    """A filter with no steady state for an extended model (FEM, refine_reallike) raised a traceback
+    from the score round; it is a recorded stop."""
+    from identify.errors import EstimationError
+    from identify.refine import loop
+
+    def fails(*args, **kwargs):
+        raise EstimationError("FEM: the a priori model's Kalman filter has no steady state")
+
+    monkeypatch.setattr(loop, "score_candidates", fails)
+    r = Refine(PROFILE, kinds=("derivative",), max_steps=1).fit(*make_runs(parse_profile(TOML)))
+    assert r.nothing_found and "could not be computed" in r.stopped_
+    assert any("no steady state" in n for n in r.notes_)

@@ -16,10 +16,9 @@ WRONG = -0.2  # where the estimators below leave M_u (truth 0.05)
 
 
 class AstrayML(ML):
-    """ML that loses its way on a new parameter: started at 0 (a candidate's null value) or below
-    it starts it at ``WRONG`` and stops after one iteration (a basin it does not leave: refine
-    completes a fit made to rank options from where that fit ended);
-    ``always`` does so whatever the start (an estimator whose optimum the test's metric does not share)."""
+    """ML that loses its way on a new parameter: started at exactly 0 (a candidate's null value)
+    it starts it at ``WRONG`` and stops after one iteration; ``always`` does so whatever the start
+    (an estimator whose optimum the test's metric does not share)."""
 
     def __init__(self, profile, *, always: bool = False, **kw):
         super().__init__(profile, **kw)
@@ -27,7 +26,7 @@ class AstrayML(ML):
 
     def fit(self, runs):
         p = self.profile
-        if "M_u" in p.free and (self.always or p.free["M_u"] <= 0.0):
+        if "M_u" in p.free and (self.always or p.free["M_u"] == 0.0):
             # a fresh clone per fit (Estimator.nested): changing this one changes no other fit
             self.profile, self.max_iter = dataclasses.replace(p, free={**p.free, "M_u": WRONG}), 1
         return super().fit(runs)
