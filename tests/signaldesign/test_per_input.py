@@ -29,23 +29,30 @@ def _direct(basis, inv_limits, levels, m):
     return np.linalg.slogdet(basis.information(v, m))[1]
 
 
+def _walk(obj, rng, axes: int, steps: int, starts: int, trials: int):
+    """Random proposals of one or two steps on one axis from a base that moves on two trials in
+    three (the objective's low-rank state committed with it); the caller scores each proposal
+    and may edit it before the commit."""
+    levels = rng.integers(-1, 2, axes * steps).astype(float)
+    obj.reset(levels)
+    for trial in range(trials):
+        cand = levels.copy()
+        a, k = rng.integers(axes), rng.integers(starts)
+        cand[a * steps + k:a * steps + k + rng.integers(1, 3)] = rng.integers(-1, 2)
+        yield trial, cand
+        if trial % 3:
+            obj.commit()
+            levels = cand
+
+
 def test_low_rank_updates_match_the_information_from_scratch(s61m):
     ev = Evaluator(s61m, INPUTS, record=12.0, dt=0.05)
     models, _ = design_set(s61m, draws=1, extreme_draws=1)
     basis = StepBasis(ev, 0.2, 15, models=models[:3])
     obj = PerInputObjective(basis, "mean")
-    rng = np.random.default_rng(1)
-    levels = rng.integers(-1, 2, 30).astype(float)
-    obj.reset(levels)
-    for trial in range(25):
-        cand = levels.copy()
-        a, k = rng.integers(2), rng.integers(14)
-        cand[a * 15 + k:a * 15 + k + rng.integers(1, 3)] = rng.integers(-1, 2)
+    for _, cand in _walk(obj, np.random.default_rng(1), axes=2, steps=15, starts=14, trials=25):
         want = np.mean([_direct(basis, obj.inv_limits, cand, m) for m in range(3)])
         assert obj(cand) == pytest.approx(want, abs=1e-8)
-        if trial % 3:
-            obj.commit()
-            levels = cand
 
 
 def test_low_rank_updates_on_three_axes_match_from_scratch():
@@ -57,20 +64,11 @@ def test_low_rank_updates_on_three_axes_match_from_scratch():
     models, _ = design_set(model, draws=1, extreme_draws=1)
     basis = StepBasis(ev, 0.3, 8, models=models[:2])
     obj = PerInputObjective(basis, "robust", offsets=np.zeros(2), weights=np.ones(2))
-    rng = np.random.default_rng(2)
-    levels = rng.integers(-1, 2, 24).astype(float)
-    obj.reset(levels)
-    for trial in range(30):
-        cand = levels.copy()
-        a, k = rng.integers(3), rng.integers(8)
-        cand[a * 8 + k:a * 8 + k + rng.integers(1, 3)] = rng.integers(-1, 2)
+    for trial, cand in _walk(obj, np.random.default_rng(2), axes=3, steps=8, starts=8, trials=30):
         if trial == 10:
             cand[8:16] = 0.0  # the collective at rest: its scale 0
         fresh = PerInputObjective(basis, "robust", offsets=np.zeros(2), weights=np.ones(2))(cand)
         assert obj(cand) == pytest.approx(fresh, abs=1e-8)
-        if trial % 3:
-            obj.commit()
-            levels = cand
 
 
 def test_bound_exceeds_every_two_axis_sequence(s61m):
