@@ -220,7 +220,7 @@ def _tests(noise: NoiseModel, design: tuple, groups: list[tuple], metric: str) -
         nu = math.inf
         if metric == "alternative" or c.removed_by_noise_fit:
             if base_q is None:
-                base_q = _block_product(sb.Q.T, [d[:, :, :nb] for d in dyw], nuisance_w)
+                base_q = _block_product(sb.Q.T, sb.row_runs, [d[:, :, :nb] for d in dyw], nuisance_w)
             nu = _noise_dof(noise, sb, ([d[:, :, :nb] for d in dy], nuisance), base_q,
                             [d[:, :, [nb + k for k in cols]] for d in dy])
         out.append(ScoreTest(c, stat, q, _log_sf(stat, q, nu), noise, metric, nu=nu,
@@ -263,11 +263,11 @@ def _noise_dof(noise: NoiseModel, sb: dg.ScoreBase, base: tuple, base_q: np.ndar
     return noise.effective_dof(rest)
 
 
-def _block_product(A: np.ndarray, shared: list[np.ndarray], per_run: list[np.ndarray]) -> np.ndarray:
+def _block_product(A: np.ndarray, rows: list[slice], shared: list[np.ndarray],
+                   per_run: list[np.ndarray]) -> np.ndarray:
     """``A @ block_design(shared, per_run)`` without the design: each run's own columns meet only
-    that run's columns of ``A`` (its rows of the stacked design)."""
-    ends = np.cumsum([s.shape[0] * s.shape[1] for s in shared])
-    rows = [slice(int(e - s.shape[0] * s.shape[1]), int(e)) for s, e in zip(shared, ends)]
+    that run's columns of ``A`` (``rows``: each run's rows of the stacked design, as
+    :attr:`ScoreBase.row_runs` holds them)."""
     stacked = np.concatenate([s.reshape(-1, s.shape[2]) for s in shared])
     return np.hstack([A @ stacked] + [A[:, r] @ x.reshape(-1, x.shape[2]) for r, x in zip(rows, per_run)])
 
