@@ -55,7 +55,7 @@ from ..model import pseudo_inputs as pi
 from ..model.linear import LinearModel
 from ..model.profile import Profile
 from ..model.pseudo_inputs import delay_run
-from .diagnostics import block_design, orthonormal_basis
+from .diagnostics import block_basis
 from .noise import line_frequency
 
 
@@ -447,7 +447,7 @@ def _screen(fitting, p: Profile, noise, input_name: str) -> list[float]:
     re-fitted, not the least."""
     ev = fitting.prediction(p)
     evj = fitting.sensitivities(p, ev.runs, ev)
-    Q = orthonormal_basis(block_design([noise.whiten(d) for d in evj.dy], [noise.whiten(nu) for nu in evj.nuisance]))
+    Q = block_basis([noise.whiten(d) for d in evj.dy], [noise.whiten(nu) for nu in evj.nuisance])
     e0 = np.concatenate([noise.whiten(e).ravel() for e in ev.residuals])
 
     def cost(k: int) -> float:
