@@ -430,9 +430,7 @@ class PerInputObjective(Objective):
                 dGd = np.matmul(d, np.matmul(d, Gii.reshape(m, idx.size, idx.size, p * p))).reshape(m, p, p)
                 yc = y0[:, c] + np.matmul(d, self.Yk[:, sl])
                 s, _, rest, R = self._split()
-                r = np.abs(yc).max(axis=1)
-                with np.errstate(divide="ignore"):
-                    sc = np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
+                sc = _reciprocal(np.abs(yc).max(axis=1))
                 sb = s.copy()
                 sb[:, c] = 0
                 row = R[:, c] + np.einsum("mb,mbxy->mxy", sb, Vi)  # the other axes' scales are unchanged
@@ -456,9 +454,7 @@ class PerInputObjective(Objective):
 
     def scales(self, y) -> np.ndarray:
         """1 / each axis' own largest peak over limit (m, axes); 0 for an axis at rest."""
-        r = np.abs(y).max(axis=2)
-        with np.errstate(divide="ignore"):
-            return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
+        return _reciprocal(np.abs(y).max(axis=2))
 
     def terms(self, levels) -> np.ndarray:
         B, y = self._state(np.asarray(levels, float))[2:]
@@ -484,7 +480,12 @@ class PerInputObjective(Objective):
         levels, K = np.asarray(levels, float), self.K
         r = np.array([(np.abs(self.Y[0][:, :, a * K:(a + 1) * K] @ levels[a * K:(a + 1) * K]).max(axis=0)
                        * self.inv_limits).max() for a in range(self.axes)])
-        return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0), float(r.min())
+        return _reciprocal(r), float(r.min())
+
+
+def _reciprocal(r) -> np.ndarray:
+    """1 / r, and 0 where r is 0 (an axis at rest has no scale)."""
+    return np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
 
 
 def _scaled(s, B) -> np.ndarray:
